@@ -1,0 +1,29 @@
+# The README's two set-up commands: `make demo` and `make test`.
+# Each creates (or refreshes) .venv and installs the package with its dev extras.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed-stamp
+DEMO_DIR ?= runs/demo
+
+.PHONY: venv demo test bench clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+demo: $(STAMP)
+	JAX_PLATFORMS=cpu $(BIN)/python -m handx_jax.demo --out $(DEMO_DIR)
+
+test: $(STAMP)
+	JAX_PLATFORMS=cpu $(BIN)/python -m pytest tests
+
+bench: $(STAMP)
+	JAX_PLATFORMS=cpu $(BIN)/python benchmarks/synth_annotate.py
+
+clean:
+	rm -rf $(VENV) runs build *.egg-info
