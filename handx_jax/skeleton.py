@@ -72,14 +72,14 @@ def flat_index(hand: int, joint: int) -> int:
     return hand * NUM_JOINTS + joint
 
 
-def canonical_rotation(joints_Tx2x21x3: np.ndarray) -> np.ndarray:
-    """Rotation R (3x3, rows = new axes) of the paper's canonical frame (A.2), from frame 0.
+def canonical_rotation(joints_Tx2x21x3: np.ndarray, ref_frame: int = 0) -> np.ndarray:
+    """Rotation R (3x3, rows = new axes) of the paper's canonical frame (A.2), from ``ref_frame``.
 
     +x points from the left wrist to the right wrist; +y from the wrists toward the fingertips
     (the mean fingertip direction, made orthogonal to x); +z = x × y, which points up for hands
     held palm-down in front of the body, and keeps the frame right-handed.
     """
-    f0 = np.asarray(joints_Tx2x21x3[0], dtype=np.float64)
+    f0 = np.asarray(joints_Tx2x21x3[ref_frame], dtype=np.float64)
     lw, rw = f0[LEFT, 0], f0[RIGHT, 0]
     x = rw - lw
     tips = f0[:, list(TIPS)].reshape(-1, 3).mean(0)
@@ -99,15 +99,16 @@ def canonical_rotation(joints_Tx2x21x3: np.ndarray) -> np.ndarray:
     return np.stack([x, y, z])
 
 
-def canonicalize(joints_Tx2x21x3: np.ndarray) -> np.ndarray:
-    """Rotate a whole sequence into the canonical frame and put the frame-0 right wrist at the origin.
+def canonicalize(joints_Tx2x21x3: np.ndarray, ref_frame: int = 0) -> np.ndarray:
+    """Rotate a whole sequence into the canonical frame and put the reference right wrist at the origin.
 
-    The rotation is fixed by frame 0 and applied to every frame (paper A.2). The translation follows
-    the released clips (reference §1.7): the right wrist sits at the origin in frame 0.
+    The rotation is fixed by the first frame (paper A.2; ``ref_frame`` lets a caller skip leading
+    defective frames) and applied to every frame. The translation follows the released clips
+    (reference §1.7): the right wrist sits at the origin in the reference frame.
     """
     x = np.asarray(joints_Tx2x21x3)
-    R = canonical_rotation(x)
-    out = (x.astype(np.float64) - x[0, RIGHT, 0].astype(np.float64)) @ R.T
+    R = canonical_rotation(x, ref_frame)
+    out = (x.astype(np.float64) - x[ref_frame, RIGHT, 0].astype(np.float64)) @ R.T
     return out.astype(x.dtype if np.issubdtype(x.dtype, np.floating) else np.float32)
 
 

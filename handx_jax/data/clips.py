@@ -38,7 +38,8 @@ class ClipConfig:
 def interior_angles_deg(joints_Nx2x21x3: np.ndarray) -> np.ndarray:
     """Inter-segment angle θ (Eq. D) at the 15 interior joints, degrees, shape (..., 2, 15).
 
-    Zero-length bones give a zero direction, whose dot product is 0, i.e. 90° (as the reference).
+    Zero-length bones give a zero direction, i.e. an angle of 0 (the reference's arccos gives 90°;
+    neither occurs for valid clips, which have no zero-length bones).
     """
     x = np.asarray(joints_Nx2x21x3, dtype=np.float32)
     tri = np.asarray(sk.INTERIOR_TRIPLES)
@@ -47,8 +48,11 @@ def interior_angles_deg(joints_Nx2x21x3: np.ndarray) -> np.ndarray:
     def unit(v):
         n = np.linalg.norm(v, axis=-1, keepdims=True)
         return np.where(n > 0, v / np.where(n > 0, n, 1), 0)
-    cos = np.clip(np.sum(unit(pre) * unit(nxt), axis=-1), -1.0, 1.0)
-    return np.degrees(np.arccos(cos))
+    u, v = unit(pre), unit(nxt)
+    # atan2(|u×v|, u·v) equals arccos(u·v) but stays accurate near 0° and 180°, where arccos of a
+    # float32 dot product loses ~0.03° and would add spurious angular velocity to still fingers.
+    sin = np.linalg.norm(np.cross(u, v), axis=-1)
+    return np.degrees(np.arctan2(sin, np.sum(u * v, axis=-1)))
 
 
 def hand_intensity(joints_NxTx2x21x3: np.ndarray, cfg: ClipConfig = ClipConfig()) -> np.ndarray:

@@ -1,0 +1,585 @@
+"""Scaling fits: y = a·log10(x) + b with honest uncertainty, a saturating alternative, extrapolation.
+
+The paper's central result is one such fit (Fig. 4, from Table B): top-3 R-Precision =
+0.4391·log10(FLOPs) − 3.8707, r = 0.96. :func:`fit_log_linear` reproduces it and adds what the
+paper leaves out:
+
+* bootstrap CIs for a and b. The default is the studentized residual bootstrap ("bootstrap-t",
+  Davison & Hinkley 1997, Alg. 6.3 with leverage-adjusted residuals), which keeps close to nominal
+  coverage at the sweep sizes we have (7 points in Table B); ``method="pairs"`` gives the plain
+  case-resampling percentile interval, which under-covers at such sizes;
+* prediction intervals for a new run (the classical OLS t-interval);
+* a saturating alternative y = c − k·x^(−α) (:func:`fit_saturating`), compared with the
+  log-linear law by leave-one-out error (:func:`compare_models`);
+* :func:`extrapolate`: fit on runs below a compute cut, predict the runs above it.
+
+scipy is not a dependency, so the Student-t quantile is computed here (:func:`t_ppf`): the
+regularized incomplete beta by its continued fraction, inverted by a safeguarded Newton iteration.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from analysis.schema import COLUMN_BY_NAME, GROUND_TRUTH, NUMERIC_COLUMNS, config_label
+
+# ----------------------------------------------------------------------------------------------
+# Distributions
+
+
+def betainc(a: float, b: float, x: float) -> float:
+    """Regularized incomplete beta I_x(a, b) (continued fraction, modified Lentz)."""
+    if not (a > 0 and b > 0):
+        raise ValueError(f"betainc needs a, b > 0, got {a}, {b}")
+    if x <= 0.0:
+        return 0.0
+    if x >= 1.0:
+        return 1.0
+    log_front = math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x) + b * math.log1p(-x)
+    # The continued fraction converges fast for x < (a+1)/(a+b+2); use the symmetry otherwise.
+    if x < (a + 1.0) / (a + b + 2.0):
+        return math.exp(log_front) * _betacf(a, b, x) / a
+    return 1.0 - math.exp(log_front) * _betacf(b, a, 1.0 - x) / b
+
+
+def _betacf(a: float, b: float, x: float) -> float:
+    tiny, eps = 1e-300, 1e-16
+    qab, qap, qam = a + b, a + 1.0, a - 1.0
+    c, d = 1.0, 1.0 - qab * x / qap
+    d = 1.0 / (d if abs(d) > tiny else tiny)
+    h = d
+    for m in range(1, 10_000):
+        m2 = 2 * m
+        aa = m * (b - m) * x / ((qam + m2) * (a + m2))
+        d = 1.0 + aa * d
+        d = 1.0 / (d if abs(d) > tiny else tiny)
+        c = 1.0 + aa / c
+        c = c if abs(c) > tiny else tiny
+        h *= d * c
+        aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2))
+        d = 1.0 + aa * d
+        d = 1.0 / (d if abs(d) > tiny else tiny)
+        c = 1.0 + aa / c
+        c = c if abs(c) > tiny else tiny
+        delta = d * c
+        h *= delta
+        if abs(delta - 1.0) < eps:
+            return h
+    raise ArithmeticError(f"betainc continued fraction did not converge (a={a}, b={b}, x={x})")
+
+
+def norm_ppf(p: float) -> float:
+    """Standard normal quantile (Acklam's rational approximation plus one Halley step)."""
+    if not 0.0 < p < 1.0:
+        raise ValueError(f"p must be in (0, 1), got {p}")
+    a = (-3.969683028665376e01, 2.209460984245205e02, -2.759285104469687e02, 1.383577518672690e02,
+         -3.066479806614716e01, 2.506628277459239e00)
+    b = (-5.447609879822406e01, 1.615858368580409e02, -1.556989798598866e02, 6.680131188771972e01,
+         -1.328068155288572e01)
+    c = (-7.784894002430293e-03, -3.223964580411365e-01, -2.400758277161838e00, -2.549732539343734e00,
+         4.374664141464968e00, 2.938163982698783e00)
+    d = (7.784695709041462e-03, 3.224671290700398e-01, 2.445134137142996e00, 3.754408661907416e00)
+    lo = 0.02425
+    if p < lo:
+        q = math.sqrt(-2 * math.log(p))
+        x = (((((c[0] * q + c[1]) * q + c[2]) * q + c[3]) * q + c[4]) * q + c[5]) / \
+            ((((d[0] * q + d[1]) * q + d[2]) * q + d[3]) * q + 1)
+    elif p <= 1 - lo:
+        q = p - 0.5
+        r = q * q
+        x = (((((a[0] * r + a[1]) * r + a[2]) * r + a[3]) * r + a[4]) * r + a[5]) * q / \
+            (((((b[0] * r + b[1]) * r + b[2]) * r + b[3]) * r + b[4]) * r + 1)
+    else:
+        q = math.sqrt(-2 * math.log1p(-p))
+        x = -(((((c[0] * q + c[1]) * q + c[2]) * q + c[3]) * q + c[4]) * q + c[5]) / \
+            ((((d[0] * q + d[1]) * q + d[2]) * q + d[3]) * q + 1)
+    e = 0.5 * math.erfc(-x / math.sqrt(2)) - p
+    u = e * math.sqrt(2 * math.pi) * math.exp(x * x / 2)
+    return x - u / (1 + x * u / 2)
+
+
+def t_sf(t: float, df: float) -> float:
+    """Upper tail P(T > t) of Student's t with ``df`` degrees of freedom (df may be fractional)."""
+    if df <= 0:
+        raise ValueError(f"df must be > 0, got {df}")
+    if math.isinf(df):
+        return 0.5 * math.erfc(t / math.sqrt(2))
+    tail = 0.5 * betainc(df / 2.0, 0.5, df / (df + t * t))
+    return tail if t >= 0 else 1.0 - tail
+
+
+def t_cdf(t: float, df: float) -> float:
+    return 1.0 - t_sf(t, df) if t >= 0 else t_sf(-t, df)
+
+
+def t_pdf(t: float, df: float) -> float:
+    if math.isinf(df):
+        return math.exp(-0.5 * t * t) / math.sqrt(2 * math.pi)
+    return math.exp(math.lgamma((df + 1) / 2) - math.lgamma(df / 2) - 0.5 * math.log(df * math.pi)
+                    - (df + 1) / 2 * math.log1p(t * t / df))
+
+
+def t_ppf(p: float, df: float) -> float:
+    """Student-t quantile: the t with P(T <= t) = p.
+
+    Closed forms for df = 1 and 2; otherwise a Cornish-Fisher start refined by Newton steps on
+    log P(T > t), kept inside a bisection bracket so that it cannot diverge in the heavy tails.
+    """
+    if not 0.0 < p < 1.0:
+        raise ValueError(f"p must be in (0, 1), got {p}")
+    if not df > 0:
+        raise ValueError(f"df must be > 0, got {df}")
+    if p == 0.5:
+        return 0.0
+    q = min(p, 1.0 - p)  # solve P(T > x) = q for x > 0, then restore the sign
+    sign = 1.0 if p > 0.5 else -1.0
+    if math.isinf(df) or df > 1e7:
+        return sign * -norm_ppf(q)
+    if df == 1:
+        return sign * math.tan(math.pi * (0.5 - q))
+    if df == 2:
+        return sign * math.sqrt(2.0 / (4.0 * q * (1.0 - q)) - 2.0) if q < 0.5 else 0.0
+    z = -norm_ppf(q)
+    # Cornish-Fisher expansion of the t quantile in powers of 1/df (Abramowitz & Stegun 26.7.5).
+    g1 = (z ** 3 + z) / 4
+    g2 = (5 * z ** 5 + 16 * z ** 3 + 3 * z) / 96
+    g3 = (3 * z ** 7 + 19 * z ** 5 + 17 * z ** 3 - 15 * z) / 384
+    x = z + g1 / df + g2 / df ** 2 + g3 / df ** 3
+    lo, hi = 0.0, max(2 * x, 1.0)
+    while t_sf(hi, df) > q:
+        lo, hi = hi, 2 * hi
+    if not lo < x < hi:
+        x = 0.5 * (lo + hi)
+    log_q = math.log(q)
+    for _ in range(200):
+        sf = t_sf(x, df)
+        if sf > q:
+            lo = x
+        else:
+            hi = x
+        # Newton on h(x) = log sf(x) - log q, h'(x) = -pdf/sf.
+        step = (math.log(sf) - log_q) * sf / t_pdf(x, df) if sf > 0 else 0.5 * (hi - x)
+        x_new = x + step
+        if not lo < x_new < hi:
+            x_new = 0.5 * (lo + hi)
+        if abs(x_new - x) <= 1e-15 * max(1.0, abs(x)) or hi - lo <= 1e-15 * max(1.0, hi):
+            x = x_new
+            break
+        x = x_new
+    return sign * x
+
+
+# ----------------------------------------------------------------------------------------------
+# Column selection
+
+X_ALIASES: dict[str, str] = {
+    "flops": "flops_per_sample",
+    "compute": "train_flops",
+    "train_compute": "train_flops",
+    "data": "data_fraction",
+    "samples": "samples_seen",
+}
+
+
+def resolve_column(name: str) -> str:
+    """Map a short name (``flops``, ``compute``, ``params``, ``data``) to a numeric schema column."""
+    col = X_ALIASES.get(name, name)
+    if col not in COLUMN_BY_NAME or COLUMN_BY_NAME[col].kind is str:
+        raise ValueError(f"unknown column {name!r}; use one of {', '.join(sorted(X_ALIASES))} or a numeric "
+                         f"column: {', '.join(NUMERIC_COLUMNS)}")
+    return col
+
+
+def select_xy(rows: Sequence[Mapping[str, Any]], x: str, y: str) -> tuple[np.ndarray, np.ndarray, list]:
+    """The (x, y) pairs of the rows that have both, ground-truth rows excluded."""
+    xc, yc = resolve_column(x), resolve_column(y)
+    used = [r for r in rows if r.get("family") != GROUND_TRUTH and r.get(xc) is not None
+            and r.get(yc) is not None]
+    xs = np.array([float(r[xc]) for r in used], dtype=np.float64)
+    ys = np.array([float(r[yc]) for r in used], dtype=np.float64)
+    return xs, ys, used
+
+
+# ----------------------------------------------------------------------------------------------
+# Log-linear fit
+
+
+@dataclass(frozen=True)
+class LogLinearFit:
+    """y = slope·log10(x) + intercept, fitted by ordinary least squares."""
+
+    slope: float
+    intercept: float
+    r: float
+    n: int
+    slope_ci: tuple[float, float]
+    intercept_ci: tuple[float, float]
+    level: float
+    slope_se: float
+    intercept_se: float
+    resid_std: float  # s, with n − 2 degrees of freedom
+    u_mean: float  # mean of log10(x)
+    suu: float  # sum of squared deviations of log10(x)
+    r_ci: tuple[float, float]
+    method: str
+    n_boot: int
+    x_name: str = "x"
+    y_name: str = "y"
+
+    def predict(self, x: Any) -> np.ndarray:
+        return self.slope * np.log10(np.asarray(x, dtype=np.float64)) + self.intercept
+
+    def _band(self, x: Any, level: float | None, new_obs: bool) -> tuple[np.ndarray, np.ndarray]:
+        level = self.level if level is None else level
+        u = np.log10(np.asarray(x, dtype=np.float64))
+        var = 1.0 / self.n + (u - self.u_mean) ** 2 / self.suu + (1.0 if new_obs else 0.0)
+        half = t_ppf(0.5 + level / 2, self.n - 2) * self.resid_std * np.sqrt(var)
+        mid = self.predict(x)
+        return mid - half, mid + half
+
+    def prediction_interval(self, x: Any, level: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Interval that holds a *new* run's y at x with probability ``level`` (OLS t-interval)."""
+        return self._band(x, level, new_obs=True)
+
+    def confidence_band(self, x: Any, level: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Interval for the fitted *mean* y at x (the band drawn around the fit line)."""
+        return self._band(x, level, new_obs=False)
+
+    def to_dict(self, full: bool = False) -> dict[str, Any]:
+        out: dict[str, Any] = {"slope": self.slope, "intercept": self.intercept, "r": self.r, "n": self.n,
+                               "slope_ci": list(self.slope_ci), "intercept_ci": list(self.intercept_ci)}
+        if full:
+            out.update(level=self.level, slope_se=self.slope_se, intercept_se=self.intercept_se,
+                       resid_std=self.resid_std, r_ci=list(self.r_ci), method=self.method,
+                       n_boot=self.n_boot, x=self.x_name, y=self.y_name)
+        return out
+
+    def equation(self, digits: int = 4) -> str:
+        sign = "−" if self.intercept < 0 else "+"
+        return f"{self.y_name} = {self.slope:.{digits}f}·log10({self.x_name}) {sign} {abs(self.intercept):.{digits}f}"
+
+    def summary(self) -> str:
+        pct = f"{100 * self.level:g}%"
+        return "\n".join([
+            self.equation(),
+            f"  n = {self.n}, r = {self.r:.4f} ({pct} CI [{self.r_ci[0]:.3f}, {self.r_ci[1]:.3f}])",
+            f"  slope     {self.slope:.4f} ± {self.slope_se:.4f} (se); {pct} {self.method} CI "
+            f"[{self.slope_ci[0]:.4f}, {self.slope_ci[1]:.4f}]",
+            f"  intercept {self.intercept:.4f} ± {self.intercept_se:.4f} (se); {pct} {self.method} CI "
+            f"[{self.intercept_ci[0]:.4f}, {self.intercept_ci[1]:.4f}]",
+            f"  residual std {self.resid_std:.4f}",
+        ])
+
+
+def _check_xy(x: Any, y: Any, min_n: int) -> tuple[np.ndarray, np.ndarray]:
+    x = np.asarray(x, dtype=np.float64).ravel()
+    y = np.asarray(y, dtype=np.float64).ravel()
+    if x.shape != y.shape:
+        raise ValueError(f"x and y differ in length ({x.size} vs {y.size})")
+    if x.size < min_n:
+        raise ValueError(f"need at least {min_n} points, got {x.size}")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        raise ValueError("x and y must be finite")
+    if np.any(x <= 0):
+        raise ValueError("x must be > 0 for a log10 fit")
+    if np.ptp(x) == 0:
+        raise ValueError("all x are equal; the slope is undefined")
+    return x, y
+
+
+def _ols(u: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    du = u - u.mean()
+    slope = float(du @ (y - y.mean()) / (du @ du))
+    return slope, float(y.mean() - slope * u.mean())
+
+
+def fit_log_linear(x: Any, y: Any, *, level: float = 0.95, n_boot: int = 2000, seed: int = 0,
+                   method: str = "bootstrap-t", x_name: str = "x", y_name: str = "y") -> LogLinearFit:
+    """Fit y = a·log10(x) + b. ``method``: ``bootstrap-t`` (default), ``pairs`` or ``t`` (classical)."""
+    if not 0 < level < 1:
+        raise ValueError(f"level must be in (0, 1), got {level}")
+    if method not in ("bootstrap-t", "pairs", "t"):
+        raise ValueError(f"unknown method {method!r}; expected bootstrap-t, pairs or t")
+    x, y = _check_xy(x, y, min_n=3)
+    n = x.size
+    u = np.log10(x)
+    u_mean = float(u.mean())
+    du = u - u_mean
+    suu = float(du @ du)
+    dy = y - y.mean()
+    syy = float(dy @ dy)
+    slope = float(du @ dy) / suu
+    intercept = float(y.mean()) - slope * u_mean
+    fitted = slope * u + intercept
+    resid = y - fitted
+    s = math.sqrt(float(resid @ resid) / (n - 2))
+    se_a = s / math.sqrt(suu)
+    se_b = s * math.sqrt(1.0 / n + u_mean ** 2 / suu)
+    r = float(du @ dy) / math.sqrt(suu * syy) if syy > 0 else float("nan")
+    alpha = 1.0 - level
+
+    if n > 3 and abs(r) < 1:
+        z, zq = math.atanh(r), norm_ppf(1 - alpha / 2) / math.sqrt(n - 3)
+        r_ci = (math.tanh(z - zq), math.tanh(z + zq))  # Fisher z
+    else:
+        r_ci = (float("nan"), float("nan"))
+
+    if method == "t":
+        tq = t_ppf(1 - alpha / 2, n - 2)
+        slope_ci = (slope - tq * se_a, slope + tq * se_a)
+        intercept_ci = (intercept - tq * se_b, intercept + tq * se_b)
+        n_boot = 0
+    else:
+        rng = np.random.default_rng(seed)
+        idx = rng.integers(0, n, size=(n_boot, n))
+        if method == "pairs":
+            ub, yb = u[idx], y[idx]
+            dub = ub - ub.mean(axis=1, keepdims=True)
+            sub = np.einsum("bn,bn->b", dub, dub)
+            ok = sub > 1e-12 * suu  # a resample with a single distinct x has no slope
+            a_b = np.einsum("bn,bn->b", dub[ok], yb[ok]) / sub[ok]
+            b_b = yb[ok].mean(axis=1) - a_b * ub[ok].mean(axis=1)
+            q = [alpha / 2, 1 - alpha / 2]
+            slope_ci = tuple(float(v) for v in np.quantile(a_b, q))
+            intercept_ci = tuple(float(v) for v in np.quantile(b_b, q))
+        else:
+            # Residual bootstrap with leverage-adjusted, re-centred residuals; the CI inverts the
+            # bootstrap distribution of the studentized estimate (a* − a)/se*.
+            h = 1.0 / n + du ** 2 / suu
+            e = resid / np.sqrt(1.0 - h)
+            e = e - e.mean()
+            yb = fitted + e[idx]  # (B, n)
+            a_b = (yb @ du) / suu
+            b_b = yb.mean(axis=1) - a_b * u_mean
+            rb = yb - (a_b[:, None] * u + b_b[:, None])
+            s_b = np.sqrt(np.einsum("bn,bn->b", rb, rb) / (n - 2))
+            ok = s_b > 1e-12 * max(s, 1e-300)
+            t_a = (a_b[ok] - slope) / (s_b[ok] / math.sqrt(suu))
+            t_b = (b_b[ok] - intercept) / (s_b[ok] * math.sqrt(1.0 / n + u_mean ** 2 / suu))
+            qa = np.quantile(t_a, [alpha / 2, 1 - alpha / 2])
+            qb = np.quantile(t_b, [alpha / 2, 1 - alpha / 2])
+            slope_ci = (slope - float(qa[1]) * se_a, slope - float(qa[0]) * se_a)
+            intercept_ci = (intercept - float(qb[1]) * se_b, intercept - float(qb[0]) * se_b)
+
+    return LogLinearFit(slope=slope, intercept=intercept, r=r, n=n, slope_ci=tuple(slope_ci),
+                        intercept_ci=tuple(intercept_ci), level=level, slope_se=se_a, intercept_se=se_b,
+                        resid_std=s, u_mean=u_mean, suu=suu, r_ci=r_ci, method=method, n_boot=n_boot,
+                        x_name=x_name, y_name=y_name)
+
+
+def fit_rows(rows: Sequence[Mapping[str, Any]], x: str = "flops", y: str = "rprec_top3",
+             **kwargs: Any) -> LogLinearFit:
+    """Log-linear fit of column ``y`` against column ``x`` over the rows that have both."""
+    xs, ys, _ = select_xy(rows, x, y)
+    return fit_log_linear(xs, ys, x_name=resolve_column(x), y_name=resolve_column(y), **kwargs)
+
+
+# ----------------------------------------------------------------------------------------------
+# Saturating alternative
+
+
+@dataclass(frozen=True)
+class SaturatingFit:
+    """y = c − k·(x / x_ref)^(−α), α > 0: approaches the asymptote c as x grows."""
+
+    c: float
+    k: float
+    alpha: float
+    x_ref: float
+    sse: float
+    n: int
+
+    def predict(self, x: Any) -> np.ndarray:
+        return self.c - self.k * (np.asarray(x, dtype=np.float64) / self.x_ref) ** (-self.alpha)
+
+    def equation(self, digits: int = 4) -> str:
+        return (f"y = {self.c:.{digits}f} − {self.k:.{digits}f}·(x/{self.x_ref:.3g})^(−{self.alpha:.{digits}f})")
+
+
+DEFAULT_ALPHAS = np.geomspace(1e-3, 5.0, 400)
+
+
+def fit_saturating(x: Any, y: Any, alphas: np.ndarray | None = None) -> SaturatingFit:
+    """Least squares over (c, k, α): a grid over α, (c, k) solved linearly, then a golden-section polish.
+
+    x is scaled by its geometric mean so the fit is well conditioned for raw FLOPs (~1e10). As α → 0
+    the model tends to the log-linear law, so it can only beat it by real curvature.
+    """
+    x, y = _check_xy(x, y, min_n=3)
+    x_ref = float(np.exp(np.mean(np.log(x))))
+    xs = x / x_ref
+    alphas = DEFAULT_ALPHAS if alphas is None else np.asarray(alphas, dtype=np.float64)
+
+    def solve(al: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        z = xs[None, :] ** (-al[:, None])  # (A, n)
+        dz = z - z.mean(axis=1, keepdims=True)
+        dy = y - y.mean()
+        szz = np.einsum("an,an->a", dz, dz)
+        szy = dz @ dy
+        beta = np.where(szz > 0, szy / np.where(szz > 0, szz, 1.0), 0.0)
+        c = y.mean() - beta * z.mean(axis=1)
+        sse = float(dy @ dy) - beta * szy
+        return c, beta, np.maximum(sse, 0.0)
+
+    _, _, sse = solve(alphas)
+    i = int(np.argmin(sse))
+    lo, hi = alphas[max(i - 1, 0)], alphas[min(i + 1, alphas.size - 1)]
+    g = (math.sqrt(5) - 1) / 2
+    for _ in range(60):  # golden section on log α inside the bracketing grid cells
+        a1 = math.exp(math.log(hi) - g * (math.log(hi) - math.log(lo)))
+        a2 = math.exp(math.log(lo) + g * (math.log(hi) - math.log(lo)))
+        s1, s2 = solve(np.array([a1, a2]))[2]
+        if s1 < s2:
+            hi = a2
+        else:
+            lo = a1
+    best = np.array([math.sqrt(lo * hi), alphas[i]])
+    c, beta, sse = solve(best)
+    j = int(np.argmin(sse))
+    return SaturatingFit(c=float(c[j]), k=float(-beta[j]), alpha=float(best[j]), x_ref=x_ref,
+                         sse=float(sse[j]), n=int(x.size))
+
+
+@dataclass(frozen=True)
+class ModelComparison:
+    """Leave-one-out comparison of the log-linear and saturating laws on the same points."""
+
+    loo_rmse: dict[str, float]
+    loo_mae: dict[str, float]
+    in_sample_rmse: dict[str, float]
+    best: str
+    log_linear: LogLinearFit
+    saturating: SaturatingFit
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"loo_rmse": self.loo_rmse, "loo_mae": self.loo_mae, "in_sample_rmse": self.in_sample_rmse,
+                "best": self.best,
+                "saturating": {"c": self.saturating.c, "k": self.saturating.k, "alpha": self.saturating.alpha,
+                               "x_ref": self.saturating.x_ref}}
+
+    def summary(self) -> str:
+        lines = ["model        LOO RMSE   LOO MAE   in-sample RMSE"]
+        for m in ("log_linear", "saturating"):
+            lines.append(f"{m:<12} {self.loo_rmse[m]:9.4f} {self.loo_mae[m]:9.4f} {self.in_sample_rmse[m]:12.4f}")
+        lines.append(f"saturating fit: {self.saturating.equation()}")
+        lines.append(f"lower held-out error: {self.best}")
+        return "\n".join(lines)
+
+
+def compare_models(x: Any, y: Any) -> ModelComparison:
+    """Leave-one-out held-out error of both laws (needs ≥ 4 points so each saturating fit has 3)."""
+    x, y = _check_xy(x, y, min_n=4)
+    n = x.size
+    u = np.log10(x)
+    err = {"log_linear": np.empty(n), "saturating": np.empty(n)}
+    for i in range(n):
+        keep = np.arange(n) != i
+        if np.ptp(x[keep]) == 0:
+            raise ValueError("leave-one-out needs at least two distinct x in every subset")
+        a, b = _ols(u[keep], y[keep])
+        err["log_linear"][i] = y[i] - (a * u[i] + b)
+        err["saturating"][i] = y[i] - float(fit_saturating(x[keep], y[keep]).predict(x[i]))
+    ll = fit_log_linear(x, y, method="t")
+    sat = fit_saturating(x, y)
+    rmse = {k: float(np.sqrt(np.mean(v ** 2))) for k, v in err.items()}
+    mae = {k: float(np.mean(np.abs(v))) for k, v in err.items()}
+    ins = {"log_linear": float(np.sqrt(np.mean((y - ll.predict(x)) ** 2))),
+           "saturating": float(np.sqrt(sat.sse / n))}
+    return ModelComparison(loo_rmse=rmse, loo_mae=mae, in_sample_rmse=ins, best=min(rmse, key=rmse.get),
+                           log_linear=ll, saturating=sat)
+
+
+# ----------------------------------------------------------------------------------------------
+# Extrapolation check
+
+
+@dataclass(frozen=True)
+class ExtrapolatedPoint:
+    run_id: str
+    label: str
+    x: float
+    actual: float
+    actual_ci: float | None
+    predicted: float
+    pi_low: float
+    pi_high: float
+    saturating_predicted: float | None
+
+    @property
+    def inside(self) -> bool:
+        return self.pi_low <= self.actual <= self.pi_high
+
+
+@dataclass(frozen=True)
+class Extrapolation:
+    """Fit below ``cut``, prediction vs actual above it."""
+
+    cut: float
+    x_name: str
+    y_name: str
+    fit: LogLinearFit
+    points: tuple[ExtrapolatedPoint, ...]
+    fit_run_ids: tuple[str, ...] = field(default=())
+
+    @property
+    def rmse(self) -> float:
+        return float(np.sqrt(np.mean([(p.actual - p.predicted) ** 2 for p in self.points])))
+
+    @property
+    def coverage(self) -> float:
+        return float(np.mean([p.inside for p in self.points]))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "cut": self.cut, "x": self.x_name, "y": self.y_name, "level": self.fit.level,
+            "n_fit": self.fit.n, "n_test": len(self.points), "fit": self.fit.to_dict(),
+            "rmse": self.rmse, "coverage": self.coverage,
+            "points": [{"run_id": p.run_id, "label": p.label, "x": p.x, "actual": p.actual,
+                        "actual_ci": p.actual_ci, "predicted": p.predicted, "pi": [p.pi_low, p.pi_high],
+                        "inside": p.inside, "saturating_predicted": p.saturating_predicted}
+                       for p in self.points],
+        }
+
+    def summary(self) -> str:
+        pct = f"{100 * self.fit.level:g}%"
+        head = (f"fit on {self.fit.n} runs with {self.x_name} < {self.cut:.4g}: {self.fit.equation()} "
+                f"(r = {self.fit.r:.3f})")
+        lines = [head, f"{'run':<24} {self.x_name:>12} {'actual':>8} {'predicted':>9} {pct + ' PI':>19} "
+                       f"{'in':>3} {'saturating':>10}"]
+        for p in self.points:
+            sat = "" if p.saturating_predicted is None else f"{p.saturating_predicted:10.4f}"
+            lines.append(f"{p.label[:24]:<24} {p.x:12.4g} {p.actual:8.4f} {p.predicted:9.4f} "
+                         f"[{p.pi_low:8.4f},{p.pi_high:8.4f}] {'yes' if p.inside else 'no':>3} {sat}")
+        lines.append(f"held-out RMSE {self.rmse:.4f}; {pct} PI coverage {self.coverage:.2f} "
+                     f"({sum(p.inside for p in self.points)}/{len(self.points)})")
+        return "\n".join(lines)
+
+
+def extrapolate(rows: Sequence[Mapping[str, Any]], cut: float, *, x: str = "flops", y: str = "rprec_top3",
+                level: float = 0.95, n_boot: int = 2000, seed: int = 0) -> Extrapolation:
+    """Fit y vs x on the runs with x < ``cut`` and predict the runs with x ≥ ``cut``."""
+    xs, ys, used = select_xy(rows, x, y)
+    below, above = xs < cut, xs >= cut
+    if below.sum() < 3:
+        raise ValueError(f"need at least 3 runs below the cut {cut:g} to fit, got {int(below.sum())}")
+    if not above.any():
+        raise ValueError(f"no runs at or above the cut {cut:g} to predict")
+    xc, yc = resolve_column(x), resolve_column(y)
+    fit = fit_log_linear(xs[below], ys[below], level=level, n_boot=n_boot, seed=seed, x_name=xc, y_name=yc)
+    sat = fit_saturating(xs[below], ys[below]) if below.sum() >= 4 else None
+    lo, hi = fit.prediction_interval(xs[above])
+    pred = fit.predict(xs[above])
+    pts = []
+    for j, i in enumerate(np.flatnonzero(above)):
+        r = used[i]
+        pts.append(ExtrapolatedPoint(
+            run_id=str(r["run_id"]), label=config_label(r), x=float(xs[i]), actual=float(ys[i]),
+            actual_ci=r.get(f"{yc}_ci"), predicted=float(pred[j]), pi_low=float(lo[j]), pi_high=float(hi[j]),
+            saturating_predicted=None if sat is None else float(sat.predict(xs[i]))))
+    pts.sort(key=lambda p: p.x)
+    return Extrapolation(cut=float(cut), x_name=xc, y_name=yc, fit=fit, points=tuple(pts),
+                         fit_run_ids=tuple(str(used[i]["run_id"]) for i in np.flatnonzero(below)))

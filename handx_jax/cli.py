@@ -1,0 +1,60 @@
+"""The ``handx`` command. Each area registers its own subcommand group from its ``cli`` module.
+
+    handx data ...      corpus synthesis, import/export, statistics, rendering   (handx_jax.data.cli)
+    handx text ...      tokenizer, T5 encoder, pretraining, embedding cache       (handx_jax.text.cli)
+    handx analyze ...   scaling fits, tables and plots                           (analysis.cli)
+
+Subcommand modules import heavy dependencies (jax, matplotlib) inside their handlers, so ``--help``
+stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# (group, module providing add_parser(subparsers)); a group whose module is absent is skipped, so a
+# partial checkout still runs the groups it has.
+GROUPS = (
+    ("data", "handx_jax.data.cli"),
+    ("text", "handx_jax.text.cli"),
+    ("analyze", "analysis.cli"),
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="handx",
+        description="handx-jax: text-to-bimanual-hand-motion (HandX) in JAX, built for scaling sweeps.",
+    )
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for _name, module in GROUPS:
+        try:
+            mod = importlib.import_module(module)
+        except ModuleNotFoundError as e:
+            if e.name and module.startswith(e.name):
+                continue
+            raise
+        mod.add_parser(sub)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    from handx_jax.io import DataError
+
+    args = build_parser().parse_args(argv)
+    try:
+        rc = args.func(args)
+    except (DataError, FileExistsError, FileNotFoundError) as e:
+        print(f"handx: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("handx: interrupted", file=sys.stderr)
+        return 130
+    return int(rc or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

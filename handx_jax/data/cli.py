@@ -1,0 +1,167 @@
+"""``handx data``: build, import, export, inspect and render datasets."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser("data", help="datasets: synthesise, import/export HandX .npz, stats, render",
+                              description="Build, import, export, inspect and render datasets.")
+    sub = p.add_subparsers(dest="data_command", metavar="SUBCOMMAND")
+    sub.required = True
+
+    s = sub.add_parser("synth", help="build the procedural bimanual corpus",
+                       description="Synthesise two-hand motion with forward kinematics, cut and filter clips "
+                                   "(paper A.3-A.4), annotate them (App. B) and write a dataset.")
+    s.add_argument("--clips", type=int, required=True, help="number of clips to keep")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--out", required=True, help="dataset directory to create")
+    s.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
+    s.add_argument("--val-fraction", type=float, default=0.05)
+    s.add_argument("--test-fraction", type=float, default=0.05)
+    s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
+    s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.set_defaults(func=_synth)
+
+    s = sub.add_parser("stats", help="corpus statistics (Table 1(b) quantities, caption uniqueness)")
+    s.add_argument("data", help="dataset directory")
+    s.add_argument("--json", action="store_true", help="print JSON")
+    s.set_defaults(func=_stats)
+
+    s = sub.add_parser("show", help="render one clip as an animated GIF")
+    s.add_argument("data", help="dataset directory")
+    s.add_argument("--clip", required=True, help="clip index or id")
+    s.add_argument("--out", required=True, help="output .gif")
+    s.add_argument("--level", type=int, default=0, help="caption level shown (0 = concise, -1 = most detailed)")
+    s.set_defaults(func=_show)
+
+    s = sub.add_parser("prompt", help="write the LLM captioning prompt for one clip")
+    s.add_argument("data", help="dataset directory")
+    s.add_argument("--clip", required=True, help="clip index or id")
+    s.add_argument("--out", help="write to this file instead of stdout")
+    s.set_defaults(func=_prompt)
+
+    s = sub.add_parser("import-handx", help="import official HandX .npz files into a dataset",
+                       description="Import {train,test}_can_pos_all_wotextfeat.npz. The split comes from the "
+                                   "file name unless --split is given.")
+    s.add_argument("files", nargs="+", help="official .npz files")
+    s.add_argument("--out", required=True, help="dataset directory to create")
+    s.add_argument("--split", choices=("train", "val", "test"), help="split for all given files")
+    s.add_argument("--no-events", action="store_true", help="skip computing event records")
+    s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
+    s.set_defaults(func=_import)
+
+    s = sub.add_parser("export-handx", help="export a dataset in the official HandX .npz layout")
+    s.add_argument("data", help="dataset directory")
+    s.add_argument("--out", required=True, help="output .npz")
+    s.add_argument("--split", choices=("all", "train", "val", "test"), default="all")
+    s.set_defaults(func=_export)
+
+    s = sub.add_parser("verify", help="check a dataset's files against its recorded fingerprint")
+    s.add_argument("data", help="dataset directory")
+    s.set_defaults(func=_verify)
+
+
+def _clip_index(ds, clip: str) -> int:
+    if clip.lstrip("-").isdigit():
+        i = int(clip)
+        if not -len(ds) <= i < len(ds):
+            raise SystemExit(f"handx: error: clip index {i} out of range (dataset has {len(ds)} clips)")
+        return i % len(ds)
+    try:
+        return ds.ids.index(clip)
+    except ValueError:
+        raise SystemExit(f"handx: error: no clip with id {clip!r} in {ds.root}") from None
+
+
+def _synth(a: argparse.Namespace) -> int:
+    from handx_jax.data.build import BuildConfig, build_corpus
+    from handx_jax.data.dataset import Dataset
+    from handx_jax.data.stats import dataset_stats, format_stats
+
+    cfg = BuildConfig(clips=a.clips, seed=a.seed, workers=a.workers, val_fraction=a.val_fraction,
+                      test_fraction=a.test_fraction)
+    out = build_corpus(a.out, cfg, overwrite=a.force, progress=not a.quiet)
+    ds = Dataset.open(out)
+    rep = ds.report
+    print(f"wrote {out}  ({len(ds)} clips in {rep.get('seconds')} s, {rep.get('clips_per_second')} clips/s)")
+    c = rep.get("clips", {})
+    print(f"cut: {c.get('windows', 0)} windows from {c.get('sequences', 0)} sequences; "
+          f"defective frames {c.get('defective_frames', {})}; rejected by intensity {c.get('rejected_intensity', {})}")
+    print(format_stats(dataset_stats(ds)))
+    return 0
+
+
+def _stats(a: argparse.Namespace) -> int:
+    from handx_jax.data.dataset import Dataset
+    from handx_jax.data.stats import dataset_stats, format_stats
+
+    st = dataset_stats(Dataset.open(a.data))
+    print(json.dumps(st, indent=2) if a.json else format_stats(st))
+    return 0
+
+
+def _show(a: argparse.Namespace) -> int:
+    import numpy as np
+
+    from handx_jax.data.dataset import Dataset
+    from handx_jax.data.render import render_gif
+
+    ds = Dataset.open(a.data)
+    i = _clip_index(ds, a.clip)
+    t = ds.texts[i]
+    lv = a.level
+    out = render_gif(np.asarray(ds.motion[i]), a.out, texts=(t["left"][lv], t["right"][lv], t["interaction"][lv]),
+                     title=t["id"])
+    print(f"wrote {out}")
+    return 0
+
+
+def _prompt(a: argparse.Namespace) -> int:
+    import numpy as np
+
+    from handx_jax.data.caption import build_prompt
+    from handx_jax.data.dataset import Dataset
+    from handx_jax.data.events import annotate
+    from handx_jax.io import atomic_write_text
+
+    ds = Dataset.open(a.data)
+    i = _clip_index(ds, a.clip)
+    record = ds.events[i] if ds.events is not None else annotate(np.asarray(ds.motion[i:i + 1]))[0]
+    text = build_prompt(record)
+    if a.out:
+        atomic_write_text(a.out, text)
+        print(f"wrote {a.out}", file=sys.stderr)
+    else:
+        print(text)
+    return 0
+
+
+def _import(a: argparse.Namespace) -> int:
+    from handx_jax.data.convert import import_handx
+    from handx_jax.data.dataset import Dataset
+
+    out = import_handx(a.files, a.out, split=a.split, annotate_events=not a.no_events, overwrite=a.force)
+    ds = Dataset.open(out)
+    print(f"imported {len(ds)} clips into {out}; splits {ds.meta['split_sizes']}; report {json.dumps(ds.report.get('dropped_nonfinite_clips', {}))}")
+    return 0
+
+
+def _export(a: argparse.Namespace) -> int:
+    from handx_jax.data.convert import export_handx
+
+    print(f"wrote {export_handx(a.data, a.out, split=a.split)}")
+    return 0
+
+
+def _verify(a: argparse.Namespace) -> int:
+    from handx_jax.data.dataset import Dataset
+
+    ds = Dataset.open(a.data)
+    ds.verify()
+    print(f"{Path(a.data)}: ok ({len(ds)} clips, fingerprint {ds.fingerprint})")
+    return 0

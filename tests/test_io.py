@@ -1,0 +1,54 @@
+import json
+import os
+
+import numpy as np
+import pytest
+
+from handx_jax import io
+
+
+def test_atomic_write_leaves_no_temp_and_replaces(tmp_path):
+    p = tmp_path / "a" / "f.json"
+    io.atomic_write_json(p, {"x": 1})
+    io.atomic_write_json(p, {"x": 2})
+    assert json.loads(p.read_text()) == {"x": 2}
+    assert os.listdir(p.parent) == ["f.json"]
+
+
+def test_atomic_dir_refuses_existing_and_keeps_old_on_failure(tmp_path):
+    d = tmp_path / "ds"
+    with io.atomic_dir(d) as t:
+        (t / "a.txt").write_text("old")
+    with pytest.raises(FileExistsError):
+        with io.atomic_dir(d):
+            pass
+    with pytest.raises(RuntimeError):
+        with io.atomic_dir(d, overwrite=True) as t:
+            (t / "a.txt").write_text("new")
+            raise RuntimeError("killed mid-build")
+    assert (d / "a.txt").read_text() == "old"  # nothing already written is lost
+    assert sorted(os.listdir(tmp_path)) == ["ds"]  # and no temporary left behind
+    with io.atomic_dir(d, overwrite=True) as t:
+        (t / "a.txt").write_text("new")
+    assert (d / "a.txt").read_text() == "new"
+
+
+def test_jsonl_torn_last_line(tmp_path):
+    p = tmp_path / "m.jsonl"
+    io.append_jsonl(p, {"step": 1})
+    with open(p, "a") as f:
+        f.write('{"step": 2, "lo')  # killed mid-write
+    assert io.read_jsonl(p, strict=False) == [{"step": 1}]
+    with pytest.raises(io.DataError, match="m.jsonl"):
+        io.read_jsonl(p)
+
+
+def test_npy_roundtrip(tmp_path):
+    a = np.arange(12, dtype=np.float32).reshape(3, 4)
+    io.atomic_save_npy(tmp_path / "a.npy", a)
+    np.testing.assert_array_equal(np.load(tmp_path / "a.npy"), a)
+
+
+def test_data_error_names_file_clip_field():
+    e = io.DataError("bad", path="x.npz", clip="7", field="motion")
+    assert "x.npz" in str(e) and "clip 7" in str(e) and "'motion'" in str(e)
