@@ -31,7 +31,7 @@ CONVENTIONS: tuple[str, ...] = ("paper", "code")
 # Interior joints (15 per hand) as (predecessor, joint, successor) index arrays, §2.2.
 _TRI_15x3 = np.asarray(sk.INTERIOR_TRIPLES, dtype=np.int64)
 _WRIST, _INDEX_MCP, _MIDDLE_MCP, _PINKY_MCP = 0, 1, 4, 7
-DEGENERATE_EPS = 1e-8
+DEGENERATE_EPS = 1e-6  # metres for bone lengths, sin(angle) for the x̂ × ŷ₀ test
 
 
 # ----------------------------------------------------------------------------------------------
@@ -207,12 +207,18 @@ def diffusion_to_joints(x_xTx42x4: np.ndarray, center_x3: np.ndarray | None = No
 class ARLayout:
     """Slices of the 288-d AR frame vector, in the official code's order (reference §2.4, §9.2)."""
 
-    root_vel: slice = field(default_factory=lambda: slice(0, 3))      # right-wrist velocity p[t+1] − p[t], m/frame; last frame 0
-    lr_offset: slice = field(default_factory=lambda: slice(3, 6))     # left wrist − right wrist
-    rot6d: slice = field(default_factory=lambda: slice(6, 18))        # first two ROWS of R_left, then of R_right (PyTorch3D)
-    scalar: slice = field(default_factory=lambda: slice(18, 48))      # rotation scalar of joints 1..15, left 15 then right 15
-    local_pos: slice = field(default_factory=lambda: slice(48, 168))  # R_hᵀ(p_j − p_wrist), joints 1..20, (hand, joint, xyz)
-    local_vel: slice = field(default_factory=lambda: slice(168, 288))  # forward difference of local_pos; last frame 0
+    # right-wrist velocity p[t+1] − p[t] in m/frame (not × fps); last frame 0
+    root_vel: slice = field(default_factory=lambda: slice(0, 3))
+    # left wrist − right wrist (the code's sign; the paper says "left→right")
+    lr_offset: slice = field(default_factory=lambda: slice(3, 6))
+    # 6D rotations: first two ROWS of R_left, then of R_right (PyTorch3D convention)
+    rot6d: slice = field(default_factory=lambda: slice(6, 18))
+    # rotation scalar of joints 1..15, left 15 then right 15
+    scalar: slice = field(default_factory=lambda: slice(18, 48))
+    # local positions R_hᵀ(p_j − p_wrist) of joints 1..20, order (hand, joint, xyz)
+    local_pos: slice = field(default_factory=lambda: slice(48, 168))
+    # forward difference of local_pos over frames; last frame 0
+    local_vel: slice = field(default_factory=lambda: slice(168, 288))
     dim: int = 288
 
 
@@ -466,6 +472,14 @@ def compute_preset_stats(kind: str, features: np.ndarray | Iterable[np.ndarray],
             yield c.reshape(-1, *pr.feature_shape)
 
     return compute_norm_stats(flat(), axis=0, min_std=pr.min_std, eps=pr.eps, chunk_size=chunk_size)
+
+
+def compute_norm_stats_streaming(chunks: Iterable[np.ndarray], *, preset: str) -> NormStats:
+    """Stats of a stream of feature chunks ``(..., *feature_shape)`` under a named preset.
+
+    Same as :func:`compute_preset_stats` with the arguments named as the dataset builder uses them.
+    """
+    return compute_preset_stats(preset, chunks)
 
 
 def _preset(kind: str) -> NormPreset:

@@ -40,7 +40,7 @@ def import_handx(files: Sequence[str | os.PathLike], out: str | os.PathLike, *, 
     seen_ids: set[str] = set()
     for f in map(Path, files):
         s = split or split_from_filename(f)
-        for c in read_handx_npz(f):
+        for c in read_handx_npz(f, allow_nonfinite=True):
             cid = f"{f.stem}:{c.key}"
             if cid in seen_ids:
                 raise DataError(f"duplicate clip key {c.key!r}", path=f, clip=c.key)

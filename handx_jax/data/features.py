@@ -71,6 +71,9 @@ class FeatureConfig:
     # "centroid" (reference code §6.1/§9.11): distance = mean of the 30 smallest nearest-neighbour
     # distances of the left points; vector = right centroid − left centroid.
     palm_relation: Literal["closest_pairs", "centroid"] = "closest_pairs"
+    # Candidate points per palm in the pruned exact pair search (see _palm_pairs_closest); ≥ P
+    # disables pruning. Only speed depends on it.
+    prune_points: int = 40
     # Finger–palm distance: mean over this many closest palm points (paper and code: 5).
     finger_palm_k: int = 5
     # Flexion dead zone: bend magnitudes below this are set to 0 (reference §6.1: 11°).
@@ -78,8 +81,8 @@ class FeatureConfig:
     # Dataset contact statistic thresholds (reference §5.4): tip–tip across hands, tip–joints 0–15.
     contact_tip_tip_m: float = 0.02
     contact_tip_joint_m: float = 0.025
-    # Frames processed at once in the palm–palm pair search (bounds memory at ~P²·4·chunk bytes).
-    frame_chunk: int = 1024
+    # Frames processed at once in the palm–palm pair search (P²·4·chunk bytes; small keeps it in cache).
+    frame_chunk: int = 64
 
     def __post_init__(self):
         if self.palm_points < 4:
@@ -243,34 +246,60 @@ def _sq_dists(a_MxPx3: np.ndarray, b_MxQx3: np.ndarray) -> np.ndarray:
     return np.maximum(np.matmul(A, B), 0.0)
 
 
-def _palm_pairs_closest(cl_MxPx3: np.ndarray, cr_MxPx3: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+def _topk_pairs_full(cl_MxPx3: np.ndarray, cr_MxPx3: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (li, ri), each (M, k), of the k closest of all P² pairs, searched exhaustively.
+
+    A pair among the k closest has D_pq ≤ δ_k ≤ τ_row (the k-th smallest row minimum: the k rows
+    with the smallest minima already give k pairs within it), and likewise ≤ τ_col; so its row is
+    among the k rows with the smallest minima and its column among the k such columns (barring
+    exact ties). Only that k×k block is ranked.
+    """
+    M = cl_MxPx3.shape[0]
+    D2 = _sq_dists(cl_MxPx3, cr_MxPx3)  # (M, P, P)
+    rows = np.argpartition(D2.min(2), k - 1, axis=1)[:, :k]
+    cols = np.argpartition(D2.min(1), k - 1, axis=1)[:, :k]
+    block = D2[np.arange(M)[:, None, None], rows[:, :, None], cols[:, None, :]].reshape(M, k * k)
+    sel = np.argpartition(block, k - 1, axis=1)[:, :k]
+    return np.take_along_axis(rows, sel // k, axis=1), np.take_along_axis(cols, sel % k, axis=1)
+
+
+def _palm_pairs_closest(cl_MxPx3: np.ndarray, cr_MxPx3: np.ndarray, k: int,
+                        m: int) -> tuple[np.ndarray, np.ndarray]:
     """Paper App. B: mean distance and mean (right − left) vector of the k closest of all P² pairs.
 
-    Exact and cheap: with m_i the nearest distance of left point i, the k pairs (i, argmin_i) of the
-    k smallest m_i all lie within τ = k-th smallest m_i, so the k globally closest pairs are among
-    the entries ≤ τ. Only those few candidates are sorted (per frame) instead of all P² entries.
+    Exact, with pruning: let d̂ be the direction between the cloud centroids and s the projections
+    on it. Every pair satisfies |r_q − l_p| ≥ s(r_q) − s(l_p), so once the k closest pairs among the
+    m left points with the largest s and the m right points with the smallest s are found, any pair
+    outside that block is at least LB = min(min s_R − s_L^(m+1), s_R^(m+1) − max s_L) away. Frames
+    where the block's k-th distance exceeds LB (palms overlapping along d̂) are searched exhaustively.
     """
     M, P, _ = cl_MxPx3.shape
-    D2 = _sq_dists(cl_MxPx3, cr_MxPx3)  # (M, P, P)
-    rowmin = D2.min(-1)
-    tau = np.partition(rowmin, k - 1, axis=-1)[:, k - 1]
-    flat = np.flatnonzero(D2 <= tau[:, None, None])
-    frame = flat // (P * P)
-    vals = D2.reshape(-1)[flat].astype(np.float64)
-    # Candidates come out grouped by frame; order them by value inside each frame.
-    order = np.argsort(frame * 16.0 + np.minimum(vals, 15.0), kind="stable")
-    flat, frame = flat[order], frame[order]
-    starts = np.searchsorted(frame, np.arange(M))
-    rank = np.arange(len(flat)) - starts[frame]
-    keep = rank < k
-    flat, frame = flat[keep], frame[keep]
-    rem = flat % (P * P)
-    li, ri = rem // P, rem % P
-    vec = cr_MxPx3[frame, ri] - cl_MxPx3[frame, li]  # (M*k, 3)
-    dist = _norm(vec)
-    dsum = np.bincount(frame, weights=dist, minlength=M)
-    vsum = np.stack([np.bincount(frame, weights=vec[:, c], minlength=M) for c in range(3)], -1)
-    return (dsum / k).astype(np.float32), (vsum / k).astype(np.float32)
+    mm = np.arange(M)[:, None]
+    if m >= P:
+        li, ri = _topk_pairs_full(cl_MxPx3, cr_MxPx3, k)
+    else:
+        d = cr_MxPx3.mean(1) - cl_MxPx3.mean(1)
+        d /= np.maximum(_norm(d), 1e-9)[:, None]
+        sl = np.einsum("mpc,mc->mp", cl_MxPx3, d)
+        sr = np.einsum("mpc,mc->mp", cr_MxPx3, d)
+        lsel = np.argpartition(-sl, m, axis=1)  # [:m] largest m, [m] the (m+1)-th
+        rsel = np.argpartition(sr, m, axis=1)
+        sl_next = np.take_along_axis(sl, lsel[:, m:m + 1], 1)[:, 0]  # (m+1)-th largest s_L
+        sr_next = np.take_along_axis(sr, rsel[:, m:m + 1], 1)[:, 0]  # (m+1)-th smallest s_R
+        lb = np.minimum(sr.min(1) - sl_next, sr_next - sl.max(1))
+        lc, rc = lsel[:, :m], rsel[:, :m]
+        a, b = cl_MxPx3[mm, lc], cr_MxPx3[mm, rc]  # (M, m, 3)
+        diff = b[:, None, :, :] - a[:, :, None, :]
+        D2 = np.einsum("mpqc,mpqc->mpq", diff, diff).reshape(M, m * m)
+        sel = np.argpartition(D2, k - 1, axis=1)[:, :k]
+        kth = np.sqrt(np.take_along_axis(D2, sel, 1).max(1))
+        li = np.take_along_axis(lc, sel // m, axis=1)
+        ri = np.take_along_axis(rc, sel % m, axis=1)
+        bad = np.flatnonzero(~(kth <= lb))
+        if len(bad):
+            li[bad], ri[bad] = _topk_pairs_full(cl_MxPx3[bad], cr_MxPx3[bad], k)
+    vec = cr_MxPx3[mm, ri] - cl_MxPx3[mm, li]  # (M, k, 3)
+    return _norm(vec).mean(1).astype(np.float32), vec.mean(1).astype(np.float32)
 
 
 def _palm_pairs_centroid(cl_MxPx3: np.ndarray, cr_MxPx3: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -290,7 +319,10 @@ def palm_relation(clouds_NxTx2xPx3: np.ndarray, cfg: FeatureConfig = FeatureConf
     P = c.shape[-2]
     c = c.reshape(-1, 2, P, 3)
     M = c.shape[0]
-    fn = _palm_pairs_closest if cfg.palm_relation == "closest_pairs" else _palm_pairs_centroid
+    if cfg.palm_relation == "closest_pairs":
+        fn = lambda a, b, k: _palm_pairs_closest(a, b, k, cfg.prune_points)
+    else:
+        fn = _palm_pairs_centroid
     dist, vec = np.empty(M, np.float32), np.empty((M, 3), np.float32)
     for s in range(0, M, cfg.frame_chunk):
         cc = c[s:s + cfg.frame_chunk]
@@ -315,7 +347,11 @@ def finger_palm_distance(joints_NxTx2x21x3: np.ndarray, clouds_NxTx2xPx3: np.nda
     centre = other.mean(-2, keepdims=True)
     t = (tips - centre).reshape(-1, 5, 3)
     o = (other - centre).reshape(-1, P, 3)
-    d2 = _sq_dists(t, o)  # (M*2, 5, P)
+    # |t − o|² expanded coordinate by coordinate: (M*2, 5, P) with no stacked small matmuls.
+    d2 = np.sum(t * t, -1)[:, :, None] + np.sum(o * o, -1)[:, None, :]
+    for ci in range(3):
+        d2 -= 2.0 * t[:, :, ci, None] * o[:, None, :, ci]
+    d2 = np.maximum(d2, 0.0)
     k = cfg.finger_palm_k
     near = np.partition(d2, k - 1, axis=-1)[..., :k]
     return np.sqrt(near).mean(-1).reshape(*lead, 2, 5).astype(np.float32)

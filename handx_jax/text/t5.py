@@ -1,0 +1,532 @@
+"""T5 in Flax: encoder (what every generator conditions on) and the small decoder used to pretrain it.
+
+Architecture as Raffel et al. 2020 and Hugging Face's ``modeling_t5``:
+- pre-norm residual blocks with T5's RMS layer norm (scale only, no mean, no bias);
+- attention without the 1/sqrt(d_kv) factor (folded into the init) and with a learned
+  relative-position bias: bucketed once per stack from the first layer's table, added in every layer;
+- feed-forward ``relu`` (original t5) or ``gated-gelu`` (t5 v1.1 / flan, tanh-approximate GELU);
+- a final layer norm per stack.
+
+Pretrained weights are loaded intact and never re-initialised (the reference overwrote T5's linear
+layers by accident, reference §3.1/§9.7; that is deliberately not ported). Parameters are plain
+pytrees; ``hf_param_names`` is the one table between Hugging Face tensor names and our tree, used by
+both the loader and the exporter, so a folder we write is read back by the same code as a stock one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import struct
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from handx_jax.io import DataError, atomic_dir, atomic_write_json
+from handx_jax.text.tokenizer import MODEL_FILENAME, Encoded, Tokenizer
+
+Params = Any
+FEED_FORWARD = ("relu", "gated-gelu")
+SUPPORTED_MODEL_TYPES = ("t5", "mt5")
+CONFIG_FILE, WEIGHTS_FILE, INDEX_FILE = "config.json", "model.safetensors", "model.safetensors.index.json"
+
+
+# --------------------------------------------------------------------------------------------------
+# Config
+
+
+@dataclass(frozen=True)
+class T5Config:
+    """Model dimensions with Hugging Face's field names (V, D, K = d_kv, F, H, L encoder layers)."""
+
+    vocab_size: int
+    d_model: int
+    d_kv: int
+    d_ff: int
+    num_layers: int
+    num_heads: int
+    num_decoder_layers: int = 0
+    relative_attention_num_buckets: int = 32
+    relative_attention_max_distance: int = 128
+    layer_norm_epsilon: float = 1e-6
+    feed_forward_proj: str = "relu"
+    tie_word_embeddings: bool = True
+
+    def __post_init__(self):
+        if self.feed_forward_proj not in FEED_FORWARD:
+            raise ValueError(f"feed_forward_proj {self.feed_forward_proj!r} is not supported; use one of {FEED_FORWARD}")
+        for f in ("vocab_size", "d_model", "d_kv", "d_ff", "num_layers", "num_heads", "relative_attention_num_buckets"):
+            if int(getattr(self, f)) <= 0:
+                raise ValueError(f"{f} must be positive, got {getattr(self, f)}")
+
+    @property
+    def gated(self) -> bool:
+        return self.feed_forward_proj == "gated-gelu"
+
+    @classmethod
+    def from_hf(cls, doc: dict, path: str | os.PathLike | None = None) -> "T5Config":
+        """Read a Hugging Face T5 ``config.json`` dict; refuse anything this encoder cannot reproduce."""
+        mt = doc.get("model_type")
+        if mt not in SUPPORTED_MODEL_TYPES:
+            raise DataError(f"unsupported config: model_type {mt!r} (supported: {SUPPORTED_MODEL_TYPES})", path=path)
+        ff = doc.get("feed_forward_proj", "relu")
+        if ff not in FEED_FORWARD:
+            raise DataError(f"unsupported config: feed_forward_proj {ff!r} (supported: {FEED_FORWARD})", path=path)
+        kw = {}
+        for f in dataclasses.fields(cls):
+            if f.name in doc and doc[f.name] is not None:
+                kw[f.name] = doc[f.name]
+            elif f.default is dataclasses.MISSING:
+                raise DataError(f"unsupported config: required key {f.name!r} is missing", path=path)
+        if kw.get("num_decoder_layers") is None:
+            kw["num_decoder_layers"] = 0
+        try:
+            return cls(**kw)
+        except (TypeError, ValueError) as e:
+            raise DataError(f"unsupported config: {e}", path=path) from None
+
+    def to_hf(self, *, architecture: str = "T5EncoderModel", extra: dict | None = None) -> dict:
+        doc = {"architectures": [architecture], "model_type": "t5", **dataclasses.asdict(self),
+               "is_encoder_decoder": True, "pad_token_id": 0, "eos_token_id": 1, "decoder_start_token_id": 0,
+               "dropout_rate": 0.0, "initializer_factor": 1.0}
+        if self.num_decoder_layers == 0:
+            doc["num_decoder_layers"] = self.num_layers  # HF needs a positive count; only the encoder is shipped
+        if extra:
+            doc.update(extra)
+        return doc
+
+
+def count_params(params: Params) -> int:
+    return int(sum(np.prod(x.shape) for x in jax.tree.leaves(params)))
+
+
+def encoder_flops(cfg: T5Config, length: int | np.ndarray) -> int | np.ndarray:
+    """Analytic forward FLOPs of the encoder for one sequence of ``length`` tokens.
+
+    Matrix products only, 2 FLOPs per multiply-add: Q/K/V/O projections, the two attention products
+    (scores and weighted values), and the feed-forward (two input projections when gated). Norms,
+    softmax and the embedding gather are O(L·D) and are left out, as in Kaplan et al.'s 2N count.
+    """
+    L, D, HK, F = np.asarray(length, np.int64), cfg.d_model, cfg.num_heads * cfg.d_kv, cfg.d_ff
+    attn = 2 * L * D * 3 * HK + 2 * L * L * HK * 2 + 2 * L * HK * D
+    mlp = 2 * L * D * F * (2 if cfg.gated else 1) + 2 * L * F * D
+    out = cfg.num_layers * (attn + mlp)
+    return int(out) if np.ndim(out) == 0 else out
+
+
+# --------------------------------------------------------------------------------------------------
+# Relative positions
+
+
+def relative_position_bucket(relative_position: np.ndarray, *, bidirectional: bool, num_buckets: int,
+                             max_distance: int) -> np.ndarray:
+    """T5's bucketing of ``key - query`` offsets (Raffel et al. 2020, §2.1; Mesh TensorFlow).
+
+    Half the buckets are exact small offsets; the rest grow logarithmically up to ``max_distance``,
+    beyond which offsets share the last bucket. Encoder buckets are bidirectional (the sign takes
+    half the buckets); decoder buckets see only the past. Computed on the host in float32 in the same
+    operation order as the PyTorch reference, so bucket edges agree exactly.
+    """
+    rp = np.asarray(relative_position, np.int64)
+    buckets = np.zeros_like(rp)
+    if bidirectional:
+        num_buckets //= 2
+        buckets += (rp > 0).astype(np.int64) * num_buckets
+        rp = np.abs(rp)
+    else:
+        rp = -np.minimum(rp, 0)
+    max_exact = num_buckets // 2
+    is_small = rp < max_exact
+    with np.errstate(divide="ignore"):
+        scaled = (np.log(rp.astype(np.float32) / np.float32(max_exact))
+                  / np.float32(math.log(max_distance / max_exact)) * np.float32(num_buckets - max_exact))
+    large = max_exact + np.where(is_small, 0, scaled).astype(np.int64)
+    large = np.minimum(large, num_buckets - 1)
+    return buckets + np.where(is_small, rp, large)
+
+
+@lru_cache(maxsize=64)
+def _bucket_matrix(q_len: int, k_len: int, bidirectional: bool, num_buckets: int, max_distance: int) -> np.ndarray:
+    rel = np.arange(k_len)[None, :] - np.arange(q_len)[:, None]
+    out = relative_position_bucket(rel, bidirectional=bidirectional, num_buckets=num_buckets,
+                                   max_distance=max_distance).astype(np.int32)
+    out.flags.writeable = False
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# Modules
+
+
+def _normal(std: float):
+    return nn.initializers.normal(stddev=std)
+
+
+class RMSNorm(nn.Module):
+    """T5 layer norm: x / sqrt(mean(x²) + eps) · scale (no centring, no bias)."""
+
+    eps: float
+
+    @nn.compact
+    def __call__(self, x):
+        scale = self.param("scale", nn.initializers.ones, (x.shape[-1],))
+        var = jnp.mean(jnp.square(x.astype(jnp.float32)), axis=-1, keepdims=True)
+        return scale * (x * jax.lax.rsqrt(var + self.eps))
+
+
+class Attention(nn.Module):
+    cfg: T5Config
+
+    @nn.compact
+    def __call__(self, x_BxQxD, kv_BxKxD, bias_BxHxQxK):
+        c = self.cfg
+        HK = c.num_heads * c.d_kv
+        q = nn.Dense(HK, use_bias=False, kernel_init=_normal((c.d_model * c.d_kv) ** -0.5), name="q")(x_BxQxD)
+        k = nn.Dense(HK, use_bias=False, kernel_init=_normal(c.d_model ** -0.5), name="k")(kv_BxKxD)
+        v = nn.Dense(HK, use_bias=False, kernel_init=_normal(c.d_model ** -0.5), name="v")(kv_BxKxD)
+        split = lambda t: t.reshape(*t.shape[:2], c.num_heads, c.d_kv)  # noqa: E731
+        q_BxQxHxK, k_BxKxHxK, v_BxKxHxK = split(q), split(k), split(v)
+        # No 1/sqrt(d_kv): T5 folds it into the initialisation of q.
+        att_BxHxQxK = jnp.einsum("bqhd,bkhd->bhqk", q_BxQxHxK, k_BxKxHxK) + bias_BxHxQxK
+        att_BxHxQxK = jax.nn.softmax(att_BxHxQxK.astype(jnp.float32), axis=-1)
+        out_BxQxHxK = jnp.einsum("bhqk,bkhd->bqhd", att_BxHxQxK, v_BxKxHxK)
+        return nn.Dense(c.d_model, use_bias=False, kernel_init=_normal(HK ** -0.5), name="o")(
+            out_BxQxHxK.reshape(*x_BxQxD.shape[:2], HK))
+
+
+class MLP(nn.Module):
+    cfg: T5Config
+
+    @nn.compact
+    def __call__(self, x_BxLxD):
+        c = self.cfg
+        dense = lambda n, name, std: nn.Dense(n, use_bias=False, kernel_init=_normal(std), name=name)  # noqa: E731
+        if c.gated:  # t5 v1.1 / flan: GELU(x W0) ⊙ (x W1), GELU in its tanh form ("gelu_new")
+            h = jax.nn.gelu(dense(c.d_ff, "wi_0", c.d_model ** -0.5)(x_BxLxD), approximate=True)
+            h = h * dense(c.d_ff, "wi_1", c.d_model ** -0.5)(x_BxLxD)
+        else:  # original t5
+            h = jax.nn.relu(dense(c.d_ff, "wi", c.d_model ** -0.5)(x_BxLxD))
+        return dense(c.d_model, "wo", c.d_ff ** -0.5)(h)
+
+
+class Block(nn.Module):
+    cfg: T5Config
+    cross: bool = False
+
+    @nn.compact
+    def __call__(self, x, self_bias, enc=None, cross_bias=None):
+        eps = self.cfg.layer_norm_epsilon
+        h = RMSNorm(eps, name="attn_norm")(x)
+        x = x + Attention(self.cfg, name="attn")(h, h, self_bias)
+        if self.cross:
+            h = RMSNorm(eps, name="cross_norm")(x)
+            x = x + Attention(self.cfg, name="cross")(h, enc, cross_bias)
+        return x + MLP(self.cfg, name="mlp")(RMSNorm(eps, name="mlp_norm")(x))
+
+
+NEG_INF = -1e9  # exp() of this is exactly 0 in float32: masked keys carry no weight
+
+
+class Stack(nn.Module):
+    """Encoder (``causal=False``) or decoder stack over already-embedded tokens."""
+
+    cfg: T5Config
+    causal: bool = False
+
+    @nn.compact
+    def __call__(self, x_BxLxD, mask_BxL, enc_BxSxD=None, enc_mask_BxS=None):
+        c = self.cfg
+        L = x_BxLxD.shape[1]
+        n_layers = c.num_decoder_layers if self.causal else c.num_layers
+        # One bias table for the whole stack (HF stores it in layer 0); bucket once, reuse in every layer.
+        table = nn.Embed(c.relative_attention_num_buckets, c.num_heads, embedding_init=_normal(c.d_model ** -0.5),
+                         name="rel_bias")
+        buckets_LxL = _bucket_matrix(L, L, not self.causal, c.relative_attention_num_buckets,
+                                     c.relative_attention_max_distance)
+        pos_HxLxL = jnp.transpose(table(jnp.asarray(buckets_LxL)), (2, 0, 1))
+        keep_BxLxL = jnp.broadcast_to(mask_BxL[:, None, :] > 0, (mask_BxL.shape[0], L, L))
+        if self.causal:
+            keep_BxLxL = keep_BxLxL & jnp.tril(jnp.ones((L, L), bool))[None]
+        self_bias = pos_HxLxL[None] + jnp.where(keep_BxLxL, 0.0, NEG_INF)[:, None]
+        cross_bias = None
+        if self.causal:
+            cross_bias = jnp.where(enc_mask_BxS[:, None, None, :] > 0, 0.0, NEG_INF)
+        x = x_BxLxD
+        for i in range(n_layers):
+            x = Block(c, cross=self.causal, name=f"block_{i}")(x, self_bias, enc_BxSxD, cross_bias)
+        return RMSNorm(c.layer_norm_epsilon, name="final_norm")(x)
+
+
+class T5EncoderModel(nn.Module):
+    """Token ids → last hidden states ``(B, L, D)`` (after the final layer norm), as HF's T5EncoderModel."""
+
+    cfg: T5Config
+
+    @nn.compact
+    def __call__(self, ids_BxL, mask_BxL):
+        emb = nn.Embed(self.cfg.vocab_size, self.cfg.d_model, embedding_init=_normal(1.0), name="shared")
+        return Stack(self.cfg, causal=False, name="encoder")(emb(ids_BxL), mask_BxL)
+
+
+class T5Model(nn.Module):
+    """Encoder–decoder for span-corruption pretraining. Its ``shared`` + ``encoder`` subtrees are
+    exactly a ``T5EncoderModel``'s parameters."""
+
+    cfg: T5Config
+
+    def setup(self):
+        c = self.cfg
+        self.shared = nn.Embed(c.vocab_size, c.d_model, embedding_init=_normal(1.0))
+        self.encoder = Stack(c, causal=False)
+        self.decoder = Stack(c, causal=True)
+        if not c.tie_word_embeddings:
+            self.lm_head = nn.Dense(c.vocab_size, use_bias=False, kernel_init=_normal(c.d_model ** -0.5))
+
+    def encode(self, ids_BxS, mask_BxS):
+        return self.encoder(self.shared(ids_BxS), mask_BxS)
+
+    def __call__(self, ids_BxS, mask_BxS, dec_ids_BxT, dec_mask_BxT):
+        enc_BxSxD = self.encode(ids_BxS, mask_BxS)
+        h_BxTxD = self.decoder(self.shared(dec_ids_BxT), dec_mask_BxT, enc_BxSxD, mask_BxS)
+        if self.cfg.tie_word_embeddings:  # original t5 rescales before the tied projection
+            return self.shared.attend(h_BxTxD * self.cfg.d_model ** -0.5)
+        return self.lm_head(h_BxTxD)
+
+
+def encoder_params(params: Params) -> Params:
+    """The frozen encoder's parameters out of a full ``T5Model`` tree."""
+    return {"shared": params["shared"], "encoder": params["encoder"]}
+
+
+# --------------------------------------------------------------------------------------------------
+# Hugging Face names ↔ our tree
+
+
+def hf_param_names(cfg: T5Config, *, encoder_only: bool = True) -> list[tuple[str, tuple[str, ...], bool]]:
+    """(HF tensor name, our path, transpose?) for every parameter. PyTorch Linear stores (out, in)."""
+    out = [("shared.weight", ("shared", "embedding"), False)]
+    stacks = [("encoder", cfg.num_layers, False)] + ([] if encoder_only else [("decoder", cfg.num_decoder_layers, True)])
+    ffn = ("wi_0", "wi_1", "wo") if cfg.gated else ("wi", "wo")
+    for stack, n, dec in stacks:
+        out.append((f"{stack}.block.0.layer.0.SelfAttention.relative_attention_bias.weight",
+                    (stack, "rel_bias", "embedding"), False))
+        for i in range(n):
+            hf, me = f"{stack}.block.{i}.layer", (stack, f"block_{i}")
+            out.append((f"{hf}.0.layer_norm.weight", me + ("attn_norm", "scale"), False))
+            out += [(f"{hf}.0.SelfAttention.{p}.weight", me + ("attn", p, "kernel"), True) for p in "qkvo"]
+            ff = 1
+            if dec:
+                out.append((f"{hf}.1.layer_norm.weight", me + ("cross_norm", "scale"), False))
+                out += [(f"{hf}.1.EncDecAttention.{p}.weight", me + ("cross", p, "kernel"), True) for p in "qkvo"]
+                ff = 2
+            out.append((f"{hf}.{ff}.layer_norm.weight", me + ("mlp_norm", "scale"), False))
+            out += [(f"{hf}.{ff}.DenseReluDense.{p}.weight", me + ("mlp", p, "kernel"), True) for p in ffn]
+        out.append((f"{stack}.final_layer_norm.weight", (stack, "final_norm", "scale"), False))
+    if not encoder_only and not cfg.tie_word_embeddings:
+        out.append(("lm_head.weight", ("lm_head", "kernel"), True))
+    return out
+
+
+def _get(tree: Params, path: Sequence[str]):
+    for p in path:
+        tree = tree[p]
+    return tree
+
+
+def _set(tree: dict, path: Sequence[str], value) -> None:
+    for p in path[:-1]:
+        tree = tree.setdefault(p, {})
+    tree[path[-1]] = value
+
+
+# --------------------------------------------------------------------------------------------------
+# safetensors (read with numpy; handles BF16, which safetensors.numpy cannot)
+
+_ST_DTYPES = {"F64": "<f8", "F32": "<f4", "F16": "<f2", "BF16": "bf16"}
+
+
+class _SafetensorsFile:
+    def __init__(self, path: Path):
+        self.path = path
+        try:
+            with open(path, "rb") as f:
+                n = struct.unpack("<Q", f.read(8))[0]
+                self.header = json.loads(f.read(n))
+        except (struct.error, json.JSONDecodeError, UnicodeDecodeError) as e:
+            raise DataError(f"not a safetensors file ({e})", path=path) from None
+        self.header.pop("__metadata__", None)
+        self.offset = 8 + n
+
+    def names(self) -> list[str]:
+        return list(self.header)
+
+    def shape(self, name: str) -> tuple[int, ...]:
+        return tuple(self.header[name]["shape"])
+
+    def get(self, name: str) -> np.ndarray:
+        info = self.header[name]
+        if info["dtype"] not in _ST_DTYPES:
+            raise DataError(f"tensor {name!r} has dtype {info['dtype']}; expected a float type", path=self.path)
+        start, end = info["data_offsets"]
+        raw = np.memmap(self.path, dtype=np.uint8, mode="r", offset=self.offset + start, shape=(end - start,))
+        if info["dtype"] == "BF16":  # bfloat16 = the top 16 bits of a float32
+            arr = (np.frombuffer(raw, "<u2").astype(np.uint32) << 16).view(np.float32)
+        else:
+            arr = np.frombuffer(raw, _ST_DTYPES[info["dtype"]]).astype(np.float32)
+        return arr.reshape(info["shape"])
+
+
+def _open_weights(folder: Path) -> dict[str, _SafetensorsFile]:
+    """Tensor name → the file holding it, for ``model.safetensors`` or a sharded index."""
+    index = folder / INDEX_FILE
+    single = folder / WEIGHTS_FILE
+    if single.is_file():
+        f = _SafetensorsFile(single)
+        return {n: f for n in f.names()}
+    if index.is_file():
+        try:
+            weight_map = json.loads(index.read_text())["weight_map"]
+        except (json.JSONDecodeError, KeyError) as e:
+            raise DataError(f"corrupt sharded-weights index ({e})", path=index) from None
+        files: dict[str, _SafetensorsFile] = {}
+        out = {}
+        for name, shard in weight_map.items():
+            if shard not in files:
+                if not (folder / shard).is_file():
+                    raise DataError(f"shard {shard} named by the index is missing", path=folder)
+                files[shard] = _SafetensorsFile(folder / shard)
+            out[name] = files[shard]
+        return out
+    other = [p.name for p in folder.glob("*.bin")] + [p.name for p in folder.glob("*.h5")]
+    hint = f" (found {other}: convert them to safetensors)" if other else ""
+    raise DataError(f"missing {WEIGHTS_FILE} or {INDEX_FILE}{hint}", path=folder)
+
+
+# --------------------------------------------------------------------------------------------------
+# Loading and exporting an encoder folder (config.json + model.safetensors + spiece.model)
+
+
+def params_fingerprint(cfg: T5Config, params: Params) -> str:
+    """Content hash of config and weights: identical numbers give the same key whatever the file layout."""
+    h = hashlib.sha256(json.dumps(dataclasses.asdict(cfg), sort_keys=True).encode())
+    for path, leaf in sorted(jax.tree_util.tree_flatten_with_path(params)[0], key=lambda kv: jax.tree_util.keystr(kv[0])):
+        a = np.ascontiguousarray(np.asarray(leaf, np.float32))
+        h.update(jax.tree_util.keystr(path).encode())
+        h.update(str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()[:16]
+
+
+@dataclass
+class FrozenEncoder:
+    """A loaded encoder folder: config, frozen parameters, its tokenizer, and a jitted forward."""
+
+    cfg: T5Config
+    params: Params
+    tokenizer: Tokenizer
+    path: Path | None = None
+
+    def __post_init__(self):
+        model = T5EncoderModel(self.cfg)
+        # stop_gradient: downstream models may close over these outputs; the encoder stays frozen.
+        self._forward = jax.jit(lambda p, ids, mask: jax.lax.stop_gradient(
+            model.apply({"params": p}, ids, mask)))
+
+    @property
+    def fingerprint(self) -> str:
+        if not hasattr(self, "_fp"):
+            self._fp = params_fingerprint(self.cfg, self.params)
+        return self._fp
+
+    def __call__(self, ids_BxL: np.ndarray, mask_BxL: np.ndarray) -> jax.Array:
+        return self._forward(self.params, jnp.asarray(ids_BxL, jnp.int32), jnp.asarray(mask_BxL, jnp.int32))
+
+    def encode(self, texts: Sequence[str], max_len: int | None = None) -> tuple[Encoded, np.ndarray]:
+        enc = self.tokenizer.encode(texts, max_len)
+        return enc, np.asarray(self(enc.ids_BxL, enc.mask_BxL))
+
+    def flops(self, length: int | np.ndarray):
+        return encoder_flops(self.cfg, length)
+
+
+def _read_json(path: Path) -> dict:
+    if not path.is_file():
+        raise DataError(f"missing {path.name}", path=path.parent)
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise DataError(f"corrupt JSON ({e.msg})", path=path) from None
+
+
+def load_hf_t5_encoder(folder: str | os.PathLike) -> FrozenEncoder:
+    """Load a Hugging Face-format T5 folder, encoder only, with no network access.
+
+    Needs ``config.json``, ``model.safetensors`` (or shards + ``model.safetensors.index.json``) and
+    ``spiece.model``. A full encoder–decoder checkpoint works: decoder tensors are ignored.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DataError("encoder folder does not exist", path=folder)
+    missing = [n for n in (CONFIG_FILE, MODEL_FILENAME) if not (folder / n).is_file()]
+    if not (folder / WEIGHTS_FILE).is_file() and not (folder / INDEX_FILE).is_file():
+        missing.append(f"{WEIGHTS_FILE} (or {INDEX_FILE} with shards)")
+    if missing:
+        raise DataError(f"missing {', '.join(missing)}; an encoder folder needs {CONFIG_FILE}, {WEIGHTS_FILE} "
+                        f"and {MODEL_FILENAME}", path=folder)
+    cfg = T5Config.from_hf(_read_json(folder / CONFIG_FILE), folder / CONFIG_FILE)
+    tok = Tokenizer.load(folder / MODEL_FILENAME)
+    tensors = _open_weights(folder)
+    # Tied checkpoints may keep the embedding only under the encoder's alias.
+    if "shared.weight" not in tensors and "encoder.embed_tokens.weight" in tensors:
+        tensors["shared.weight"] = tensors["encoder.embed_tokens.weight"]
+    names = hf_param_names(cfg, encoder_only=True)
+    absent = [n for n, _, _ in names if n not in tensors]
+    if absent:
+        raise DataError(f"weights lack {len(absent)} tensor(s) the config implies, e.g. {absent[:3]} "
+                        f"(feed_forward_proj={cfg.feed_forward_proj!r}, num_layers={cfg.num_layers})", path=folder)
+    emb_rows = tensors["shared.weight"].shape("shared.weight")[0]
+    if emb_rows != cfg.vocab_size:
+        raise DataError(f"vocab mismatch: embedding has {emb_rows} rows but config.json says vocab_size="
+                        f"{cfg.vocab_size}", path=folder)
+    if tok.vocab_size > cfg.vocab_size:
+        raise DataError(f"vocab mismatch: {MODEL_FILENAME} emits ids up to {tok.vocab_size - 1} but the weights have "
+                        f"{cfg.vocab_size} embedding rows (tokenizer and weights come from different models?)",
+                        path=folder)
+    expected = jax.eval_shape(lambda: T5EncoderModel(cfg).init(
+        jax.random.key(0), jnp.zeros((1, 1), jnp.int32), jnp.ones((1, 1), jnp.int32))["params"])
+    params: dict = {}
+    for hf, path, transpose in names:
+        a = tensors[hf].get(hf)
+        a = a.T if transpose else a
+        want = tuple(_get(expected, path).shape)
+        if a.shape != want:
+            raise DataError(f"tensor {hf!r} has shape {a.shape} (after transpose), config implies {want}",
+                            path=tensors[hf].path)
+        _set(params, path, jnp.asarray(np.ascontiguousarray(a)))
+    return FrozenEncoder(cfg, params, tok, folder)
+
+
+def save_hf_t5_encoder(folder: str | os.PathLike, cfg: T5Config, params: Params, tokenizer: Tokenizer, *,
+                       overwrite: bool = False, extra_config: dict | None = None) -> Path:
+    """Write an encoder folder in Hugging Face format, atomically; ``load_hf_t5_encoder`` reads it back."""
+    from safetensors.numpy import save_file
+
+    if tokenizer.vocab_size > cfg.vocab_size:
+        raise ValueError(f"tokenizer vocab {tokenizer.vocab_size} exceeds model vocab {cfg.vocab_size}")
+    tensors = {hf: np.ascontiguousarray(np.asarray(_get(params, path), np.float32).T if tr
+                                        else np.asarray(_get(params, path), np.float32))
+               for hf, path, tr in hf_param_names(cfg, encoder_only=True)}
+    with atomic_dir(folder, overwrite=overwrite) as tmp:
+        atomic_write_json(tmp / CONFIG_FILE, cfg.to_hf(extra=extra_config))
+        save_file(tensors, str(tmp / WEIGHTS_FILE), metadata={"format": "pt"})
+        (tmp / MODEL_FILENAME).write_bytes(tokenizer.model_proto)
+    return Path(folder)

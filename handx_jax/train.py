@@ -1,0 +1,248 @@
+"""One training loop for every model family: state, jitted step, data order, checkpoints, logging.
+
+A family supplies ``init(rng) -> params`` and ``loss(params, batch, rng, train) -> (loss, aux)``
+plus a ``get_batch(indices) -> pytree of arrays``; everything else lives here:
+
+- AdamW with decoupled weight decay on parameters of ndim ≥ 2 only (reference §3.6), linear warm-up,
+  gradient clipping applied *before* the update (the reference clips after ``opt.step()``, §9.17),
+  optional EMA weights, optional bf16 compute (params and optimizer state stay float32).
+- Data order is a pure function of (seed, step): epoch e uses permutation(seed, e). The data
+  position is therefore the step, and a resumed run sees exactly the batches it would have seen.
+- orbax checkpoints every ``ckpt_every`` steps and at the end, holding params, optimizer state, EMA,
+  step and rng; a killed run resumes from the latest one and ends with the same parameters.
+- The run folder gets ``config.json`` (atomic) and ``metrics.jsonl`` (one fsynced line per log);
+  wandb mirrors them (offline by default; WANDB_MODE overrides).
+- Data parallel across all local devices through ``jax.sharding``: the batch is split along a
+  ("data",) mesh axis and parameters are replicated.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from handx_jax.io import append_jsonl, atomic_write_json, read_jsonl
+
+
+@dataclass(frozen=True)
+class OptimConfig:
+    lr: float = 1e-4
+    b1: float = 0.9
+    b2: float = 0.95
+    eps: float = 1e-8
+    weight_decay: float = 5e-6
+    warmup_steps: int = 0
+    schedule: str = "constant"  # "constant" (reference) or "cosine" (decay to 0 at the last step)
+    grad_clip: float = 1.0  # 0 disables
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    steps: int = 1000
+    batch_size: int = 64
+    seed: int = 42
+    log_every: int = 50
+    ckpt_every: int = 500
+    keep_checkpoints: int = 2
+    ema_decay: float = 0.0  # 0 disables EMA
+    bf16: bool = False
+    wandb: str = "offline"  # offline | online | disabled
+    optim: OptimConfig = OptimConfig()
+
+
+def make_optimizer(cfg: OptimConfig, total_steps: int) -> optax.GradientTransformation:
+    if cfg.schedule == "constant":
+        sched = optax.constant_schedule(cfg.lr)
+        if cfg.warmup_steps:
+            sched = optax.join_schedules([optax.linear_schedule(0.0, cfg.lr, cfg.warmup_steps), sched],
+                                         [cfg.warmup_steps])
+    elif cfg.schedule == "cosine":
+        sched = optax.warmup_cosine_decay_schedule(0.0, cfg.lr, max(cfg.warmup_steps, 1), max(total_steps, 2))
+    else:
+        raise ValueError(f"unknown schedule {cfg.schedule!r}")
+    decay_mask = lambda p: jax.tree_util.tree_map(lambda x: x.ndim >= 2, p)  # noqa: E731
+    parts = [optax.clip_by_global_norm(cfg.grad_clip)] if cfg.grad_clip > 0 else []
+    parts.append(optax.adamw(sched, b1=cfg.b1, b2=cfg.b2, eps=cfg.eps, weight_decay=cfg.weight_decay,
+                             mask=decay_mask))
+    return optax.chain(*parts), sched
+
+
+def batch_indices(n: int, batch_size: int, seed: int, step: int) -> np.ndarray:
+    """Indices of the batch at ``step``: epoch-wise permutations, remainder dropped."""
+    per_epoch = max(n // batch_size, 1)
+    epoch, k = divmod(step, per_epoch)
+    perm = np.random.default_rng([seed, epoch]).permutation(n)
+    if n < batch_size:  # tiny datasets: sample with wrap-around
+        return np.resize(perm, batch_size)
+    return perm[k * batch_size:(k + 1) * batch_size]
+
+
+class RunLogger:
+    """config.json + metrics.jsonl in the run folder, mirrored to wandb."""
+
+    def __init__(self, run_dir: Path, config: dict, mode: str = "offline"):
+        self.run_dir = Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(self.run_dir / "config.json", config)
+        self.metrics_path = self.run_dir / "metrics.jsonl"
+        self._wandb = None
+        mode = os.environ.get("WANDB_MODE", mode)
+        if mode != "disabled":
+            try:
+                import wandb
+
+                os.environ.setdefault("WANDB_DIR", str(self.run_dir))
+                os.environ.setdefault("WANDB_CACHE_DIR", str(self.run_dir / ".wandb-cache"))
+                self._wandb = wandb.init(project=config.get("wandb_project", "handx-jax"), dir=str(self.run_dir),
+                                         config=config, mode=mode, id=self.run_dir.name.replace("/", "-"),
+                                         resume="allow", reinit=True)
+            except Exception as e:  # wandb is a mirror: never let it kill a run
+                print(f"[wandb disabled: {e}]")
+
+    def log(self, row: dict) -> None:
+        append_jsonl(self.metrics_path, row)
+        if self._wandb is not None:
+            self._wandb.log({k: v for k, v in row.items() if k != "step"}, step=int(row["step"]))
+
+    def truncate_after(self, step: int) -> None:
+        """On resume, drop metric lines logged after the checkpoint we restart from."""
+        if self.metrics_path.exists():
+            rows = [r for r in read_jsonl(self.metrics_path, strict=False) if r.get("step", 0) <= step]
+            from handx_jax.io import atomic_write_jsonl
+
+            atomic_write_jsonl(self.metrics_path, rows)
+
+    def close(self) -> None:
+        if self._wandb is not None:
+            self._wandb.finish()
+
+
+def _mesh():
+    from jax.sharding import Mesh
+
+    return Mesh(np.asarray(jax.devices()), ("data",))
+
+
+def _cast(tree, dtype):
+    return jax.tree_util.tree_map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, tree)
+
+
+def train(
+    run_dir: str | os.PathLike,
+    *,
+    init: Callable[[jax.Array], Any],
+    loss: Callable[[Any, Any, jax.Array, bool], tuple[jax.Array, dict]],
+    get_batch: Callable[[np.ndarray], Any],
+    num_examples: int,
+    cfg: TrainConfig,
+    config: dict,
+    stop_at: int | None = None,
+    on_log: Callable[[dict], None] | None = None,
+) -> dict:
+    """Train (or resume) a run; returns {"params", "ema", "step"}.
+
+    ``stop_at`` ends the process early (as if killed) after that step's checkpoint logic — used by the
+    kill-and-resume tests.
+    """
+    import orbax.checkpoint as ocp
+    from jax.sharding import NamedSharding, PartitionSpec as P
+
+    run_dir = Path(run_dir).absolute()
+    logger = RunLogger(run_dir, {**config, "train": dataclasses.asdict(cfg)}, cfg.wandb)
+    tx, sched = make_optimizer(cfg.optim, cfg.steps)
+    mesh = _mesh()
+    data_sharding = NamedSharding(mesh, P("data"))
+    replicated = NamedSharding(mesh, P())
+    if cfg.batch_size % len(jax.devices()):
+        raise ValueError(f"batch size {cfg.batch_size} is not divisible by {len(jax.devices())} devices")
+
+    rng = jax.random.PRNGKey(cfg.seed)
+    params = init(jax.random.fold_in(rng, 0))
+    state = {"params": params, "opt_state": tx.init(params),
+             # A copy: EMA must not alias params, or donating the state donates one buffer twice.
+             "ema": jax.tree_util.tree_map(jnp.copy, params) if cfg.ema_decay > 0 else {},
+             "step": jnp.zeros((), jnp.int32)}
+    state = jax.device_put(state, replicated)
+
+    mngr = ocp.CheckpointManager(run_dir / "checkpoints", options=ocp.CheckpointManagerOptions(
+        max_to_keep=cfg.keep_checkpoints, create=True, enable_async_checkpointing=False))
+    start = 0
+    if mngr.latest_step() is not None:
+        start = int(mngr.latest_step())
+        abstract = jax.tree_util.tree_map(ocp.utils.to_shape_dtype_struct, state)
+        state = mngr.restore(start, args=ocp.args.StandardRestore(abstract))
+        state = jax.device_put(state, replicated)
+        logger.truncate_after(start)
+        print(f"resumed from step {start}")
+
+    compute_dtype = jnp.bfloat16 if cfg.bf16 else jnp.float32
+
+    def step_fn(state, batch, step_rng):
+        def lf(p):
+            l, aux = loss(_cast(p, compute_dtype) if cfg.bf16 else p, batch, step_rng, True)
+            return l.astype(jnp.float32), aux
+
+        (l, aux), grads = jax.value_and_grad(lf, has_aux=True)(state["params"])
+        grads = _cast(grads, jnp.float32)
+        updates, opt_state = tx.update(grads, state["opt_state"], state["params"])
+        params = optax.apply_updates(state["params"], updates)
+        ema = state["ema"]
+        if cfg.ema_decay > 0:
+            ema = jax.tree_util.tree_map(lambda e, p: cfg.ema_decay * e + (1 - cfg.ema_decay) * p, ema, params)
+        new = {"params": params, "opt_state": opt_state, "ema": ema, "step": state["step"] + 1}
+        metrics = {"loss": l, "grad_norm": optax.tree.norm(grads), "lr": sched(state["step"]), **aux}
+        return new, metrics
+
+    jstep = jax.jit(step_fn, donate_argnums=(0,))
+    end = min(cfg.steps, stop_at) if stop_at is not None else cfg.steps
+    t_last, n_since = time.perf_counter(), 0
+    for step in range(start, end):
+        idx = batch_indices(num_examples, cfg.batch_size, cfg.seed, step)
+        batch = jax.device_put(get_batch(idx), data_sharding)
+        state, metrics = jstep(state, batch, jax.random.fold_in(jax.random.fold_in(rng, 1), step))
+        n_since += cfg.batch_size
+        done = step + 1
+        if done % cfg.log_every == 0 or done == cfg.steps:
+            m = {k: float(v) for k, v in jax.device_get(metrics).items()}
+            if not math.isfinite(m["loss"]):
+                raise FloatingPointError(f"loss is {m['loss']} at step {done} (run {run_dir})")
+            dt = time.perf_counter() - t_last
+            row = {"step": done, **m, "samples_per_s": n_since / max(dt, 1e-9), "samples_seen": done * cfg.batch_size}
+            logger.log(row)
+            if on_log:
+                on_log(row)
+            t_last, n_since = time.perf_counter(), 0
+        if done % cfg.ckpt_every == 0 or done == cfg.steps:
+            mngr.save(done, args=ocp.args.StandardSave(state))
+    mngr.wait_until_finished()
+    mngr.close()
+    logger.close()
+    return {"params": state["params"], "ema": state["ema"], "step": int(state["step"])}
+
+
+def load_params(run_dir: str | os.PathLike, *, ema: bool = False, step: int | None = None):
+    """Restore params (or EMA params) from a run folder's latest (or given) checkpoint."""
+    import orbax.checkpoint as ocp
+
+    mngr = ocp.CheckpointManager(Path(run_dir).absolute() / "checkpoints")
+    step = mngr.latest_step() if step is None else step
+    if step is None:
+        raise FileNotFoundError(f"no checkpoint in {run_dir}/checkpoints")
+    state = mngr.restore(step, args=ocp.args.StandardRestore())
+    mngr.close()
+    return (state["ema"] if ema and state["ema"] else state["params"]), int(step)
+
+
+def read_config(run_dir: str | os.PathLike) -> dict:
+    return json.loads((Path(run_dir) / "config.json").read_text())

@@ -1,0 +1,128 @@
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from handx_jax import metrics as M
+from handx_jax import skeleton as sk
+
+
+def test_fid_zero_for_same_set_and_monotone_in_shift():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(500, 16))
+    assert M.fid(a, a) == pytest.approx(0.0, abs=1e-6)
+    vals = [M.fid(a, a + s) for s in (0.0, 0.1, 0.3, 1.0, 3.0)]
+    assert all(x < y for x, y in zip(vals, vals[1:]))
+    # Known value: pure mean shift by s in every dim → FID = D·s².
+    assert vals[3] == pytest.approx(16 * 1.0, rel=1e-6)
+    # Known value: scaling covariance by c² (isotropic) adds D·(1 − c)² for identity covariance.
+    b = rng.normal(size=(200000, 4))
+    assert M.fid(b, 2 * b) == pytest.approx(4 * (1 - 2) ** 2, rel=2e-2)
+
+
+def test_r_precision_perfect_and_random():
+    rng = np.random.default_rng(1)
+    e = rng.normal(size=(320, 8)).astype(np.float32)
+    hits, mm = M.r_precision(jnp.asarray(e), jnp.asarray(e), block=32, top_k=3)
+    np.testing.assert_allclose(hits, [1, 1, 1])
+    assert float(mm) == pytest.approx(0.0, abs=1e-3)
+    # Random: expected k/32; std of the mean over n = 32·nb items is sqrt(p(1-p)/n).
+    n = 32 * 300
+    t = rng.normal(size=(n, 8)).astype(np.float32)
+    m = rng.normal(size=(n, 8)).astype(np.float32)
+    hits, _ = M.r_precision(jnp.asarray(t), jnp.asarray(m), block=32, top_k=3)
+    for k in (1, 2, 3):
+        p = k / 32
+        assert abs(float(hits[k - 1]) - p) < 4 * math.sqrt(p * (1 - p) / n)
+
+
+def test_r_precision_known_ranking_and_small_n():
+    # 3 items on a line: text i at position i, motion i at position i + offset.
+    t = jnp.asarray([[0.0], [1.0], [2.0]])
+    m = jnp.asarray([[0.6], [1.0], [2.0]])  # motion 0 is closer to text 1 than text 0 is... per-row
+    hits, mm = M.r_precision(t, m, block=32, top_k=2)
+    # Row 0: d = [0.6, 1, 2] → rank 0. Row 1: d = [0.4, 0, 1] → rank 0. Row 2: d = [1.4, 1, 0] → 0.
+    np.testing.assert_allclose(hits, [1, 1])
+    assert float(mm) == pytest.approx(0.2, abs=1e-6)
+    m2 = jnp.asarray([[1.2], [1.0], [2.0]])  # now row 0 sees motion 1 closer (1.0 < 1.2)
+    hits, _ = M.r_precision(t, m2, block=32, top_k=2)
+    np.testing.assert_allclose(hits, [2 / 3, 1])
+
+
+def test_diversity_and_multimodality():
+    e = np.tile(np.arange(4.0), (50, 1))
+    i1, i2 = M.diversity_indices(50, 300, 0)
+    assert len(i1) == 49
+    assert float(M.diversity(jnp.asarray(e), jnp.asarray(i1), jnp.asarray(i2))) == 0.0
+    g = jnp.asarray(np.random.default_rng(0).normal(size=(10, 4, 3)))
+    same = jnp.repeat(g[:, :1], 4, axis=1)
+    assert float(M.multimodality(same, jnp.asarray([0, 1]), jnp.asarray([2, 3]))) == 0.0
+
+
+def _hand_pair():
+    """Two flat hands 20 cm apart, fingers along +y."""
+    h = np.zeros((21, 3), np.float32)
+    for f, x0 in zip(sk.FINGER_NAMES, (-0.045, -0.022, 0.0, 0.022, 0.045)):  # tips 2.2 cm apart
+        for s, j in enumerate(sk.CHAINS[f][1:], start=1):
+            h[j] = [x0, 0.03 * s, 0.0]
+    left, right = h.copy(), h.copy()
+    left[:, 0] -= 0.1
+    right[:, 0] += 0.1
+    return np.stack([left, right])
+
+
+def test_contact_prf_exact_on_built_sequences():
+    base = np.repeat(_hand_pair()[None], 10, axis=0)  # (T, 2, 21, 3), no contacts
+    pinch = base.copy()
+    pinch[4:6, 0, 17] = pinch[4:6, 0, 16] + [0.005, 0, 0]  # left thumb–index pinch in 2 frames
+    touch = base.copy()
+    touch[:, 1] -= [0.2, 0.1, 0]  # right hand slid onto the left: its tips (y = 0.02) lie on the left palm
+    W = jnp.asarray(M.palm_barycentric(100, 0))
+    intra, inter = M.contact_labels(jnp.asarray(np.stack([base, pinch, touch])), W)
+    intra, inter = np.asarray(intra), np.asarray(inter)
+    assert intra[0].sum() == 0 and inter[0].sum() == 0
+    assert intra[1].tolist() == [True] + [False] * 7  # left hand, thumb vs index only
+    assert inter[2].tolist() == [False] * 5 + [True] * 5  # right tips on the left palm, not vice versa
+    # Tips 2.2 cm apart are not an intra contact (threshold 2.0 cm); 2.2 cm tip-palm gaps would be.
+    # Pred = [pinch, base, touch] vs GT = [pinch, pinch, touch] → intra: TP 1, FN 1, FP 0.
+    pi, _ = M.contact_labels(jnp.asarray(np.stack([pinch, base, touch])), W)
+    gi, _ = M.contact_labels(jnp.asarray(np.stack([pinch, pinch, touch])), W)
+    prf = M.contact_prf(pi, gi)
+    assert prf["precision"] == pytest.approx(1.0, abs=1e-6)
+    assert prf["recall"] == pytest.approx(0.5, abs=1e-6)
+    assert prf["f1"] == pytest.approx(2 / 3, abs=1e-6)
+
+
+def test_palm_samples_lie_in_palm_triangles():
+    W = M.palm_barycentric(100, 3)
+    assert W.shape == (100, 21) and np.allclose(W.sum(1), 1) and (W >= 0).all()
+    assert set(np.flatnonzero(W.sum(0))) == {0, 13, 1, 4, 10, 7}
+    np.testing.assert_array_equal(W, M.palm_barycentric(100, 3))
+
+
+def test_mpjpe_and_accel():
+    rng = np.random.default_rng(0)
+    g = rng.normal(size=(3, 60, 2, 21, 3)).astype(np.float32)
+    assert np.allclose(M.mpjpe_mm(g, g), 0)
+    np.testing.assert_allclose(M.mpjpe_mm(g + np.array([0.01, 0, 0], np.float32), g), 10.0, rtol=1e-4)
+    # A global offset disappears relative to the left wrist.
+    np.testing.assert_allclose(M.mpjpe_mm(g + 0.01, g, root="left_wrist"), 0, atol=1e-3)
+    t = np.arange(60, dtype=np.float32) / 30
+    x = np.zeros((1, 60, 2, 21, 3), np.float32)
+    x[..., 0] = (0.5 * 2.0 * t**2)[None, :, None, None]  # constant 2 m/s² along x
+    acc, jit_ = M.acceleration_jitter(jnp.asarray(x))
+    assert float(acc[0]) == pytest.approx(2.0, rel=1e-3) and float(jit_[0]) == pytest.approx(0.0, abs=1e-2)
+
+
+def test_replications_ground_truth_row_and_ci():
+    rng = np.random.default_rng(0)
+    text = rng.normal(size=(256, 8)).astype(np.float32)
+    motion = text + 0.05 * rng.normal(size=text.shape).astype(np.float32)
+    cfg = M.MetricConfig(replications=5)
+    gt = M.replicate_embedding_metrics(text, motion[None], motion, cfg)
+    assert gt["rprec_top1"][0] > 0.95 and gt["fid"] == (pytest.approx(0.0, abs=1e-5), 0.0)
+    noisy = M.replicate_embedding_metrics(text, (motion + rng.normal(size=text.shape))[None], motion, cfg)
+    assert noisy["rprec_top1"][0] < gt["rprec_top1"][0] and noisy["fid"][0] > 1.0
+    assert noisy["rprec_top1"][1] > 0  # CI from differing block orders
+    assert M.mean_ci([1.0, 3.0]) == (2.0, pytest.approx(1.96 * 1.0 / math.sqrt(2)))
