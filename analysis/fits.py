@@ -397,7 +397,8 @@ class SaturatingFit:
         return self.c - self.k * (np.asarray(x, dtype=np.float64) / self.x_ref) ** (-self.alpha)
 
     def equation(self, digits: int = 4) -> str:
-        return (f"y = {self.c:.{digits}f} − {self.k:.{digits}f}·(x/{self.x_ref:.3g})^(−{self.alpha:.{digits}f})")
+        sign = "−" if self.k >= 0 else "+"
+        return (f"y = {self.c:.{digits}f} {sign} {abs(self.k):.{digits}f}·(x/{self.x_ref:.3g})^(−{self.alpha:.{digits}f})")
 
 
 DEFAULT_ALPHAS = np.geomspace(1e-3, 5.0, 400)
@@ -548,11 +549,12 @@ class Extrapolation:
         pct = f"{100 * self.fit.level:g}%"
         head = (f"fit on {self.fit.n} runs with {self.x_name} < {self.cut:.4g}: {self.fit.equation()} "
                 f"(r = {self.fit.r:.3f})")
-        lines = [head, f"{'run':<24} {self.x_name:>12} {'actual':>8} {'predicted':>9} {pct + ' PI':>19} "
+        w = max(12, len(self.x_name))
+        lines = [head, f"{'run':<24} {self.x_name:>{w}} {'actual':>8} {'predicted':>9} {pct + ' PI':>19} "
                        f"{'in':>3} {'saturating':>10}"]
         for p in self.points:
             sat = "" if p.saturating_predicted is None else f"{p.saturating_predicted:10.4f}"
-            lines.append(f"{p.label[:24]:<24} {p.x:12.4g} {p.actual:8.4f} {p.predicted:9.4f} "
+            lines.append(f"{p.label[:24]:<24} {p.x:{w}.4g} {p.actual:8.4f} {p.predicted:9.4f} "
                          f"[{p.pi_low:8.4f},{p.pi_high:8.4f}] {'yes' if p.inside else 'no':>3} {sat}")
         lines.append(f"held-out RMSE {self.rmse:.4f}; {pct} PI coverage {self.coverage:.2f} "
                      f"({sum(p.inside for p in self.points)}/{len(self.points)})")

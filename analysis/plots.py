@@ -64,11 +64,13 @@ LABELS: dict[str, str] = {
     "mm_dist": "MM-Dist",
     "multimodality": "MultiModality",
     "mpjpe": "MPJPE (mm)",
-    "contact_prec_intra": "Intra-hand $C_\\mathrm{prec}$",
-    "contact_rec_intra": "Intra-hand $C_\\mathrm{rec}$",
+    "acceleration": "Acceleration",
+    "jitter": "Jitter",
+    "contact_precision_intra": "Intra-hand $C_\\mathrm{prec}$",
+    "contact_recall_intra": "Intra-hand $C_\\mathrm{rec}$",
     "contact_f1_intra": "Intra-hand $C_\\mathrm{F1}$",
-    "contact_prec_inter": "Inter-hand $C_\\mathrm{prec}$",
-    "contact_rec_inter": "Inter-hand $C_\\mathrm{rec}$",
+    "contact_precision_inter": "Inter-hand $C_\\mathrm{prec}$",
+    "contact_recall_inter": "Inter-hand $C_\\mathrm{rec}$",
     "contact_f1_inter": "Inter-hand $C_\\mathrm{F1}$",
     "flops_per_sample": "FLOPs per sample",
     "train_flops": "Training compute (FLOPs)",
@@ -160,6 +162,7 @@ def _format_log_x(ax: Any, col: str) -> None:
         ax.xaxis.set_major_formatter(fmt)
         lo, hi = ax.get_xlim()
         if hi / lo < 30:  # under ~1.5 decades the decade ticks alone are too sparse
+            ax.xaxis.set_minor_locator(mpl.ticker.LogLocator(subs=(2, 3, 4, 5, 7)))
             ax.xaxis.set_minor_formatter(fmt)
             ax.tick_params(axis="x", which="both", labelsize=8.5, length=3.5)
     else:
@@ -334,8 +337,7 @@ def plot_heatmap(rows: Sequence[Mapping[str, Any]], metric: str = "rprec_top3", 
     with mpl.rc_context({**STYLE, "axes.grid": False, "axes.spines.top": True, "axes.spines.right": True}):
         fig = _new_figure(1.2 * len(xv) + 2.6, 0.55 * len(yv) + 1.6)
         ax = fig.add_subplot()
-        cm = mpl.colormaps[cmap].copy()
-        cm.set_bad("0.92")
+        cm = mpl.colormaps[cmap].with_extremes(bad="0.92")
         im = ax.imshow(np.ma.masked_invalid(grid), cmap=cm, aspect="auto", origin="lower")
         finite = grid[np.isfinite(grid)]
         mid = 0.5 * (finite.min() + finite.max())

@@ -48,13 +48,15 @@ The training loop writes, and :func:`row_from_run_dir` reads, a folder holding:
     mid-write) is skipped.
 ``eval.json`` (optional)
     A JSON object mapping metric names (:data:`METRICS`) to ``{"mean": x, "ci": y}`` (``ci``
-    optional) or to a plain number. ``<name>_ci`` keys are also accepted. Keys starting with ``_``
+    optional), to ``[mean, ci]`` (what ``json.dump`` makes of ``handx_jax.metrics.mean_ci``'s
+    tuple), or to a plain number. ``<name>_ci`` keys are also accepted. Keys starting with ``_``
     (e.g. ``"_meta": {"step": 1000, "checkpoint": "..."}``) are ignored; any other key is an error.
 """
 
 from __future__ import annotations
 
 import csv
+import difflib
 import io
 import json
 import math
@@ -67,16 +69,19 @@ import numpy as np
 
 from handx_jax.io import DataError, atomic_write_jsonl, atomic_write_text, read_jsonl
 
-# The metrics the evaluator reports (reference §5.4; paper Tables 2, 3, B, D).
+# The metrics the evaluator reports (reference §5.4; paper Tables 2, 3, B, D), named as the keys of
+# handx_jax.metrics.replicate_embedding_metrics / replicate_motion_metrics.
 METRICS: tuple[str, ...] = (
     "rprec_top1", "rprec_top2", "rprec_top3",
-    "fid", "diversity", "mm_dist", "multimodality", "mpjpe",
-    "contact_prec_intra", "contact_rec_intra", "contact_f1_intra",
-    "contact_prec_inter", "contact_rec_inter", "contact_f1_inter",
+    "fid", "diversity", "mm_dist", "multimodality", "mpjpe", "acceleration", "jitter",
+    "contact_precision_intra", "contact_recall_intra", "contact_f1_intra",
+    "contact_precision_inter", "contact_recall_inter", "contact_f1_inter",
 )
 LOWER_IS_BETTER: frozenset[str] = frozenset({"fid", "mm_dist", "mpjpe"})
 # No direction: the best value is the one closest to the ground truth's (paper Tables 2/3).
-CLOSEST_TO_GT: frozenset[str] = frozenset({"diversity", "multimodality"})
+# Acceleration or jitter below the data's means over-smoothed motion, not better motion, so the best
+# value for them is also the one closest to the ground truth.
+CLOSEST_TO_GT: frozenset[str] = frozenset({"diversity", "multimodality", "acceleration", "jitter"})
 FAMILIES: frozenset[str] = frozenset({"diffusion", "ar", "evaluator", "ground_truth"})
 GROUND_TRUTH = "ground_truth"
 
@@ -181,20 +186,20 @@ def _coerce(col: Column, value: Any, *, path: Any, row: Any) -> Any:
     return out
 
 
+def _unknown_column(name: str, *, path: Any, row: Any) -> DataError:
+    close = difflib.get_close_matches(name, COLUMN_NAMES, n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    return _error(f"unknown column{hint}; known columns: {', '.join(COLUMN_NAMES)}", path=path, row=row,
+                  column=name)
+
+
 def validate_row(raw: Mapping[str, Any], *, path: Any = None, row: Any = None) -> dict[str, Any]:
     """Check one raw row and return it as a full row (every column, None where missing)."""
     if not isinstance(raw, Mapping):
         raise _error(f"expected an object, got {type(raw).__name__}", path=path, row=row)
     unknown = [k for k in raw if k not in COLUMN_BY_NAME]
     if unknown:
-        hint = ""
-        import difflib
-
-        close = difflib.get_close_matches(unknown[0], COLUMN_NAMES, n=1)
-        if close:
-            hint = f" (did you mean {close[0]!r}?)"
-        raise _error(f"unknown column{hint}; known columns: {', '.join(COLUMN_NAMES)}", path=path,
-                     row=row, column=unknown[0])
+        raise _unknown_column(unknown[0], path=path, row=row)
     out = {c.name: _coerce(c, raw.get(c.name), path=path, row=row) for c in COLUMNS}
     for c in COLUMNS:
         if c.required and out[c.name] is None:
@@ -234,7 +239,7 @@ def _load_csv(path: Path) -> list[dict[str, Any]]:
     header = [h.strip() for h in next(reader)]
     for h in header:
         if h not in COLUMN_BY_NAME:
-            raise _error("unknown column in the CSV header", path=path, row="header", column=h)
+            raise _unknown_column(h, path=path, row="header")
     if len(set(header)) != len(header):
         raise _error("duplicate column in the CSV header", path=path, row="header")
     rows = []
@@ -391,6 +396,10 @@ def _eval_values(ev: Mapping[str, Any], path: Path) -> dict[str, Any]:
             raise DataError(f"unknown metric; known metrics: {', '.join(METRICS)}", path=path, field=key)
         if key.endswith("_ci"):
             out[key] = val
+        elif isinstance(val, (list, tuple)):
+            if len(val) != 2:
+                raise DataError("expected [mean, ci]", path=path, field=key)
+            out[key], out[f"{key}_ci"] = val
         elif isinstance(val, Mapping):
             extra = set(val) - {"mean", "ci"}
             if "mean" not in val or extra:

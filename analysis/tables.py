@@ -4,8 +4,9 @@ Which cell is "best" depends on the metric (the paper's convention):
 
 * higher is better: R-Precision and the contact scores;
 * lower is better: FID, MM-Dist and MPJPE (:data:`analysis.schema.LOWER_IS_BETTER`);
-* Diversity and MultiModality have no direction. The best is the value closest to the ground
-  truth's, when the table has a ``ground_truth`` row; without one nothing is bolded.
+* Diversity, MultiModality, acceleration and jitter have no direction. The best is the value
+  closest to the ground truth's, when the table has a ``ground_truth`` row; without one nothing is
+  bolded.
 
 Values are compared as printed (rounded to the table's digits), so displayed ties are all bold.
 Ground-truth rows are shown first and are never bold. Output: Markdown, CSV (machine-readable:
@@ -32,11 +33,13 @@ METRIC_INFO: dict[str, tuple[str, str, int]] = {
     "mm_dist": ("MM-Dist ↓", r"MM-Dist $\downarrow$", 3),
     "multimodality": ("MModality →", r"MModality $\rightarrow$", 3),
     "mpjpe": ("MPJPE (mm) ↓", r"MPJPE (mm) $\downarrow$", 2),
-    "contact_prec_intra": ("C_prec intra ↑", r"$C_\mathrm{prec}^\mathrm{intra}$ $\uparrow$", 3),
-    "contact_rec_intra": ("C_rec intra ↑", r"$C_\mathrm{rec}^\mathrm{intra}$ $\uparrow$", 3),
+    "acceleration": ("Accel. →", r"Accel. $\rightarrow$", 3),
+    "jitter": ("Jitter →", r"Jitter $\rightarrow$", 3),
+    "contact_precision_intra": ("C_prec intra ↑", r"$C_\mathrm{prec}^\mathrm{intra}$ $\uparrow$", 3),
+    "contact_recall_intra": ("C_rec intra ↑", r"$C_\mathrm{rec}^\mathrm{intra}$ $\uparrow$", 3),
     "contact_f1_intra": ("C_F1 intra ↑", r"$C_\mathrm{F1}^\mathrm{intra}$ $\uparrow$", 3),
-    "contact_prec_inter": ("C_prec inter ↑", r"$C_\mathrm{prec}^\mathrm{inter}$ $\uparrow$", 3),
-    "contact_rec_inter": ("C_rec inter ↑", r"$C_\mathrm{rec}^\mathrm{inter}$ $\uparrow$", 3),
+    "contact_precision_inter": ("C_prec inter ↑", r"$C_\mathrm{prec}^\mathrm{inter}$ $\uparrow$", 3),
+    "contact_recall_inter": ("C_rec inter ↑", r"$C_\mathrm{rec}^\mathrm{inter}$ $\uparrow$", 3),
     "contact_f1_inter": ("C_F1 inter ↑", r"$C_\mathrm{F1}^\mathrm{inter}$ $\uparrow$", 3),
 }
 assert set(METRIC_INFO) == set(METRICS)
@@ -55,7 +58,7 @@ _KEYS: dict[str, tuple[str, Any]] = {
     "train_flops": ("Train FLOPs", lambda v: f"{v:.3g}"),
 }
 _MAIN = ("rprec_top1", "rprec_top2", "rprec_top3", "fid", "diversity", "mm_dist",
-         "contact_prec_intra", "contact_rec_intra", "contact_f1_intra")
+         "contact_precision_intra", "contact_recall_intra", "contact_f1_intra")
 
 
 @dataclass(frozen=True)

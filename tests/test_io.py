@@ -52,3 +52,10 @@ def test_npy_roundtrip(tmp_path):
 def test_data_error_names_file_clip_field():
     e = io.DataError("bad", path="x.npz", clip="7", field="motion")
     assert "x.npz" in str(e) and "clip 7" in str(e) and "'motion'" in str(e)
+
+
+def test_atomic_files_get_normal_permissions(tmp_path):
+    p = io.atomic_write_text(tmp_path / "f.txt", "x")
+    ref = tmp_path / "ref.txt"
+    ref.write_text("x")
+    assert (p.stat().st_mode & 0o777) == (ref.stat().st_mode & 0o777)

@@ -15,7 +15,9 @@ Segmentation of a series x_0 … x_{T−1} (one descriptor of one clip):
    least ``sign_ratio`` (80 %) of v[i:j] is ≥ 0 or at least 80 % is ≤ 0, and — for descriptors with
    states — the state labels of x_i and x_{j−1} differ. The event is emitted and the scan continues
    at i = j; if no j qualifies, i advances by ``unit_len``;
-3. speed = interval label of |mean v[i:j]|; start/end states = labels of x_i and x_{j−1};
+3. speed = interval label of |mean v| over the event; start/end states = labels of x_i and x_{j−1};
+   the reported range is then trimmed of still frames at both ends (``trim_fraction``; 0 keeps the
+   reference's [i, j));
 4. a series with no event gets one constant event over the whole clip labelled with the state of
    mean(x) (descriptors without states, the wrist axes, get the state "still").
 
@@ -124,6 +126,11 @@ class AnnotationConfig:
     palm_relative: tuple[SegmentSpec, SegmentSpec, SegmentSpec] = tuple(_relative_spec(a) for a in AXES)
     # Finger–finger contact threshold (Table A: contact is [0, 0.02) m), intra- and inter-hand.
     tip_contact_m: float = 0.02
+    # Reported event ranges are trimmed to where the value changes by more than this fraction of
+    # the descriptor's delta (our addition: the reference scan absorbs still frames at both ends of
+    # an event, since zero velocity passes either sign test). 0 reproduces the reference ranges.
+    # The scan itself and the state labels are unaffected; speed is measured on the trimmed range.
+    trim_fraction: float = 0.1
     # Series processed per block of the vectorised scan (block × T² cells in memory).
     scan_block: int = 1024
 
@@ -183,8 +190,28 @@ def _best_ends(x_SxT: np.ndarray, v_SxT: np.ndarray, lab_SxT: np.ndarray | None,
     return np.where(has, T - last, 0).astype(np.int32)
 
 
+def _trim(x_SxT: np.ndarray, s_: np.ndarray, i_: np.ndarray, j_: np.ndarray,
+          eps: float) -> tuple[np.ndarray, np.ndarray]:
+    """Shrink each event [i, j) to where the value actually changes: drop leading frames that stay
+    within ``eps`` of x_i (keeping the last of them, where the change starts) and trailing frames
+    within ``eps`` of x_{j−1}."""
+    T = x_SxT.shape[1]
+    t = np.arange(T)[None, :]
+    xs = x_SxT[s_]  # (E, T)
+    inside = (t >= i_[:, None]) & (t < j_[:, None])
+    a = xs[np.arange(len(s_)), i_][:, None]
+    b = xs[np.arange(len(s_)), j_ - 1][:, None]
+    moved_a = inside & (np.abs(xs - a) > eps)
+    moved_b = inside & (np.abs(xs - b) > eps)
+    first = np.where(moved_a.any(1), np.argmax(moved_a, 1) - 1, i_)
+    last = np.where(moved_b.any(1), T - 1 - np.argmax(moved_b[:, ::-1], 1) + 2, j_)
+    ni = np.clip(first, i_, j_ - 1)
+    nj = np.clip(last, ni + 1, j_)
+    return ni.astype(np.int64), nj.astype(np.int64)
+
+
 def segment(x_SxT: np.ndarray, spec: SegmentSpec, *, fps: int = sk.FPS, sign_ratio: float = 0.8,
-            block: int = 1024) -> _Events:
+            block: int = 1024, trim_fraction: float = 0.0) -> _Events:
     """Greedy event segmentation of S series at once (module docstring, reference §6.2)."""
     x = np.asarray(x_SxT, dtype=np.float32)
     S, T = x.shape
@@ -217,6 +244,8 @@ def segment(x_SxT: np.ndarray, spec: SegmentSpec, *, fps: int = sk.FPS, sign_rat
     s_ = np.concatenate(ev_s) if ev_s else np.zeros(0, np.int64)
     i_ = np.concatenate(ev_i).astype(np.int64) if ev_i else np.zeros(0, np.int64)
     j_ = np.concatenate(ev_j).astype(np.int64) if ev_j else np.zeros(0, np.int64)
+    if trim_fraction > 0 and len(s_) and spec.delta is not None:
+        i_, j_ = _trim(x, s_, i_, j_, trim_fraction * spec.delta)
     cv = np.zeros((S, T + 1), np.float64)
     np.cumsum(v, axis=1, out=cv[:, 1:])
     mean_v = np.abs(cv[s_, j_] - cv[s_, i_]) / np.maximum(j_ - i_, 1)
@@ -326,7 +355,8 @@ def annotate(joints_NxTx2x21x3: np.ndarray, cfg: AnnotationConfig = AnnotationCo
     if ids is not None:
         for r, cid in zip(records, ids):
             r["id"] = cid
-    seg = lambda arr, spec: segment(arr, spec, fps=cfg.fps, sign_ratio=cfg.sign_ratio, block=cfg.scan_block)
+    seg = lambda arr, spec: segment(arr, spec, fps=cfg.fps, sign_ratio=cfg.sign_ratio, block=cfg.scan_block,
+                                    trim_fraction=cfg.trim_fraction)
 
     def series(a_NxTx_: np.ndarray) -> np.ndarray:  # (N, T, ...) → (N·K, T), clip-major
         return np.moveaxis(a_NxTx_.reshape(N, T, -1), 1, 2).reshape(-1, T)

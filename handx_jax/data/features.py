@@ -73,7 +73,7 @@ class FeatureConfig:
     palm_relation: Literal["closest_pairs", "centroid"] = "closest_pairs"
     # Candidate points per palm in the pruned exact pair search (see _palm_pairs_closest); ≥ P
     # disables pruning. Only speed depends on it.
-    prune_points: int = 40
+    prune_points: int = 32
     # Finger–palm distance: mean over this many closest palm points (paper and code: 5).
     finger_palm_k: int = 5
     # Flexion dead zone: bend magnitudes below this are set to 0 (reference §6.1: 11°).
@@ -82,7 +82,7 @@ class FeatureConfig:
     contact_tip_tip_m: float = 0.02
     contact_tip_joint_m: float = 0.025
     # Frames processed at once in the palm–palm pair search (P²·4·chunk bytes; small keeps it in cache).
-    frame_chunk: int = 64
+    frame_chunk: int = 512
 
     def __post_init__(self):
         if self.palm_points < 4:
@@ -246,8 +246,27 @@ def _sq_dists(a_MxPx3: np.ndarray, b_MxQx3: np.ndarray) -> np.ndarray:
     return np.maximum(np.matmul(A, B), 0.0)
 
 
-def _topk_pairs_full(cl_MxPx3: np.ndarray, cr_MxPx3: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Indices (li, ri), each (M, k), of the k closest of all P² pairs, searched exhaustively.
+def _mean_of_closest(D2_MxAxB: np.ndarray, a_MxAx3: np.ndarray, b_MxBx3: np.ndarray,
+                     k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean distance and mean (b − a) vector over the k smallest entries of each frame's D2 block,
+    and the k-th smallest distance. Exact ties at the k-th value are all averaged in.
+
+    The vector sum needs no gather: Σ_pq [D2_pq ≤ τ](b_q − a_p) = Σ_q n_q b_q − Σ_p n_p a_p with
+    n the column / row counts of the mask.
+    """
+    M, A, B = D2_MxAxB.shape
+    flat = D2_MxAxB.reshape(M, A * B)
+    tau = np.partition(flat, k - 1, axis=1)[:, k - 1]
+    mask = D2_MxAxB <= tau[:, None, None]
+    cnt = mask.sum((1, 2)).astype(np.float32)
+    dsum = np.sum(np.sqrt(D2_MxAxB) * mask, axis=(1, 2))
+    vsum = (np.einsum("mq,mqc->mc", mask.sum(1).astype(np.float32), b_MxBx3)
+            - np.einsum("mp,mpc->mc", mask.sum(2).astype(np.float32), a_MxAx3))
+    return dsum / cnt, vsum / cnt[:, None], np.sqrt(tau)
+
+
+def _closest_full(cl_MxPx3: np.ndarray, cr_MxPx3: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Exhaustive search over all P² pairs.
 
     A pair among the k closest has D_pq ≤ δ_k ≤ τ_row (the k-th smallest row minimum: the k rows
     with the smallest minima already give k pairs within it), and likewise ≤ τ_col; so its row is
@@ -258,9 +277,10 @@ def _topk_pairs_full(cl_MxPx3: np.ndarray, cr_MxPx3: np.ndarray, k: int) -> tupl
     D2 = _sq_dists(cl_MxPx3, cr_MxPx3)  # (M, P, P)
     rows = np.argpartition(D2.min(2), k - 1, axis=1)[:, :k]
     cols = np.argpartition(D2.min(1), k - 1, axis=1)[:, :k]
-    block = D2[np.arange(M)[:, None, None], rows[:, :, None], cols[:, None, :]].reshape(M, k * k)
-    sel = np.argpartition(block, k - 1, axis=1)[:, :k]
-    return np.take_along_axis(rows, sel // k, axis=1), np.take_along_axis(cols, sel % k, axis=1)
+    mm = np.arange(M)[:, None]
+    block = D2[mm[:, :, None], rows[:, :, None], cols[:, None, :]]
+    d, v, _ = _mean_of_closest(block, cl_MxPx3[mm, rows], cr_MxPx3[mm, cols], k)
+    return d, v
 
 
 def _palm_pairs_closest(cl_MxPx3: np.ndarray, cr_MxPx3: np.ndarray, k: int,
@@ -274,32 +294,27 @@ def _palm_pairs_closest(cl_MxPx3: np.ndarray, cr_MxPx3: np.ndarray, k: int,
     where the block's k-th distance exceeds LB (palms overlapping along d̂) are searched exhaustively.
     """
     M, P, _ = cl_MxPx3.shape
+    if m >= P or m * m < k:
+        return _closest_full(cl_MxPx3, cr_MxPx3, k)
     mm = np.arange(M)[:, None]
-    if m >= P:
-        li, ri = _topk_pairs_full(cl_MxPx3, cr_MxPx3, k)
-    else:
-        d = cr_MxPx3.mean(1) - cl_MxPx3.mean(1)
-        d /= np.maximum(_norm(d), 1e-9)[:, None]
-        sl = np.einsum("mpc,mc->mp", cl_MxPx3, d)
-        sr = np.einsum("mpc,mc->mp", cr_MxPx3, d)
-        lsel = np.argpartition(-sl, m, axis=1)  # [:m] largest m, [m] the (m+1)-th
-        rsel = np.argpartition(sr, m, axis=1)
-        sl_next = np.take_along_axis(sl, lsel[:, m:m + 1], 1)[:, 0]  # (m+1)-th largest s_L
-        sr_next = np.take_along_axis(sr, rsel[:, m:m + 1], 1)[:, 0]  # (m+1)-th smallest s_R
-        lb = np.minimum(sr.min(1) - sl_next, sr_next - sl.max(1))
-        lc, rc = lsel[:, :m], rsel[:, :m]
-        a, b = cl_MxPx3[mm, lc], cr_MxPx3[mm, rc]  # (M, m, 3)
-        diff = b[:, None, :, :] - a[:, :, None, :]
-        D2 = np.einsum("mpqc,mpqc->mpq", diff, diff).reshape(M, m * m)
-        sel = np.argpartition(D2, k - 1, axis=1)[:, :k]
-        kth = np.sqrt(np.take_along_axis(D2, sel, 1).max(1))
-        li = np.take_along_axis(lc, sel // m, axis=1)
-        ri = np.take_along_axis(rc, sel % m, axis=1)
-        bad = np.flatnonzero(~(kth <= lb))
-        if len(bad):
-            li[bad], ri[bad] = _topk_pairs_full(cl_MxPx3[bad], cr_MxPx3[bad], k)
-    vec = cr_MxPx3[mm, ri] - cl_MxPx3[mm, li]  # (M, k, 3)
-    return _norm(vec).mean(1).astype(np.float32), vec.mean(1).astype(np.float32)
+    d = cr_MxPx3.mean(1) - cl_MxPx3.mean(1)
+    d /= np.maximum(_norm(d), 1e-9)[:, None]
+    sl = np.einsum("mpc,mc->mp", cl_MxPx3, d)
+    sr = np.einsum("mpc,mc->mp", cr_MxPx3, d)
+    lsel = np.argpartition(-sl, m, axis=1)  # [:m] the m largest, [m] the (m+1)-th largest
+    rsel = np.argpartition(sr, m, axis=1)
+    sl_next = np.take_along_axis(sl, lsel[:, m:m + 1], 1)[:, 0]
+    sr_next = np.take_along_axis(sr, rsel[:, m:m + 1], 1)[:, 0]
+    lb = np.minimum(sr.min(1) - sl_next, sr_next - sl.max(1))
+    a, b = cl_MxPx3[mm, lsel[:, :m]], cr_MxPx3[mm, rsel[:, :m]]  # (M, m, 3)
+    D2 = np.zeros((M, m, m), np.float32)
+    for c in range(3):
+        D2 += np.square(b[:, None, :, c] - a[:, :, None, c])
+    dist, vec, kth = _mean_of_closest(D2, a, b, k)
+    bad = np.flatnonzero(~(kth <= lb))
+    if len(bad):
+        dist[bad], vec[bad] = _closest_full(cl_MxPx3[bad], cr_MxPx3[bad], k)
+    return dist.astype(np.float32), vec.astype(np.float32)
 
 
 def _palm_pairs_centroid(cl_MxPx3: np.ndarray, cr_MxPx3: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:

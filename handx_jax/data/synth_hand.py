@@ -110,15 +110,15 @@ def clip_to_limits(pose_x16: np.ndarray) -> np.ndarray:
     return np.clip(pose_x16, LIMITS_LO_16, LIMITS_HI_16)
 
 
-def _thumb_axes(pose_x16: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _thumb_axes(pose_x16: np.ndarray, radians: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Thumb metacarpal direction and nail-side axis after the 2-DoF CMC rotation, (..., 3) each.
 
     R = Rz(−flex) · Ry(−abd) · T0 · Ry_local(roll): flexion swings the thumb across the palm toward
     the pinky, abduction lifts it out of the palm plane, and the coupled roll pronates it so the
     pad turns toward the finger pads (opposition).
     """
-    f = np.radians(pose_x16[..., T_CMC_FLEX])
-    a = np.radians(pose_x16[..., T_CMC_ABD])
+    to_rad = (lambda x: x) if radians else np.radians
+    f, a = to_rad(pose_x16[..., T_CMC_FLEX]), to_rad(pose_x16[..., T_CMC_ABD])
     roll = THUMB_ROLL_PER_FLEX * f
     cf, sf, ca, sa = np.cos(f), np.sin(f), np.cos(a), np.sin(a)
     # Rows of Rz(−f)·Ry(−a), written out so that no (...,3,3) matrices are materialised.
@@ -127,45 +127,50 @@ def _thumb_axes(pose_x16: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.stack([cf * ca * vx + sf * vy - cf * sa * vz,
                          -sf * ca * vx + cf * vy + sf * sa * vz,
                          sa * vx + ca * vz], -1)
-    along = apply(np.broadcast_to(_T_ALONG, f.shape + (3,)))
-    nail_local = np.sin(roll)[..., None] * _T_LAT + np.cos(roll)[..., None] * _T_NAIL
+    t_along, t_lat, t_nail = (v.astype(f.dtype) for v in (_T_ALONG, _T_LAT, _T_NAIL))
+    along = apply(np.broadcast_to(t_along, f.shape + (3,)))
+    nail_local = np.sin(roll)[..., None] * t_lat + np.cos(roll)[..., None] * t_nail
     return along, apply(nail_local)
 
 
+# Model order used inside hand_fk: wrist, thumb CMC..tip, then MCP..tip of index, middle, ring,
+# pinky; _MODEL_TO_OFFICIAL permutes it into skeleton.JOINT_NAMES order.
+_MODEL_ORDER = (0,) + sk.CHAINS["thumb"][1:] + sum((sk.CHAINS[f][1:] for f in ("index", "middle", "ring", "pinky")), ())
+_MODEL_TO_OFFICIAL = np.argsort(_MODEL_ORDER)
+_F32 = {k: v.astype(np.float32) for k, v in
+        {"dir": _FINGER_DIR_4x3, "lat": _FINGER_LAT_4x3, "back": _FINGER_BACK_4x3[:, None, :]}.items()}
+
+
 def hand_fk(pose_x16: np.ndarray, geom: dict[str, np.ndarray]) -> np.ndarray:
-    """Joint positions (..., 21, 3) in the right-hand frame, official joint order, metres.
+    """Joint positions (..., 21, 3) float32 in the right-hand frame, official joint order, metres.
 
     ``pose_x16`` is (..., 16) degrees; ``geom`` arrays (from hand_geometry) must broadcast against
     the leading pose axes, e.g. pose (N, T, 2, 16) with geometry reshaped to (N, 1, 1, ...).
+    Computed in float32 (sub-micrometre error at hand scale) because it is the generator's hot loop.
     """
-    p = np.asarray(pose_x16, dtype=np.float64)
+    p = np.radians(np.asarray(pose_x16, dtype=np.float32))
     lead = p.shape[:-1]
-    out = np.zeros(lead + (sk.NUM_JOINTS, 3))
+    g = {k: np.asarray(v, dtype=np.float32) for k, v in geom.items()}
     # Fingers: abduction turns the finger in the palm plane, then the three flexions act about one
     # axis, so each finger is planar and bone k points at cumulative flexion phi_k.
-    a = np.radians(p[..., ABD])[..., None]
-    dir_a = np.cos(a) * _FINGER_DIR_4x3 - np.sin(a) * _FINGER_LAT_4x3           # (..., 4, 3)
-    f1, f2 = np.radians(p[..., MCP]), np.radians(p[..., PIP])
-    phi = np.stack([f1, f1 + f2, f1 + f2 * (1.0 + DIP_PER_PIP)], -1)[..., None]  # (..., 4, 3, 1)
-    bone_dir = np.cos(phi) * dir_a[..., None, :] - np.sin(phi) * _FINGER_BACK_4x3[:, None, :]
-    seg = bone_dir * geom["bones_Nx4x3"][..., None]
-    mcp = np.broadcast_to(geom["mcp_Nx4x3"], lead + (4, 3))
-    chain = mcp[..., None, :] + np.cumsum(seg, axis=-2)                          # (..., 4, 3, 3)
-    for k, name in enumerate(("index", "middle", "ring", "pinky")):
-        c = sk.CHAINS[name]
-        out[..., c[1], :] = mcp[..., k, :]
-        out[..., list(c[2:]), :] = chain[..., k, :, :]
+    a = p[..., ABD, None]
+    dir_a = np.cos(a) * _F32["dir"] - np.sin(a) * _F32["lat"]                   # (..., 4, 3)
+    f1, f2 = p[..., MCP], p[..., PIP]
+    phi = np.stack([f1, f1 + f2, f1 + f2 * np.float32(1.0 + DIP_PER_PIP)], -1)[..., None]  # (..., 4, 3, 1)
+    bone = (np.cos(phi) * dir_a[..., None, :] - np.sin(phi) * _F32["back"]) * g["bones_Nx4x3"][..., None]
+    mcp = np.broadcast_to(g["mcp_Nx4x3"], lead + (4, 3))
+    fingers = np.cumsum(np.concatenate([mcp[..., None, :], bone], -2), axis=-2)  # (..., 4, 4, 3)
     # Thumb: CMC sets the metacarpal; MCP and IP flex toward the pad side (−nail).
-    along, nail = _thumb_axes(p)
-    m, i = np.radians(p[..., T_MCP])[..., None], np.radians(p[..., T_IP])[..., None]
-    tb = geom["thumb_bones_Nx3"]
-    cmc = np.broadcast_to(geom["cmc_Nx3"], lead + (3,))
+    along, nail = _thumb_axes(p, radians=True)
+    m, i = p[..., T_MCP, None], p[..., T_IP, None]
+    tb = g["thumb_bones_Nx3"]
+    cmc = np.broadcast_to(g["cmc_Nx3"], lead + (3,))
     t_mcp = cmc + tb[..., 0:1] * along
     t_ip = t_mcp + tb[..., 1:2] * (np.cos(m) * along - np.sin(m) * nail)
     t_tip = t_ip + tb[..., 2:3] * (np.cos(m + i) * along - np.sin(m + i) * nail)
-    c = sk.CHAINS["thumb"]
-    out[..., c[1], :], out[..., c[2], :], out[..., c[3], :], out[..., c[4], :] = cmc, t_mcp, t_ip, t_tip
-    return out
+    model = np.concatenate([np.zeros(lead + (1, 3), np.float32), np.stack([cmc, t_mcp, t_ip, t_tip], -2),
+                            fingers.reshape(lead + (16, 3))], -2)
+    return model[..., _MODEL_TO_OFFICIAL, :]
 
 
 def interior_angles_from_pose(pose_x16: np.ndarray) -> np.ndarray:

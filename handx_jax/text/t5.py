@@ -24,7 +24,7 @@ import struct
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import flax.linen as nn
 import jax
@@ -426,6 +426,14 @@ def params_fingerprint(cfg: T5Config, params: Params) -> str:
     return h.hexdigest()[:16]
 
 
+@lru_cache(maxsize=8)
+def _encoder_forward(cfg: T5Config) -> Callable:
+    """One jitted forward per config, so reloading an encoder reuses its compiled shapes."""
+    model = T5EncoderModel(cfg)
+    # stop_gradient: downstream code may close over these outputs; the encoder stays frozen.
+    return jax.jit(lambda p, ids, mask: jax.lax.stop_gradient(model.apply({"params": p}, ids, mask)))
+
+
 @dataclass
 class FrozenEncoder:
     """A loaded encoder folder: config, frozen parameters, its tokenizer, and a jitted forward."""
@@ -436,10 +444,7 @@ class FrozenEncoder:
     path: Path | None = None
 
     def __post_init__(self):
-        model = T5EncoderModel(self.cfg)
-        # stop_gradient: downstream models may close over these outputs; the encoder stays frozen.
-        self._forward = jax.jit(lambda p, ids, mask: jax.lax.stop_gradient(
-            model.apply({"params": p}, ids, mask)))
+        self._forward = _encoder_forward(self.cfg)
 
     @property
     def fingerprint(self) -> str:

@@ -1,0 +1,276 @@
+"""``handx analyze``: scaling fits, paper tables, plots and extrapolation checks from results files.
+
+Wiring: ``handx_jax/cli.py`` calls :func:`add_parser` with its sub-parsers and then ``args.func(args)``.
+
+RESULTS arguments accept ``.jsonl``/``.csv`` results tables, run folders, sweep folders (whose
+sub-folders are run folders) and the paper's own tables as ``paper:2``, ``paper:3`` or ``paper:B``.
+Several can be given; they are concatenated (run ids must be unique).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any, Sequence
+
+from handx_jax.io import DataError
+
+_SUFFIX = {"k": 1e3, "m": 1e6, "g": 1e9, "t": 1e12, "p": 1e15, "e": 1e18}
+
+
+def parse_amount(text: str) -> float:
+    """A positive number, optionally with a K/M/G/T/P/E suffix: ``1e10``, ``10G``, ``9.5g``."""
+    s = text.strip()
+    mult = 1.0
+    if s and s[-1].lower() in _SUFFIX:
+        mult, s = _SUFFIX[s[-1].lower()], s[:-1]
+    try:
+        v = float(s) * mult
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r} (e.g. 1e10 or 10G)") from None
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0: {text!r}")
+    return v
+
+
+def load_inputs(specs: Sequence[str], family: str | None = None) -> list[dict[str, Any]]:
+    """Load RESULTS arguments (files, run folders, ``paper:B``...) and optionally keep one family."""
+    from analysis import paper
+    from analysis.schema import GROUND_TRUTH, load_results
+
+    rows: list[dict[str, Any]] = []
+    seen: dict[str, str] = {}
+    for spec in specs:
+        part = paper.load_table(spec.split(":", 1)[1]) if spec.startswith("paper:") else load_results(spec)
+        for r in part:
+            if r["run_id"] in seen:
+                raise DataError(f"run_id {r['run_id']!r} appears in both {seen[r['run_id']]} and {spec}")
+            seen[r["run_id"]] = spec
+        rows.extend(part)
+    if family is not None:
+        rows = [r for r in rows if r["family"] in (family, GROUND_TRUTH)]
+    return rows
+
+
+def _emit_json(obj: Any) -> None:
+    json.dump(obj, sys.stdout, indent=2)
+    sys.stdout.write("\n")
+
+
+def _guard(fn):
+    """Turn bad-input errors into a one-line message and exit status 1 (no traceback)."""
+
+    def run(args: argparse.Namespace) -> int:
+        try:
+            return fn(args) or 0
+        except (DataError, ValueError, KeyError, FileExistsError) as e:
+            msg = e.args[0] if isinstance(e, KeyError) and e.args else e
+            raise SystemExit(f"handx analyze {args.analyze_command}: error: {msg}") from None
+
+    return run
+
+
+# ----------------------------------------------------------------------------------------------
+
+
+def _cmd_paper(args: argparse.Namespace) -> int:
+    from analysis import paper
+    from analysis.fits import compare_models, select_xy
+
+    rows = paper.load_table("B")
+    fits = {y: paper.fig4_fit(y, n_boot=args.n_boot, seed=args.seed, level=args.level)
+            for y in ("rprec_top1", "rprec_top2", "rprec_top3", "fid")}
+    main = fits["rprec_top3"]
+    xs, ys, _ = select_xy(rows, "flops", "rprec_top3")
+    cmp = compare_models(xs, ys)
+    if args.json:
+        _emit_json({"fig4": {**main.to_dict(full=True), "paper": paper.FIG4, "matches": paper.fig4_matches(main)},
+                    "fits": {y: f.to_dict(full=True) for y, f in fits.items()},
+                    "model_comparison": cmp.to_dict()})
+    else:
+        ok = "reproduced" if paper.fig4_matches(main) else "NOT reproduced"
+        print("HandX Fig. 4 (Table B, 5% data, R-Precision block 16; x = FLOPs per sample = G × 1e9)")
+        print(f"paper:  Rprec@3 = {paper.FIG4['slope']}·log10(FLOPs) − {abs(paper.FIG4['intercept'])}, "
+              f"r = {paper.FIG4['r']}")
+        print(f"refit:  {main.equation()}  r = {main.r:.4f}  -> {ok}")
+        print()
+        print(main.summary())
+        for y in ("rprec_top1", "rprec_top2", "fid"):
+            f = fits[y]
+            print(f"{f.equation()}  r = {f.r:.3f}  slope CI [{f.slope_ci[0]:.4f}, {f.slope_ci[1]:.4f}]")
+        print()
+        print("top-3: log-linear vs saturating, leave-one-out")
+        print(cmp.summary())
+    if args.plot:
+        from analysis.plots import plot_scaling, save_figure
+
+        fig = plot_scaling(rows, "flops", "rprec_top3", name="HandX Table B (5% data)", fit=main,
+                           title="HandX Fig. 4 redrawn: top-3 R-Precision vs FLOPs")
+        print(f"wrote {save_figure(fig, args.plot)}", file=sys.stderr)
+    return 0
+
+
+def _cmd_fit(args: argparse.Namespace) -> int:
+    from analysis.fits import compare_models, fit_rows, select_xy
+
+    rows = load_inputs(args.results, args.family)
+    fit = fit_rows(rows, args.x, args.y, level=args.level, n_boot=args.n_boot, seed=args.seed, method=args.method)
+    if args.json:
+        _emit_json(fit.to_dict())
+    else:
+        print(fit.summary())
+        xs, ys, _ = select_xy(rows, args.x, args.y)
+        if xs.size >= 4:
+            print()
+            print(compare_models(xs, ys).summary())
+    if args.plot:
+        from analysis.plots import plot_scaling, save_figure
+
+        fig = plot_scaling(rows, args.x, args.y, fit=fit, name=args.name or "runs", level=args.level)
+        print(f"wrote {save_figure(fig, args.plot)}", file=sys.stderr)
+    return 0
+
+
+def _cmd_table(args: argparse.Namespace) -> int:
+    from analysis.tables import render_table
+
+    rows = load_inputs(args.results, args.family)
+    text = render_table(rows, fmt=args.format, layout=args.layout, digits=args.digits, caption=args.caption)
+    if args.out:
+        from handx_jax.io import atomic_write_text
+
+        print(f"wrote {atomic_write_text(args.out, text)}", file=sys.stderr)
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+def _cmd_extrapolate(args: argparse.Namespace) -> int:
+    from analysis.fits import extrapolate
+
+    rows = load_inputs(args.results, args.family)
+    ext = extrapolate(rows, args.cut, x=args.x, y=args.y, level=args.level, n_boot=args.n_boot, seed=args.seed)
+    if args.json:
+        _emit_json(ext.to_dict())
+    else:
+        print(ext.summary())
+    if args.plot:
+        from analysis.plots import plot_extrapolation, save_figure
+
+        print(f"wrote {save_figure(plot_extrapolation(ext, rows), args.plot)}", file=sys.stderr)
+    return 0
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    from analysis import plots
+
+    rows = load_inputs(args.results, args.family)
+    if args.kind == "scaling":
+        overlay = {spec: load_inputs([spec], args.family) for spec in args.overlay or []}
+        fig = plots.plot_scaling(rows, args.x, args.y, overlay=overlay, name=args.name or "runs")
+    elif args.kind == "grid":
+        fig = plots.plot_axis_grid(rows, args.metrics.split(","))
+    else:
+        fig = plots.plot_heatmap(rows, args.y, x=args.heat_x, y=args.heat_y)
+    print(f"wrote {plots.save_figure(fig, args.out)}", file=sys.stderr)
+    return 0
+
+
+# ----------------------------------------------------------------------------------------------
+
+
+def _add_fit_options(p: argparse.ArgumentParser, *, xy: bool = True) -> None:
+    if xy:
+        p.add_argument("--x", default="flops",
+                       help="x column or alias: flops (flops_per_sample), compute (train_flops), params, "
+                            "data (data_fraction), samples (samples_seen) (default: flops)")
+        p.add_argument("--y", default="rprec_top3", help="metric column (default: rprec_top3)")
+    p.add_argument("--level", type=float, default=0.95, help="confidence level of CIs and intervals (default: 0.95)")
+    p.add_argument("--n-boot", type=int, default=2000, help="bootstrap resamples (default: 2000)")
+    p.add_argument("--seed", type=int, default=0, help="bootstrap seed (default: 0)")
+
+
+def _add_results(p: argparse.ArgumentParser) -> None:
+    p.add_argument("results", nargs="+", metavar="RESULTS",
+                   help="results .jsonl/.csv, run folder, sweep folder, or paper:2|paper:3|paper:B")
+    p.add_argument("--family", choices=("diffusion", "ar", "evaluator"), default=None,
+                   help="keep only runs of this family (and ground-truth rows)")
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Register ``analyze`` and its sub-commands on the ``handx`` command's sub-parsers."""
+    p = subparsers.add_parser(
+        "analyze", help="scaling fits, paper tables and plots from results files",
+        description="Scaling-law analysis of results tables (see analysis/schema.py for the format). "
+                    "RESULTS may be .jsonl/.csv tables, run folders, sweep folders, or paper:2, paper:3, "
+                    "paper:B for the HandX paper's own tables.")
+    p.set_defaults(func=lambda a: p.print_help() or 0, analyze_command=None)
+    sub = p.add_subparsers(dest="analyze_command", metavar="COMMAND")
+
+    q = sub.add_parser("paper", help="redo the paper's Fig. 4 fit from Table B and print/plot it",
+                       description="Fit the HandX paper's Table B (top-1/2/3 R-Precision and FID against "
+                                   "per-sample FLOPs = G × 1e9) and compare with Fig. 4: "
+                                   "0.4391·log10(FLOPs) − 3.8707, r = 0.96.")
+    q.add_argument("--json", action="store_true", help="print the fits as JSON")
+    q.add_argument("--plot", metavar="PATH", help="write the Fig. 4 redraw (.png, .svg or .pdf)")
+    _add_fit_options(q, xy=False)
+    q.set_defaults(func=_guard(_cmd_paper))
+
+    q = sub.add_parser("fit", help="fit y = a·log10(x) + b with bootstrap CIs",
+                       description="Log-linear fit of a metric against FLOPs, compute, params or data, "
+                                   "with bootstrap CIs for slope and intercept, and a leave-one-out "
+                                   "comparison with a saturating law y = c − k·x^(−α).")
+    _add_results(q)
+    _add_fit_options(q)
+    q.add_argument("--method", choices=("bootstrap-t", "pairs", "t"), default="bootstrap-t",
+                   help="CI method: studentized residual bootstrap (default), case-resampling "
+                        "percentile, or the classical t-interval")
+    q.add_argument("--json", action="store_true",
+                   help="print JSON with keys slope, intercept, r, n, slope_ci, intercept_ci")
+    q.add_argument("--plot", metavar="PATH", help="write the scaling plot (.png, .svg or .pdf)")
+    q.add_argument("--name", help="legend name of the runs")
+    q.set_defaults(func=_guard(_cmd_fit))
+
+    q = sub.add_parser("table", help="paper-style table (mean ± CI, best in bold)",
+                       description="Render results as a Table 2 / Table 3 style table. Best per column "
+                                   "in bold: max, or min for FID/MM-Dist/MPJPE, or closest to the "
+                                   "ground-truth row for Diversity/MultiModality.")
+    _add_results(q)
+    q.add_argument("--format", choices=("md", "csv", "latex"), default="md", help="output format (default: md)")
+    q.add_argument("--layout", choices=("auto", "table2", "table3", "tableB"), default="auto",
+                   help="row keys and metric columns (default: auto)")
+    q.add_argument("--digits", type=int, default=None, help="decimals (default: 3, MPJPE 2)")
+    q.add_argument("--caption", help="caption (Markdown/LaTeX)")
+    q.add_argument("--out", metavar="PATH", help="write to a file instead of stdout")
+    q.set_defaults(func=_guard(_cmd_table))
+
+    q = sub.add_parser("extrapolate", help="fit below a compute cut, predict the runs above it",
+                       description="Fit the log-linear law on runs with x < CUT and report prediction vs "
+                                   "actual, with prediction intervals, for the runs with x >= CUT.")
+    _add_results(q)
+    q.add_argument("--cut", type=parse_amount, required=True, metavar="FLOPS",
+                   help="the cut on x, e.g. 1e10 or 10G")
+    _add_fit_options(q)
+    q.add_argument("--json", action="store_true", help="print the report as JSON")
+    q.add_argument("--plot", metavar="PATH", help="write the extrapolation plot")
+    q.set_defaults(func=_guard(_cmd_extrapolate))
+
+    q = sub.add_parser("plot", help="scaling plot, per-axis trend grid or codebook × size heatmap",
+                       description="Draw one figure from results: 'scaling' (metric vs x on a log axis with "
+                                   "the fit), 'grid' (metrics vs depth and data fraction) or 'heatmap' "
+                                   "(metric over codebook × model size).")
+    _add_results(q)
+    q.add_argument("--kind", choices=("scaling", "grid", "heatmap"), default="scaling")
+    q.add_argument("--x", default="flops", help="scaling: x column or alias (default: flops)")
+    q.add_argument("--y", default="rprec_top3", help="scaling/heatmap: metric (default: rprec_top3)")
+    q.add_argument("--metrics", default="rprec_top3,fid,contact_f1_intra",
+                   help="grid: comma-separated metrics (default: rprec_top3,fid,contact_f1_intra)")
+    q.add_argument("--heat-x", default="codebook", help="heatmap columns (default: codebook)")
+    q.add_argument("--heat-y", default="params", help="heatmap rows (default: params)")
+    q.add_argument("--overlay", action="append", metavar="RESULTS",
+                   help="scaling: another series to overlay (repeatable), e.g. paper:B")
+    q.add_argument("--name", help="scaling: legend name of the main series")
+    q.add_argument("--out", required=True, metavar="PATH", help="output figure (.png, .svg or .pdf)")
+    q.set_defaults(func=_guard(_cmd_plot))
+    return p

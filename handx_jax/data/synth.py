@@ -1,0 +1,707 @@
+"""Procedural two-hand motion corpus: FK hands (synth_hand.py) driven by motion programs.
+
+A sequence is ``segments_per_sequence`` segments of 60 frames. Each segment runs one program: an
+action for each hand (ACTIONS) and optionally a bimanual interaction (INTERACTIONS), or it is a
+deliberately idle segment. Segments are joined by smooth transitions. Contact in an interaction
+comes from the geometry: both hands are posed by FK, the contact points are computed on the posed
+hands, and the left wrist is translated so they meet, with a gap schedule that lets the distance
+come and go. Everything is vectorised over the chunk and over frames; the Python loops run over
+segments, actions and interactions only.
+
+Generation order per chunk (one rng, ``default_rng([seed, chunk_index])``):
+programs → action channels → neighbour coupling → transitions → intensity floor → FK and wrist
+rotation → translations (placement, contact alignment, transitions) → global pose → noise → defects.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Callable
+
+import numpy as np
+
+from handx_jax import skeleton as sk
+from handx_jax.data import clips
+from handx_jax.data import synth_hand as H
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    chunk_size: int = 64                     # sequences per chunk
+    segments_per_sequence: int = 4           # each segment is one program of segment_len frames
+    segment_len: int = sk.CLIP_LEN
+    fps: int = sk.FPS
+    idle_prob: float = 0.08                  # near-static segments, for the intensity filter to drop
+    interaction_prob: float = 0.5            # non-idle segments with a bimanual interaction
+    defect_prob: float = 0.05                # sequences with a NaN run or a one-frame teleport
+    noise_m: float = 0.0015                  # smooth (tracking-like) joint noise, RMS metres
+    white_noise_m: float = 0.00005           # per-frame jitter on top; kept tiny, it reads as motion
+    noise_knot_frames: int = 15              # correlation length of the smooth noise
+    hand_scale_range: tuple[float, float] = (0.85, 1.15)
+    bone_jitter: float = 0.03                # per-bone relative length variation within a person
+    speed_range: tuple[float, float] = (0.75, 1.35)   # multiplies every action's frequency
+    amplitude_range: tuple[float, float] = (0.7, 1.0)
+    hyperextension_prob: float = 0.2         # open-hand actions that bend a finger back past −20°
+    hand_separation_m: tuple[float, float] = (0.15, 0.40)  # wrist distance without interaction
+    min_hand_gap_m: float = 0.06             # clearance kept between non-interacting hands
+    transition_frames: int = 10              # ramp length on each side of a segment boundary
+    min_intensity_dps: float = 40.0          # per-hand finger intensity a non-idle segment is raised to
+    global_translation_m: float = 0.3        # random sequence offset (x, y) and height jitter
+
+
+@dataclass
+class SynthChunk:
+    joints: np.ndarray              # float32 (chunk_size, T, 2, 21, 3); NaN where defects were injected
+    programs: list[list[dict]]      # per sequence, per segment: left, right, interaction, idle
+
+
+# ---- time profiles ---------------------------------------------------------------------------
+def _smoothstep(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def _plateau(t: np.ndarray, f: np.ndarray, phase: np.ndarray, sharp: float = 2.0) -> np.ndarray:
+    """A 0..1 oscillation that dwells at both ends (holds a pose) and moves briskly in between."""
+    return 0.5 + 0.5 * np.tanh(sharp * np.sin(2 * np.pi * f * t + phase)) / np.tanh(sharp)
+
+
+class _Ctx:
+    """Random draws for n action instances evaluated on the time grid t (n, L) in seconds."""
+
+    def __init__(self, rng: np.random.Generator, t_nxL: np.ndarray, cfg: SynthConfig):
+        self.rng, self.t, self.n, self.cfg = rng, t_nxL, t_nxL.shape[0], cfg
+
+    def u(self, lo: float, hi: float, shape: tuple = ()) -> np.ndarray:
+        return self.rng.uniform(lo, hi, (self.n,) + shape)
+
+    def freq(self, lo: float, hi: float) -> np.ndarray:
+        return (self.u(lo, hi) * self.u(*self.cfg.speed_range))[:, None]
+
+    def phase(self) -> np.ndarray:
+        return self.u(0, 2 * np.pi)[:, None]
+
+    def amp(self) -> np.ndarray:
+        return self.u(*self.cfg.amplitude_range)[:, None, None]
+
+    def jitter(self, pose_16: np.ndarray, deg: float = 6.0) -> np.ndarray:
+        """Per-instance variation of a reference pose; abduction varies less than flexion."""
+        scale = np.full(H.NUM_CHANNELS, deg)
+        scale[H.ABD] = deg / 3
+        return pose_16 + self.rng.normal(0, 1, (self.n, H.NUM_CHANNELS)) * scale
+
+    def hyperextend(self, pose_nx16: np.ndarray) -> np.ndarray:
+        """Bend a random non-empty subset of fingers back past −20° at the MCP in some instances."""
+        hit = self.rng.random(self.n) < self.cfg.hyperextension_prob
+        fingers = self.rng.random((self.n, 4)) < 0.5
+        fingers[np.arange(self.n), self.rng.integers(0, 4, self.n)] = True
+        angle = self.u(-38, -23, (4,))
+        out = pose_nx16.copy()
+        out[:, H.MCP] = np.where(hit[:, None] & fingers, angle, out[:, H.MCP])
+        return out
+
+    def zeros(self) -> tuple[np.ndarray, np.ndarray]:
+        z = np.zeros((self.n, self.t.shape[1], 3))
+        return z, z.copy()
+
+    def between(self, a_nx16: np.ndarray, b_nx16: np.ndarray, fr: tuple[float, float] = (0.5, 1.1),
+                sharp: float = 2.0) -> np.ndarray:
+        """Go back and forth between two poses with random rate, phase and amplitude."""
+        s = _plateau(self.t, self.freq(*fr), self.phase(), sharp)[..., None] * self.amp()
+        return a_nx16[:, None] + s * (b_nx16 - a_nx16)[:, None]
+
+
+ActionOut = tuple[np.ndarray, np.ndarray, np.ndarray]  # pose (n,L,16) deg, rot (n,L,3) deg, pos (n,L,3) m
+
+
+def _two_pose(a: Callable[[_Ctx], np.ndarray], b: Callable[[_Ctx], np.ndarray],
+              fr: tuple[float, float] = (0.5, 1.1), sharp: float = 2.0) -> Callable[[_Ctx], ActionOut]:
+    def action(c: _Ctx) -> ActionOut:
+        return (c.between(a(c), b(c), fr, sharp), *c.zeros())
+    return action
+
+
+def _point_pose(c: _Ctx) -> np.ndarray:
+    p = c.jitter(H.FIST, 5)
+    p[:, 0], p[:, 4] = c.u(-8, 8), c.u(0, 10)  # index straight
+    p[:, H.ABD.start] = H.ABD_CLOSED_4[0] + 6
+    return p
+
+
+def _thumbs_up_pose(c: _Ctx) -> np.ndarray:
+    p = c.jitter(H.FIST, 5)
+    p[:, H.T_CMC_FLEX:] = np.array([-12.0, 5.0, 0.0, -10.0]) + c.rng.normal(0, 4, (c.n, 4))
+    return p
+
+
+def _pinch(finger: int, others_flat: bool = False) -> Callable[[_Ctx], ActionOut]:
+    """Open hand ↔ thumb-tip on finger-tip; the contact channels are not jittered (geometry)."""
+    def action(c: _Ctx) -> ActionOut:
+        target = np.array(H.pinch_pose(finger, others_flat))
+        b = c.jitter(target, 5)
+        keep = [finger, 4 + finger, 8 + finger, H.T_CMC_FLEX, H.T_CMC_ABD, H.T_MCP, H.T_IP]
+        b[:, keep] = target[keep]
+        a = c.hyperextend(c.jitter(H.SPREAD if others_flat else H.FLAT, 6))
+        if others_flat:  # the OK sign keeps the other fingers up; only index and thumb travel
+            a[:, [1, 2, 3, 5, 6, 7]] = b[:, [1, 2, 3, 5, 6, 7]]
+        return (c.between(a, b, (0.5, 1.0), 2.5), *c.zeros())
+    return action
+
+
+def _act_finger_tap(c: _Ctx) -> ActionOut:
+    """Sequential tapping (index → pinky or back), like drumming on a table."""
+    base = c.jitter(H.RELAXED, 5)
+    period = 1.0 / c.freq(0.6, 1.2)                                        # (n, 1) seconds per sweep
+    order = np.where(c.rng.random(c.n) < 0.5, 1.0, -1.0)[:, None, None] * np.arange(4) / 4
+    ph = (c.t[..., None] / period[..., None] + order + c.u(0, 1)[:, None, None]) % 1.0   # (n, L, 4)
+    pulse = np.sin(np.pi * np.clip(ph * 4.0, 0, 1)) ** 2                   # one tap per quarter sweep
+    pose = np.repeat(base[:, None], c.t.shape[1], 1)
+    pose[..., H.MCP] += pulse * c.u(30, 50, (1, 1)) * c.amp()
+    pose[..., H.PIP] += pulse * c.u(15, 30, (1, 1))
+    return (pose, *c.zeros())
+
+
+def _act_count(c: _Ctx) -> ActionOut:
+    """Fingers extend one at a time from a fist (thumb or index first), then fold back."""
+    fist = c.jitter(H.FIST, 4)
+    open_ = c.jitter(H.SPREAD, 4)
+    L = c.t.shape[1]
+    start = c.u(0.05, 0.3)[:, None]
+    step = c.u(0.15, 0.3)[:, None] / c.u(*c.cfg.speed_range)[:, None]
+    thumb_first = c.rng.random(c.n) < 0.5
+    rank = np.where(thumb_first[:, None], np.arange(5), np.array([4, 0, 1, 2, 3]))   # thumb, index..pinky
+    t = c.t[..., None]
+    ramp = step[..., None] * 0.8
+    up = _smoothstep((t - start[..., None] - rank[:, None] * step[..., None]) / ramp)
+    back = _smoothstep((t - (L / c.cfg.fps - 0.45)) / 0.35)             # fold back near the end
+    s = up * (1 - back)                                                    # (n, L, 5) extended 0..1
+    pose = np.repeat(fist[:, None], L, 1)
+    fingers = s[..., 1:]
+    for blk in (H.MCP, H.PIP, H.ABD):
+        pose[..., blk] = fist[:, None, blk] + fingers * (open_ - fist)[:, None, blk]
+    pose[..., H.T_CMC_FLEX:] = fist[:, None, H.T_CMC_FLEX:] + s[..., :1] * (open_ - fist)[:, None, H.T_CMC_FLEX:]
+    return pose, *c.zeros()
+
+
+def _act_wave(c: _Ctx) -> ActionOut:
+    """Waving: side-to-side wrist swing with the fingers fluttering open and closed."""
+    f, ph = c.freq(1.3, 2.2), c.phase()
+    pose = c.between(c.jitter(H.SPREAD, 5), c.jitter(H.RELAXED, 5), (1.3, 2.2), 1.0)
+    rot, pos = c.zeros()
+    rot[..., 0] = c.u(18, 35)[:, None] * np.sin(2 * np.pi * f * c.t + ph)
+    rot[..., 1] = c.u(20, 45)[:, None]                                       # hand raised
+    pos[..., 0] = c.u(0.005, 0.02)[:, None] * np.sin(2 * np.pi * f * c.t + ph)
+    return pose, rot, pos
+
+
+def _act_wrist_roll(c: _Ctx) -> ActionOut:
+    """Pronation/supination; the fingers open as the palm turns up (a natural presenting gesture)."""
+    f, ph = c.freq(0.5, 1.1), c.phase()
+    s = 0.5 - 0.5 * np.cos(2 * np.pi * f * c.t + ph)
+    a, b = c.jitter(H.RELAXED, 5), c.hyperextend(c.jitter(H.FLAT, 5))
+    pose = a[:, None] + (s[..., None] * c.amp()) * (b - a)[:, None]
+    rot, pos = c.zeros()
+    rot[..., 2] = c.u(50, 110)[:, None] * s
+    return pose, rot, pos
+
+
+def _act_wrist_flex(c: _Ctx) -> ActionOut:
+    """Wrist flexion/extension with tenodesis: the fingers curl as the wrist extends."""
+    f, ph = c.freq(0.5, 1.2), c.phase()
+    w = np.sin(2 * np.pi * f * c.t + ph)
+    a, b = c.jitter(H.FLAT, 5), c.jitter(H.base_pose(45, 55, 0.0, (20, 25, 15, 20)), 5)
+    pose = a[:, None] + (0.5 + 0.5 * w)[..., None] * (b - a)[:, None]
+    rot, pos = c.zeros()
+    rot[..., 1] = c.u(25, 50)[:, None] * w
+    return pose, rot, pos
+
+
+def _act_finger_wiggle(c: _Ctx) -> ActionOut:
+    """Independent finger flutter (piano fingers), each finger at its own rate."""
+    base = c.jitter(H.RELAXED, 6)
+    f = c.u(1.2, 2.6, (5,))[:, None] * c.u(*c.cfg.speed_range)[:, None, None]
+    ph = c.u(0, 2 * np.pi, (5,))[:, None]
+    w = np.sin(2 * np.pi * f * c.t[..., None] + ph)                          # (n, L, 5)
+    pose = np.repeat(base[:, None], c.t.shape[1], 1)
+    pose[..., H.MCP] += c.u(15, 30, (1, 4)) * w[..., :4]
+    pose[..., H.PIP] += c.u(10, 25, (1, 4)) * w[..., :4]
+    pose[..., H.T_MCP] += 15 * w[..., 4]
+    return pose, *c.zeros()
+
+
+def _hyper_pose(c: _Ctx) -> np.ndarray:
+    p = c.jitter(H.FLAT, 3)
+    p[:, H.MCP] = c.u(-38, -22, (4,))
+    p[:, H.PIP] = c.u(0, 6, (4,))
+    return p
+
+
+ACTION_FNS: dict[str, Callable[[_Ctx], ActionOut]] = {
+    "fist": _two_pose(lambda c: c.jitter(H.RELAXED), lambda c: c.jitter(H.FIST, 4)),
+    "open_spread": _two_pose(lambda c: c.jitter(H.FIST), lambda c: c.hyperextend(c.jitter(H.SPREAD, 4))),
+    "point": _two_pose(lambda c: c.jitter(H.RELAXED), _point_pose, (0.4, 0.9), 2.5),
+    "pinch_index": _pinch(0),
+    "pinch_middle": _pinch(1),
+    "pinch_ring": _pinch(2),
+    "pinch_pinky": _pinch(3),
+    "spread_close": _two_pose(lambda c: c.jitter(H.base_pose(20, 20, 0.0, (5, 15, 5, 5))),
+                              lambda c: c.hyperextend(c.jitter(H.SPREAD, 4)), (0.7, 1.5)),
+    "wave": _act_wave,
+    "finger_tap": _act_finger_tap,
+    "count": _act_count,
+    "wrist_roll": _act_wrist_roll,
+    "wrist_flex": _act_wrist_flex,
+    "grasp": _two_pose(lambda c: c.jitter(H.SPREAD), lambda c: c.jitter(H.GRASP, 5), (0.4, 0.9), 3.0),
+    "thumbs_up": _two_pose(lambda c: c.jitter(H.RELAXED), _thumbs_up_pose, (0.4, 0.9), 2.5),
+    "ok_sign": _pinch(0, others_flat=True),
+    "claw": _two_pose(lambda c: c.jitter(H.FLAT), lambda c: c.jitter(H.CLAW, 5), (0.6, 1.2)),
+    "finger_wiggle": _act_finger_wiggle,
+    "hyperextend": _two_pose(lambda c: c.jitter(H.RELAXED), _hyper_pose, (0.5, 1.0)),
+}
+ACTIONS: tuple[str, ...] = tuple(ACTION_FNS)
+# Fingers (0 = index … 3 = pinky) an action leaves free, which the intensity floor may move.
+_FIXED_FINGERS = {"pinch_index": (0,), "pinch_middle": (1,), "pinch_ring": (2,), "pinch_pinky": (3,),
+                  "ok_sign": (0,), "point": (0,)}
+_FREE_4 = {a: np.array([f not in _FIXED_FINGERS.get(a, ()) for f in range(4)]) for a in ACTIONS}
+_FINGER_ONLY = tuple(a for a in ACTIONS if a not in ("wave", "wrist_roll", "wrist_flex"))
+
+
+# ---- interactions ------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Interaction:
+    right_actions: tuple[str, ...]
+    left_actions: tuple[str, ...] | None     # None: the left hand repeats the right hand's action
+    pairing: str                              # "mirror", "alternate" or "independent"
+    orient_right: tuple[tuple[float, float], ...]  # (yaw, pitch, roll) ranges, degrees, symmetric frame
+    orient_left: tuple[tuple[float, float], ...] | None  # None: mirror of the right hand's sample
+    contact: str | None = None                # contact geometry (see _contact_points)
+    gap: str | None = None                    # gap schedule (see _gap_schedule)
+    half_sep: tuple[float, float] = (0.06, 0.12)
+
+
+_NATURAL = ((-20.0, 25.0), (-20.0, 20.0), (-10.0, 60.0))
+INTERACTION_SPECS: dict[str, _Interaction] = {
+    "fingertip_touch": _Interaction(("point",), None, "mirror", ((75, 100), (-10, 15), (-20, 40)), None,
+                                    "index_tips", "touch"),
+    "palm_press": _Interaction(("spread_close", "finger_wiggle", "hyperextend", "claw"), None, "mirror",
+                               ((-10, 15), (50, 85), (80, 95)), None, "palms", "touch"),
+    "clap": _Interaction(("spread_close", "finger_wiggle", "hyperextend"), None, "mirror",
+                         ((-5, 20), (15, 60), (80, 95)), None, "palms", "clap", (0.10, 0.16)),
+    "tap_palm": _Interaction(("finger_tap", "finger_wiggle"), ("spread_close", "finger_wiggle", "hyperextend"),
+                             "independent", ((-15, 15), (-40, -20), (-10, 10)),
+                             ((-10, 15), (-5, 15), (160, 185)), "tips_on_palm", "tap"),
+    "interlock": _Interaction(("grasp", "fist", "claw"), None, "mirror", ((5, 30), (20, 50), (82, 95)), None,
+                              "interlock", "grip"),
+    "grip_finger": _Interaction(("point",), ("grasp", "fist"), "independent", ((75, 100), (-10, 10), (-15, 25)),
+                                ((-15, 15), (-5, 15), (-10, 15)), "finger_in_hand", "grip"),
+    "grip_wrist": _Interaction(("grasp", "fist"), _FINGER_ONLY, "independent", ((75, 100), (-15, 5), (-10, 10)),
+                               ((-15, 15), (-10, 20), (-10, 30)), "wrist_in_hand", "grip"),
+    "steeple": _Interaction(("claw", "spread_close", "finger_wiggle"), None, "mirror",
+                            ((-5, 15), (55, 85), (65, 85)), None, "all_tips", "touch"),
+    "fist_bump": _Interaction(("fist", "thumbs_up"), None, "mirror", ((80, 100), (-10, 10), (-10, 30)), None,
+                              "knuckles", "touch"),
+    "circle": _Interaction(_FINGER_ONLY, _FINGER_ONLY, "independent", _NATURAL, _NATURAL, None, None, (0.07, 0.12)),
+    "mirrored": _Interaction(ACTIONS, None, "mirror", _NATURAL, None),
+    "alternating": _Interaction(ACTIONS, None, "alternate", _NATURAL, None),
+}
+INTERACTIONS: tuple[str, ...] = tuple(INTERACTION_SPECS)
+_PAIRING = {"independent": 0, "mirror": 1, "alternate": 2}
+
+
+# ---- programs ----------------------------------------------------------------------------------
+@dataclass
+class _Programs:
+    idle_NxS: np.ndarray      # bool
+    inter_NxS: np.ndarray     # index into INTERACTIONS, −1 for none
+    act_NxSx2: np.ndarray     # index into ACTIONS per hand (left, right), −1 when idle
+    pairing_NxS: np.ndarray   # _PAIRING code: left hand shares the right hand's action parameters
+    offset_NxS: np.ndarray    # time offset (s) of the left hand in "alternate" pairing
+
+    def to_dicts(self) -> list[list[dict]]:
+        out = []
+        for n in range(self.idle_NxS.shape[0]):
+            row = []
+            for s in range(self.idle_NxS.shape[1]):
+                idle, i = bool(self.idle_NxS[n, s]), int(self.inter_NxS[n, s])
+                left, right = (ACTIONS[a] if a >= 0 else "idle" for a in self.act_NxSx2[n, s])
+                row.append({"left": left, "right": right, "interaction": INTERACTIONS[i] if i >= 0 else None,
+                            "idle": idle})
+            out.append(row)
+        return out
+
+
+def _sample_programs(rng: np.random.Generator, cfg: SynthConfig) -> _Programs:
+    N, S = cfg.chunk_size, cfg.segments_per_sequence
+    idle = rng.random((N, S)) < cfg.idle_prob
+    inter = np.where(rng.random((N, S)) < cfg.interaction_prob, rng.integers(0, len(INTERACTIONS), (N, S)), -1)
+    inter[idle] = -1
+    act = rng.integers(0, len(ACTIONS), (N, S, 2))
+    pairing = np.zeros((N, S), np.int64)
+    for i, name in enumerate(INTERACTIONS):
+        spec, m = INTERACTION_SPECS[name], inter == i
+        k = int(m.sum())
+        right = np.array([ACTIONS.index(a) for a in spec.right_actions])
+        act[..., 1][m] = right[rng.integers(0, len(right), k)]
+        if spec.left_actions is None:
+            act[..., 0][m] = act[..., 1][m]
+        else:
+            left = np.array([ACTIONS.index(a) for a in spec.left_actions])
+            act[..., 0][m] = left[rng.integers(0, len(left), k)]
+        pairing[m] = _PAIRING[spec.pairing]
+    act[idle] = -1
+    offset = np.where(pairing == _PAIRING["alternate"], rng.uniform(0.25, 0.6, (N, S)), 0.0)
+    return _Programs(idle, inter, act, pairing, offset)
+
+
+# ---- per-segment channels ----------------------------------------------------------------------
+def _sample_orientation(rng: np.random.Generator, ranges: tuple, n: int) -> np.ndarray:
+    lo, hi = np.array(ranges, dtype=np.float64).T
+    return rng.uniform(lo, hi, (n, 3))
+
+
+def _segment_channels(rng: np.random.Generator, prog: _Programs, cfg: SynthConfig):
+    """Pose (N,S,L,2,16) and wrist rotation (N,S,L,2,3, degrees) and symmetric-frame position
+    (N,S,L,2,3, metres) of every segment, before transitions. The left hand's channels are given in
+    the mirrored frame, so equal channels mean mirror-symmetric hands."""
+    N, S, L = cfg.chunk_size, cfg.segments_per_sequence, cfg.segment_len
+    pose = np.empty((N, S, L, 2, H.NUM_CHANNELS))
+    rot = np.zeros((N, S, L, 2, 3))
+    pos = np.zeros((N, S, L, 2, 3))
+    t_L = np.arange(L) / cfg.fps
+    for s in range(S):
+        a, paired = prog.act_NxSx2[:, s], prog.pairing_NxS[:, s] > 0
+        for ai, name in enumerate(ACTIONS):
+            prim = a == ai
+            prim[:, 0] &= ~paired  # a paired left hand replays its right hand's draws below
+            seq, hand = np.nonzero(prim)
+            if seq.size == 0:
+                continue
+            sec = (hand == 1) & paired[seq]
+            state = copy.deepcopy(rng) if sec.any() else None
+            tt = np.broadcast_to(t_L, (seq.size, L))
+            for arr, o in zip((pose, rot, pos), ACTION_FNS[name](_Ctx(rng, tt, cfg))):
+                arr[seq, s, :, hand] = o
+            if state is not None:  # same parameters, optionally shifted in time (alternating)
+                out = ACTION_FNS[name](_Ctx(state, tt + prog.offset_NxS[seq, s][:, None], cfg))
+                for arr, o in zip((pose, rot, pos), out):
+                    arr[seq[sec], s, :, 0] = o[sec]
+        _fill_idle(rng, prog, pose, s, cfg)
+    base_rot, base_pos = _segment_placement(rng, prog, cfg)
+    rot += base_rot[:, :, None]
+    pos += base_pos[:, :, None]
+    _add_circling(rng, prog, pos, cfg)
+    return pose, rot, pos
+
+
+def _fill_idle(rng: np.random.Generator, prog: _Programs, pose: np.ndarray, s: int, cfg: SynthConfig) -> None:
+    """Near-static segments: hold a relaxed pose (or the previous idle hold) with a slight drift."""
+    seq = np.flatnonzero(prog.idle_NxS[:, s])
+    if seq.size == 0:
+        return
+    hold = H.RELAXED + rng.normal(0, 6, (seq.size, 2, H.NUM_CHANNELS))
+    if s > 0:
+        cont = prog.idle_NxS[seq, s - 1]
+        hold[cont] = pose[seq[cont], s - 1, -1]
+    t = np.arange(cfg.segment_len) / cfg.fps
+    drift = 1.5 * np.sin(2 * np.pi * rng.uniform(0.1, 0.3, (seq.size, 1, 1, 1)) * t[:, None, None]
+                         + rng.uniform(0, 2 * np.pi, (seq.size, 1, 2, H.NUM_CHANNELS)))
+    drift -= drift[:, :1]  # starts exactly at the hold, so consecutive idle segments join seamlessly
+    pose[seq, s] = hold[:, None] + drift
+
+
+def _segment_placement(rng: np.random.Generator, prog: _Programs, cfg: SynthConfig):
+    """Wrist orientation (N,S,2,3) and symmetric-frame position (N,S,2,3) held through a segment."""
+    N, S = cfg.chunk_size, cfg.segments_per_sequence
+    rot = _sample_orientation(rng, _NATURAL, N * S * 2).reshape(N, S, 2, 3)
+    half = 0.5 * rng.uniform(*cfg.hand_separation_m, (N, S, 1)) + rng.uniform(-0.01, 0.01, (N, S, 2))
+    pos = np.stack([half, rng.uniform(0.25, 0.40, (N, S, 2)), rng.uniform(-0.05, 0.08, (N, S, 2))], -1)
+    for i, name in enumerate(INTERACTIONS):
+        spec = INTERACTION_SPECS[name]
+        m = prog.inter_NxS == i
+        k = int(m.sum())
+        if k == 0:
+            continue
+        r = _sample_orientation(rng, spec.orient_right, k)
+        l = r if spec.orient_left is None else _sample_orientation(rng, spec.orient_left, k)
+        rot[m] = np.stack([l, r], 1)
+        pos[m, :, 0] = rng.uniform(*spec.half_sep, (k, 1))
+    # Consecutive idle segments keep one placement, so nothing moves between them.
+    for s in range(1, S):
+        cont = prog.idle_NxS[:, s] & prog.idle_NxS[:, s - 1]
+        rot[cont, s], pos[cont, s] = rot[cont, s - 1], pos[cont, s - 1]
+    return rot, pos
+
+
+def _add_circling(rng: np.random.Generator, prog: _Programs, pos: np.ndarray, cfg: SynthConfig) -> None:
+    """"circle": the wrists orbit in the sagittal plane in antiphase (hands rolling over each other)."""
+    n_idx, s_idx = np.nonzero(prog.inter_NxS == INTERACTIONS.index("circle"))
+    if n_idx.size == 0:
+        return
+    t = np.arange(cfg.segment_len) / cfg.fps
+    k = n_idx.size
+    w = 2 * np.pi * rng.uniform(0.5, 1.1, (k, 1)) * rng.uniform(*cfg.speed_range, (k, 1))
+    ph = rng.uniform(0, 2 * np.pi, (k, 1))
+    radius = rng.uniform(0.04, 0.08, (k, 1, 1))
+    for hand, shift in ((1, 0.0), (0, np.pi)):
+        ang = w * t + ph + shift
+        pos[n_idx, s_idx, :, hand, 1:] += radius * np.stack([np.cos(ang), np.sin(ang)], -1)
+
+
+# ---- transitions and the intensity floor -------------------------------------------------------
+def _blend_boundaries(x_NxSxLxD: np.ndarray, idle_NxS: np.ndarray, ramp: int) -> np.ndarray:
+    """Make segments join smoothly: the jump at each boundary (beyond the local velocity) is spread
+    over ``ramp`` frames on each side. Idle segments stay untouched (their neighbours absorb it),
+    so that a near-static window stays near-static."""
+    x = x_NxSxLxD.copy()
+    S, L = x.shape[1], x.shape[2]
+    i = np.arange(ramp)
+    up = _smoothstep((i + 1) / ramp)[:, None]             # prev segment: 0 → 1 at its last frame
+    down = 1.0 - _smoothstep(i / ramp)[:, None]           # next segment: 1 at its first frame → 0
+    for s in range(1, S):
+        prev, nxt = x[:, s - 1], x[:, s]
+        v = 0.5 * ((prev[:, -1] - prev[:, -2]) + (nxt[:, 1] - nxt[:, 0]))
+        d = nxt[:, 0] - prev[:, -1] - v
+        w_prev = np.where(idle_NxS[:, s - 1], 0.0, np.where(idle_NxS[:, s], 1.0, 0.5))[:, None, None]
+        prev[:, L - ramp:] += w_prev * d[:, None] * up
+        nxt[:, :ramp] -= (1.0 - w_prev) * d[:, None] * down
+    return x
+
+
+def _hand_intensity_from_pose(pose_NxSxLx2x16: np.ndarray, fps: int) -> np.ndarray:
+    """clips.hand_intensity of each segment, from the closed-form angles (no FK needed), (N,S,2)."""
+    ang = H.interior_angles_from_pose(pose_NxSxLx2x16)
+    lam = np.tile(np.asarray(clips.ClipConfig().weights, dtype=np.float64), 5)
+    return (np.abs(np.diff(ang, axis=2)) * fps * lam).sum(-1).mean(2) / lam.sum()
+
+
+def _raise_intensity(rng: np.random.Generator, pose: np.ndarray, prog: _Programs, cfg: SynthConfig) -> np.ndarray:
+    """Top up a hand whose fingers move too little in a non-idle segment.
+
+    The deficit is filled by a flexion oscillation of the fingers the action leaves free (a
+    pinching finger keeps its contact). It has a whole number of cycles in the segment, so it is
+    zero at both ends and does not disturb the transitions. Each free finger oscillating with MCP
+    peak-to-peak A (PIP 1.2A, DIP 0.8A) at f Hz adds 2·A·f·(9 + 3.6 + 0.8)/65 deg/s.
+    """
+    L = cfg.segment_len
+    free = np.where(prog.act_NxSx2[..., None] >= 0, np.stack([_FREE_4[a] for a in ACTIONS])[prog.act_NxSx2], False)
+    k_free = np.maximum(free.sum(-1), 1)
+    t = np.arange(L)
+    for _ in range(2):
+        omega = _hand_intensity_from_pose(pose, cfg.fps)
+        need = (~prog.idle_NxS[..., None]) & (omega < cfg.min_intensity_dps)
+        if not need.any():
+            break
+        cycles = rng.integers(2, 5, need.shape)
+        f = cycles * cfg.fps / L
+        amp = np.clip((cfg.min_intensity_dps + 5.0 - omega) / (2 * f * 13.4 / 65 * k_free), 0, 45) * need
+        osc = 0.5 - 0.5 * np.cos(2 * np.pi * cycles[:, :, None] * t[:, None] / L)   # (N,S,L,2)
+        sign = np.where(pose[..., H.MCP].mean(2) > 40, -1.0, 1.0)                   # room to move
+        delta = (amp[..., None] * sign * free)[:, :, None] * osc[..., None]           # (N,S,L,2,4)
+        pose[..., H.MCP] += delta
+        pose[..., H.PIP] += 1.2 * delta
+        pose = H.clip_to_limits(pose)
+    return pose
+
+
+# ---- kinematics and placement -----------------------------------------------------------------
+def _rotation(ypr_deg: np.ndarray) -> np.ndarray:
+    """Rz(yaw)·Rx(pitch)·Ry(roll), (..., 3, 3): roll about the hand's long axis, pitch lifts the
+    fingers, yaw turns about the vertical. Positive roll turns a right palm toward −x (the left)."""
+    y, p, r = np.moveaxis(np.radians(ypr_deg), -1, 0)
+    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    return np.stack([
+        np.stack([cy * cr - sy * sp * sr, -sy * cp, cy * sr + sy * sp * cr], -1),
+        np.stack([sy * cr + cy * sp * sr, cy * cp, sy * sr - cy * sp * cr], -1),
+        np.stack([-cp * sr, sp, cp * cr], -1),
+    ], -2)
+
+
+@lru_cache(maxsize=8)
+def _bspline_basis(T: int, knot_frames: int) -> np.ndarray:
+    """Uniform cubic B-spline basis (T, K): smooth random curves as basis @ random coefficients."""
+    K = T // knot_frames + 4
+    u = np.arange(T)[:, None] / knot_frames - (np.arange(K)[None] - 2)
+    a = np.abs(u)
+    return np.where(a < 1, 2 / 3 - a ** 2 + a ** 3 / 2, np.where(a < 2, (2 - a) ** 3 / 6, 0.0))
+
+
+def _smooth_noise(rng: np.random.Generator, shape: tuple, T: int, knot_frames: int, rms: float) -> np.ndarray:
+    """(N, T, *shape) smooth noise with roughly the given RMS (cubic B-spline: std ≈ 0.69 × coef)."""
+    B = _bspline_basis(T, knot_frames)
+    coef = rng.normal(0, rms / 0.69, (shape[0], B.shape[1], int(np.prod(shape[1:]))))
+    return np.matmul(B, coef).reshape((shape[0], T) + tuple(shape[1:]))
+
+
+def _palm(J: np.ndarray, mirrored: bool, scale: np.ndarray):
+    """Palm centroid, palm-side unit normal, and the palm surface point 1 cm out, each (..., 3)."""
+    w, i, m, r, p = (J[..., j, :] for j in (0, 1, 4, 10, 7))
+    n = np.cross(i - w, p - w) * (-1.0 if mirrored else 1.0)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    cen = (w + i + m + r + p) / 5
+    return cen, n, cen + 0.01 * scale * n
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _grip_centre(J: np.ndarray) -> np.ndarray:
+    """Centre of the cylinder a curled hand encloses: mean MCP–tip chord midpoint of index..ring."""
+    return 0.5 * (J[..., [1, 4, 10], :] + J[..., [17, 18, 19], :]).mean(-2)
+
+
+def _contact_points(kind: str, Jr: np.ndarray, Jl: np.ndarray, scale: np.ndarray):
+    """Contact pairs (right (k,L,P,3), left (k,L,P,3)), separation direction (k,L,3) pointing from
+    the right hand toward the left, and the distance each pair keeps at contact (k,P), for hands
+    (k,L,21,3). The first pair is the intended contact point."""
+    s, sc = scale[:, None, None], scale[:, None]
+    _, nr, palm_r = _palm(Jr, False, s)
+    _, nl, palm_l = _palm(Jl, True, s)
+    zero = np.zeros((Jr.shape[0], 1))
+    if kind == "index_tips":
+        return Jr[..., [17], :], Jl[..., [17], :], _unit(Jr[..., 17, :] - Jr[..., 3, :]), 0.004 * sc
+    if kind == "palms":
+        return palm_r[..., None, :], palm_l[..., None, :], nr, zero
+    if kind == "tips_on_palm":
+        return Jr[..., [17, 18], :], np.repeat(palm_l[..., None, :], 2, -2), nr, 0.003 * np.repeat(sc, 2, 1)
+    if kind == "interlock":  # fingers interleave: offset half a finger across, palms a finger apart
+        lat = _unit(Jl[..., 7, :] - Jl[..., 1, :])
+        return palm_r[..., None, :], (palm_l + 0.009 * s * lat)[..., None, :], nr, 0.012 * sc
+    if kind == "finger_in_hand":
+        mid = 0.5 * (Jr[..., 2, :] + Jr[..., 3, :])
+        return mid[..., None, :], _grip_centre(Jl)[..., None, :], _unit(Jr[..., 3, :] - Jr[..., 2, :]), zero
+    if kind == "wrist_in_hand":
+        return _grip_centre(Jr)[..., None, :], Jl[..., [0], :], nr, zero
+    if kind == "all_tips":
+        tips = list(sk.TIPS)
+        return Jr[..., tips, :], Jl[..., tips, :], nr, 0.004 * np.repeat(sc, 5, 1)
+    if kind == "knuckles":
+        dr, dl = _unit(Jr[..., 4, :] - Jr[..., 0, :]), _unit(Jl[..., 4, :] - Jl[..., 0, :])
+        kr = 0.5 * (Jr[..., 2, :] + Jr[..., 5, :]) + 0.008 * s * dr
+        kl = 0.5 * (Jl[..., 2, :] + Jl[..., 5, :]) + 0.008 * s * dl
+        return kr[..., None, :], kl[..., None, :], dr, zero
+    raise ValueError(f"unknown contact kind {kind!r}")
+
+
+def _gap_schedule(rng: np.random.Generator, kind: str, k: int, cfg: SynthConfig) -> np.ndarray:
+    """Distance (k, L) added to the contact distance: 0 is touching; it comes and goes."""
+    L = cfg.segment_len
+    f = np.arange(L)[None]
+    speed = rng.uniform(*cfg.speed_range, (k, 1))
+    if kind in ("clap", "tap"):  # |sin| approaches fast and rebounds, with a brief dwell at contact
+        hz = rng.uniform(1.2, 2.2, (k, 1)) if kind == "clap" else rng.uniform(1.5, 3.0, (k, 1))
+        far = rng.uniform(0.08, 0.2, (k, 1)) if kind == "clap" else rng.uniform(0.015, 0.04, (k, 1))
+        x = np.abs(np.sin(np.pi * hz * speed * f / cfg.fps + rng.uniform(0, np.pi, (k, 1))))
+        return far * np.clip((x - 0.08) / 0.92, 0.0, 1.0)
+    if kind == "touch":
+        t_in, t_out, far = rng.uniform(-8, 22, (k, 1)), rng.uniform(38, 68, (k, 1)), rng.uniform(0.04, 0.12, (k, 1))
+    else:  # grip: holds most of the segment
+        t_in, t_out, far = rng.uniform(-15, 12, (k, 1)), rng.uniform(45, 80, (k, 1)), rng.uniform(0.03, 0.07, (k, 1))
+    r = rng.uniform(6, 14, (k, 1)) / speed
+    close = _smoothstep((f - t_in + r) / r) * (1.0 - _smoothstep((f - t_out) / r))
+    return far * (1.0 - close)
+
+
+# Distance kept between a joint and its mirror twin: about two finger half-thicknesses, except the
+# tips, which (as in MANO skeletons) already lie on the finger surface.
+_TWIN_REST_21 = np.where(np.isin(np.arange(sk.NUM_JOINTS), sk.TIPS), 0.004, 0.012)
+
+
+def _align_contacts(rng, prog, J0, tr, scale, cfg) -> None:
+    """Translate the left wrist so that the interaction's contact points meet (plus the gap)."""
+    for i, name in enumerate(INTERACTIONS):
+        spec = INTERACTION_SPECS[name]
+        n_idx, s_idx = np.nonzero(prog.inter_NxS == i)
+        if spec.contact is None or n_idx.size == 0:
+            continue
+        Jr = J0[n_idx, s_idx, :, 1] + tr[n_idx, s_idx, :, 1, None]
+        Jl = J0[n_idx, s_idx, :, 0]
+        cr, cl, d, rest = _contact_points(spec.contact, Jr, Jl, scale[n_idx])
+        gap = _gap_schedule(rng, spec.gap, n_idx.size, cfg)
+        diff = cr - cl                                                   # (k, L, P, 3)
+        lateral = (diff - np.einsum("klpc,klc->klp", diff, d)[..., None] * d[..., None, :]).mean(2)
+        lead = np.einsum("klpc,klc->klp", diff, d) + rest[:, None]
+        if spec.pairing == "mirror" and spec.contact != "interlock":
+            # Mirrored hands collide joint with joint (a curled finger meets its twin before the
+            # palms touch), so corresponding joints also keep a finger's thickness apart.
+            twin = np.einsum("kljc,klc->klj", Jr - Jl, d) + _TWIN_REST_21 * scale[n_idx, None, None]
+            lead = np.concatenate([lead, twin], -1)
+        # The closest pair touches: the left moves along d until its smallest lead equals the gap.
+        move = (gap + lead.max(-1))[..., None] * d
+        tr[n_idx, s_idx, :, 0] = lateral + move
+
+
+def _separate_hands(prog, J0, tr, cfg) -> None:
+    """Without contact, keep a clear gap along x between the hands over the whole segment."""
+    free = ~np.isin(prog.inter_NxS, [i for i, n in enumerate(INTERACTIONS) if INTERACTION_SPECS[n].contact])
+    right_min = (J0[..., 1, :, 0] + tr[..., 1, None, 0]).min(axis=(2, 3))
+    left_max = (J0[..., 0, :, 0] + tr[..., 0, None, 0]).max(axis=(2, 3))
+    shift = 0.5 * np.maximum(cfg.min_hand_gap_m - (right_min - left_max), 0.0) * free
+    tr[..., 1, 0] += shift[:, :, None]
+    tr[..., 0, 0] -= shift[:, :, None]
+
+
+# ---- the chunk ----------------------------------------------------------------------------------
+def _inject_defects(rng: np.random.Generator, joints: np.ndarray, cfg: SynthConfig) -> None:
+    """A few sequences get a short NaN run or a one-frame teleport of one hand (a tracking glitch)."""
+    N, T = joints.shape[:2]
+    hit = np.flatnonzero(rng.random(N) < cfg.defect_prob)
+    kind_nan = rng.random(hit.size) < 0.6
+    length = rng.integers(1, 7, hit.size)
+    start = rng.integers(1, T - 7, hit.size)
+    hand = rng.integers(0, 2, hit.size)
+    jump = _unit(rng.normal(0, 1, (hit.size, 3))) * rng.uniform(0.25, 0.5, (hit.size, 1))
+    for n, nan, ln, st, h, j in zip(hit, kind_nan, length, start, hand, jump):
+        if nan:
+            joints[n, st:st + ln] = np.nan
+        else:
+            joints[n, st, h] += j
+
+
+def synth_chunk(seed: int, chunk_index: int, cfg: SynthConfig = SynthConfig()) -> SynthChunk:
+    """Generate ``cfg.chunk_size`` sequences of shape (T, 2, 21, 3), T = segments × segment_len.
+
+    Deterministic in (seed, chunk_index, cfg); chunks are independent and can run in parallel.
+    """
+    rng = np.random.default_rng([seed, chunk_index])
+    N, S, L = cfg.chunk_size, cfg.segments_per_sequence, cfg.segment_len
+    T = S * L
+    prog = _sample_programs(rng, cfg)
+    scale = rng.uniform(*cfg.hand_scale_range, N)
+    geom = H.hand_geometry(scale, rng.uniform(-cfg.bone_jitter, cfg.bone_jitter, (N, 5, 3)))
+
+    pose, rot, pos = _segment_channels(rng, prog, cfg)
+    pose = H.couple_neighbours(pose)
+    pose = _blend_boundaries(pose.reshape(N, S, L, -1), prog.idle_NxS, cfg.transition_frames).reshape(pose.shape)
+    rot = _blend_boundaries(rot.reshape(N, S, L, -1), prog.idle_NxS, cfg.transition_frames).reshape(rot.shape)
+    pose = _raise_intensity(rng, H.clip_to_limits(pose), prog, cfg)
+
+    # FK in each hand's frame, then wrist rotation (with a slow orientation drift), then mirroring
+    # of the left hand: equal channels give mirror-symmetric hands about the x = 0 plane.
+    rot = rot.reshape(N, T, 2, 3) + _smooth_noise(rng, (N, 2, 3), T, 20, 4.0)
+    g = {k: v.reshape((N, 1, 1) + v.shape[1:]) for k, v in geom.items()}
+    local = H.hand_fk(pose.reshape(N, T, 2, -1), g)
+    J0 = np.matmul(local, np.swapaxes(_rotation(rot), -1, -2))    # batched R·p for every joint
+    J0[:, :, 0, :, 0] *= -1.0
+
+    pos = pos + _smooth_noise(rng, (N, 1, 2, 3), T, 20, 0.01).reshape(N, S, L, 2, 3)
+    tr = pos * np.array([[-1.0, 1.0, 1.0], [1.0, 1.0, 1.0]])          # symmetric frame → world
+    J0 = J0.reshape(N, S, L, 2, sk.NUM_JOINTS, 3)
+    _separate_hands(prog, J0, tr, cfg)
+    _align_contacts(rng, prog, J0, tr, scale, cfg)
+    tr = _blend_boundaries(tr.reshape(N, S, L, -1), prog.idle_NxS, cfg.transition_frames).reshape(tr.shape)
+    joints = (J0 + tr[..., None, :]).reshape(N, T, 2, sk.NUM_JOINTS, 3)
+
+    # Per-sequence placement in the room: any heading, some offset (canonicalize undoes both).
+    yaw = rng.uniform(-180, 180, N)
+    Rg = _rotation(np.stack([yaw, np.zeros(N), np.zeros(N)], -1))
+    off = np.concatenate([rng.uniform(-1, 1, (N, 2)) * cfg.global_translation_m, rng.uniform(-0.1, 0.3, (N, 1))], -1)
+    joints = np.matmul(joints.reshape(N, -1, 3), np.swapaxes(Rg, -1, -2)).reshape(joints.shape)
+    joints += off.reshape(N, 1, 1, 1, 3)
+
+    joints += _smooth_noise(rng, (N, 2, sk.NUM_JOINTS, 3), T, cfg.noise_knot_frames, cfg.noise_m)
+    joints += cfg.white_noise_m * rng.standard_normal(joints.shape, dtype=np.float32)
+    _inject_defects(rng, joints, cfg)
+    return SynthChunk(joints=joints.astype(np.float32), programs=prog.to_dicts())

@@ -1,0 +1,240 @@
+"""Frozen-encoder embedding cache: every caption of a dataset encoded once, memory-mapped on read.
+
+Layout of ``DATA/text_cache/<fingerprint>/`` (written atomically with ``io.atomic_dir``):
+
+    meta.json    fingerprints (dataset, encoder weights, tokenizer), shapes, dtype, truncation count,
+                 analytic encoder FLOPs per caption, build speed
+    hidden.npy   (M, Lmax, D) float16|float32: last hidden states of the M distinct caption texts
+    mask.npy     (M, Lmax) bool: real tokens (eos included)
+    index.json   clip ids, fields, levels, ``rows`` (N, 3, levels) → row of hidden/mask, and ``texts``
+
+Identical texts share one row (template captions repeat a lot). The fingerprint hashes encoder
+weights + config, tokenizer model, dataset content and the cache options, so a cache can only be
+opened for the exact encoder and data that made it; anything else is refused with a clear error.
+Generator training reads this cache and never runs the text encoder inside its step.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from handx_jax.io import DataError, atomic_dir, atomic_write_json
+
+FORMAT, FORMAT_VERSION = "handx-jax-text-cache", 1
+CACHE_DIRNAME = "text_cache"
+DTYPES = ("float16", "float32")
+
+
+def cache_fingerprint(dataset_fp: str, encoder_fp: str, tokenizer_fp: str, max_len: int, dtype: str) -> str:
+    doc = {"format": FORMAT, "version": FORMAT_VERSION, "dataset": dataset_fp, "encoder": encoder_fp,
+           "tokenizer": tokenizer_fp, "max_len": int(max_len), "dtype": dtype}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def caption_table(texts: Sequence[dict], fields: Sequence[str]) -> tuple[list[str], np.ndarray]:
+    """Distinct caption strings (first-appearance order) and ``rows[clip, field, level]`` into them."""
+    levels = len(texts[0][fields[0]]) if texts else 0
+    rows = np.zeros((len(texts), len(fields), levels), np.int32)
+    uniq: dict[str, int] = {}
+    for i, t in enumerate(texts):
+        for f, name in enumerate(fields):
+            if len(t[name]) != levels:
+                raise DataError(f"{len(t[name])} levels, expected {levels}", clip=t.get("id", i), field=name)
+            for j, s in enumerate(t[name]):
+                rows[i, f, j] = uniq.setdefault(s, len(uniq))
+    return list(uniq), rows
+
+
+def _bucket(n: int, step: int, cap: int) -> int:
+    return min(cap, -(-n // step) * step)
+
+
+def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, max_len: int = 128,
+                dtype: str = "float16", batch_size: int = 128, overwrite: bool = False,
+                log: Callable[[str], None] = print) -> Path:
+    """Encode every caption of the dataset at ``data_dir`` with the encoder folder; return the cache dir.
+
+    An existing cache with the same fingerprint is complete by construction (atomic write) and is
+    reused unless ``overwrite``.
+    """
+    from handx_jax.data.dataset import TEXT_FIELDS, Dataset
+    from handx_jax.text.t5 import load_hf_t5_encoder
+
+    if dtype not in DTYPES:
+        raise ValueError(f"dtype must be one of {DTYPES}, got {dtype!r}")
+    ds = Dataset.open(data_dir)
+    enc = load_hf_t5_encoder(encoder_dir)
+    fp = cache_fingerprint(ds.fingerprint, enc.fingerprint, enc.tokenizer.fingerprint, max_len, dtype)
+    out = Path(data_dir) / CACHE_DIRNAME / fp
+    if out.exists() and not overwrite:
+        log(f"text cache {out} is up to date")
+        return out
+
+    texts, rows = caption_table(ds.texts, TEXT_FIELDS)
+    seqs = [enc.tokenizer.encode_one(t) for t in texts]
+    lengths = np.array([len(s) for s in seqs], np.int64)
+    L = int(min(max_len, lengths.max(initial=1)))
+    num_truncated = int((lengths > L).sum())
+    kept = np.minimum(lengths, L)
+    D = enc.cfg.d_model
+    t0 = time.perf_counter()
+    with atomic_dir(out, overwrite=overwrite) as tmp:
+        hidden = np.lib.format.open_memmap(tmp / "hidden.npy", mode="w+", dtype=dtype, shape=(len(texts), L, D))
+        mask = np.lib.format.open_memmap(tmp / "mask.npy", mode="w+", dtype=np.bool_, shape=(len(texts), L))
+        # Longest first, padded to a multiple of 16 tokens: few distinct shapes (few compiles), little padding.
+        order = np.argsort(-kept, kind="stable")
+        for s in range(0, len(order), batch_size):
+            sel = order[s:s + batch_size]
+            Lb = _bucket(int(kept[sel].max()), 16, L)
+            ids = np.zeros((batch_size, Lb), np.int32)
+            m = np.zeros((batch_size, Lb), np.int32)
+            ids[len(sel):, 0] = 1  # filler rows: a lone eos, so no row is fully masked
+            m[len(sel):, 0] = 1
+            for r, k in enumerate(sel):
+                seq = seqs[k] if len(seqs[k]) <= L else seqs[k][:L - 1] + [1]
+                ids[r, :len(seq)] = seq
+                m[r, :len(seq)] = 1
+            h = np.asarray(enc(ids, m))[:len(sel)]
+            h = h * m[:len(sel), :, None]  # padded positions are stored as exact zeros
+            hidden[sel, :Lb] = h.astype(dtype)
+            mask[sel, :Lb] = m[:len(sel)].astype(bool)
+        hidden.flush()
+        mask.flush()
+        del hidden, mask
+        wall = time.perf_counter() - t0
+        flops = enc.flops(kept)
+        meta = {
+            "format": FORMAT, "format_version": FORMAT_VERSION, "fingerprint": fp,
+            "dataset_fingerprint": ds.fingerprint, "encoder_fingerprint": enc.fingerprint,
+            "tokenizer_fingerprint": enc.tokenizer.fingerprint, "encoder_path": str(Path(encoder_dir).absolute()),
+            "encoder_config": json.loads(json.dumps(enc.cfg.__dict__)), "max_len": int(max_len), "Lmax": L,
+            "d_model": D, "dtype": dtype, "num_rows": len(texts), "num_captions": int(rows.size),
+            "num_clips": int(rows.shape[0]), "levels": int(rows.shape[2]), "fields": list(TEXT_FIELDS),
+            "num_truncated": num_truncated, "mean_tokens": float(kept.mean()) if len(kept) else 0.0,
+            "encoder_flops_per_caption": {
+                "mean": float(flops.mean()) if len(kept) else 0.0, "at_Lmax": int(enc.flops(L)),
+                "counting": "analytic matmul FLOPs of one forward at the caption's own length (t5.encoder_flops)"},
+            "build_seconds": wall, "captions_per_s": len(texts) / max(wall, 1e-9),
+        }
+        atomic_write_json(tmp / "index.json", {"fields": list(TEXT_FIELDS), "levels": int(rows.shape[2]),
+                                               "clip_ids": ds.ids, "rows": rows.tolist(), "texts": texts}, indent=None)
+        atomic_write_json(tmp / "meta.json", meta)
+    log(f"text cache {out}: {len(texts)} distinct of {rows.size} captions, Lmax {L} ({num_truncated} truncated), "
+        f"{len(texts) / max(wall, 1e-9):.1f} captions/s")
+    return out
+
+
+@dataclass
+class TextCache:
+    """An opened cache. ``hidden``/``mask`` are memory-mapped; ``rows[clip, field, level]`` → row."""
+
+    root: Path
+    meta: dict
+    hidden: np.ndarray
+    mask: np.ndarray
+    rows: np.ndarray
+    texts: list[str]
+    fields: tuple[str, ...]
+
+    @classmethod
+    def open(cls, root: str | os.PathLike, *, dataset_fingerprint: str | None = None,
+             encoder_fingerprint: str | None = None, tokenizer_fingerprint: str | None = None) -> "TextCache":
+        """Open a cache folder; refuse it if it was built for another dataset, encoder or tokenizer."""
+        root = Path(root)
+        try:
+            meta = json.loads((root / "meta.json").read_text())
+        except FileNotFoundError:
+            raise DataError("not a text cache (missing meta.json); build one with `handx text cache`",
+                            path=root) from None
+        if meta.get("format") != FORMAT or meta.get("format_version") != FORMAT_VERSION:
+            raise DataError(f"not a {FORMAT} v{FORMAT_VERSION}", path=root / "meta.json")
+        for what, want in (("dataset", dataset_fingerprint), ("encoder", encoder_fingerprint),
+                           ("tokenizer", tokenizer_fingerprint)):
+            have = meta.get(f"{what}_fingerprint")
+            if want is not None and have != want:
+                raise DataError(f"text cache fingerprint mismatch: built for {what} {have}, but the {what} in use is "
+                                f"{want}; rebuild it with `handx text cache`", path=root)
+        hidden = np.load(root / "hidden.npy", mmap_mode="r")
+        mask = np.load(root / "mask.npy", mmap_mode="r")
+        index = json.loads((root / "index.json").read_text())
+        rows = np.asarray(index["rows"], np.int32).reshape(meta["num_clips"], len(index["fields"]), index["levels"])
+        if hidden.shape != (meta["num_rows"], meta["Lmax"], meta["d_model"]) or mask.shape != hidden.shape[:2]:
+            raise DataError(f"arrays {hidden.shape}/{mask.shape} do not match meta.json", path=root)
+        return cls(root, meta, hidden, mask, rows, index["texts"], tuple(index["fields"]))
+
+    @property
+    def fingerprint(self) -> str:
+        return self.meta["fingerprint"]
+
+    def row(self, clip, field: str, level) -> np.ndarray:
+        return self.rows[clip, self.fields.index(field), level]
+
+    def lookup(self, clip, field: str, level) -> tuple[np.ndarray, np.ndarray]:
+        """(hidden (…, Lmax, D), mask (…, Lmax)) for clip indices, one field, level indices."""
+        r = np.asarray(self.row(clip, field, level))
+        flat = r.reshape(-1)
+        order = np.argsort(flat, kind="stable")  # sorted reads are kinder to a memory map
+        h = np.empty((len(flat),) + self.hidden.shape[1:], self.hidden.dtype)
+        m = np.empty((len(flat),) + self.mask.shape[1:], bool)
+        h[order], m[order] = self.hidden[flat[order]], self.mask[flat[order]]
+        return h.reshape(r.shape + h.shape[1:]), m.reshape(r.shape + m.shape[1:])
+
+
+def open_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, max_len: int = 128,
+               dtype: str = "float16") -> TextCache:
+    """The cache for this dataset + encoder folder, verified; a clear error if there is none."""
+    from handx_jax.data.dataset import Dataset
+    from handx_jax.text.t5 import load_hf_t5_encoder
+
+    ds = Dataset.open(data_dir)
+    enc = load_hf_t5_encoder(encoder_dir)
+    fp = cache_fingerprint(ds.fingerprint, enc.fingerprint, enc.tokenizer.fingerprint, max_len, dtype)
+    root = Path(data_dir) / CACHE_DIRNAME / fp
+    if not root.exists():
+        others = sorted(p.name for p in (Path(data_dir) / CACHE_DIRNAME).glob("*") if p.is_dir()
+                        and not p.name.startswith(".")) if (Path(data_dir) / CACHE_DIRNAME).is_dir() else []
+        raise DataError(f"no text cache for this dataset + encoder {enc.fingerprint} (max_len {max_len}, {dtype}); "
+                        f"existing caches {others} were built for other encoders, data or options; "
+                        f"run `handx text cache --data {data_dir} --encoder {encoder_dir}`", path=root.parent)
+    return TextCache.open(root, dataset_fingerprint=ds.fingerprint, encoder_fingerprint=enc.fingerprint,
+                          tokenizer_fingerprint=enc.tokenizer.fingerprint)
+
+
+def neighbour_accuracy(cache: TextCache, clips: Sequence[int], n: int = 1000, seed: int = 0) -> dict:
+    """How well the embeddings tell captions apart (issue acceptance check).
+
+    Samples ``n`` (clip, field, level) captions, mean-pools each over its tokens, and finds each one's
+    cosine nearest neighbour among the sample. A hit is the caption itself or one with identical text.
+    Also reports the highest cosine to a caption with different text (1.0 = indistinguishable).
+    """
+    clips = np.asarray(clips)
+    rng = np.random.default_rng(seed)
+    F, K = cache.rows.shape[1:]
+    total = len(clips) * F * K
+    pick = rng.choice(total, size=min(n, total), replace=False)
+    c, f, k = clips[pick // (F * K)], (pick // K) % F, pick % K
+    r = cache.rows[c, f, k]
+    uniq, inv = np.unique(r, return_inverse=True)
+    h = np.asarray(cache.hidden[uniq], np.float32)
+    m = np.asarray(cache.mask[uniq], np.float32)
+    pooled = (h * m[..., None]).sum(1) / m.sum(1, keepdims=True)
+    pooled /= np.linalg.norm(pooled, axis=1, keepdims=True) + 1e-12
+    e = pooled[inv]
+    sim = e @ e.T
+    nn_ = sim.argmax(1)
+    texts = np.asarray([cache.texts[i] for i in r], dtype=object)
+    hit = (nn_ == np.arange(len(r))) | (texts[nn_] == texts)
+    diff = np.where(texts[:, None] != texts[None, :], sim, -np.inf)
+    worst = diff.max(1)
+    worst = worst[np.isfinite(worst)]
+    return {"n": int(len(r)), "accuracy": float(hit.mean()), "distinct_texts": int(len(uniq)),
+            "max_cos_to_different_text": float(worst.max()) if len(worst) else None,
+            "mean_nearest_cos_to_different_text": float(worst.mean()) if len(worst) else None}

@@ -1,0 +1,136 @@
+"""``handx text …``: tokenizer training, encoding, T5 pretraining and the embedding cache.
+
+Registered by ``handx_jax.cli`` through ``add_parser(subparsers)``; every command sets ``args.func``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+
+def _encode(args: argparse.Namespace) -> int:
+    from handx_jax.text.t5 import load_hf_t5_encoder
+
+    enc = load_hf_t5_encoder(args.weights)
+    e, h = enc.encode(args.texts, args.max_len)
+    lens = e.lengths_B.tolist()
+    if args.json:
+        json.dump({"ids": [e.ids_BxL[i, :n].tolist() for i, n in enumerate(lens)],
+                   "hidden": [h[i, :n].astype(float).tolist() for i, n in enumerate(lens)]}, sys.stdout)
+        sys.stdout.write("\n")
+        return 0
+    print(f"encoder {args.weights}: d_model {enc.cfg.d_model}, {enc.cfg.num_layers} layers, "
+          f"{enc.cfg.feed_forward_proj}, vocab {enc.cfg.vocab_size}, fingerprint {enc.fingerprint}")
+    if e.num_truncated:
+        print(f"{e.num_truncated} text(s) truncated to {args.max_len} tokens")
+    for i, (t, n) in enumerate(zip(args.texts, lens)):
+        pooled = h[i, :n].mean(0)
+        print(f"[{i}] {n} tokens {e.ids_BxL[i, :n].tolist()}  hidden ({n}, {h.shape[-1]})  "
+              f"mean-pooled norm {np.linalg.norm(pooled):.4f}  {t!r}")
+    return 0
+
+
+def _tokenizer(args: argparse.Namespace) -> int:
+    from handx_jax.data.dataset import Dataset
+    from handx_jax.text import tokenizer as tk
+
+    tok = tk.train_for_dataset(args.data, vocab_size=args.vocab_size, num_extra_ids=args.num_extra_ids,
+                               overwrite=args.force)
+    caps = tk.dataset_captions(Dataset.open(args.data))
+    lens = np.array([len(tok.encode_one(c)) for c in caps])
+    print(f"tokenizer {tok.path}: {tok.vocab_size} ids ({tok.num_sentinels} sentinels <extra_id_0..>), "
+          f"fingerprint {tok.fingerprint}; {len(caps)} captions: tokens (with eos) mean {lens.mean():.1f}, "
+          f"p99 {np.percentile(lens, 99):.0f}, max {lens.max()}")
+    return 0
+
+
+def _pretrain(args: argparse.Namespace) -> int:
+    from handx_jax.text.pretrain import PretrainConfig, pretrain
+
+    cfg = PretrainConfig(preset=args.preset, steps=args.steps, batch_size=args.batch_size, lr=args.lr,
+                         max_len=args.max_len, seed=args.seed, log_every=args.log_every,
+                         ckpt_every=args.ckpt_every, eval_every=args.eval_every)
+    pretrain(args.data, args.out, cfg)
+    return 0
+
+
+def _cache(args: argparse.Namespace) -> int:
+    from handx_jax.data.dataset import Dataset
+    from handx_jax.text.cache import TextCache, build_cache, neighbour_accuracy
+
+    root = build_cache(args.data, args.encoder, max_len=args.max_len, dtype=args.dtype,
+                       batch_size=args.batch_size, overwrite=args.force)
+    cache = TextCache.open(root)
+    m = cache.meta
+    print(json.dumps({"cache": str(root), "rows": m["num_rows"], "captions": m["num_captions"], "Lmax": m["Lmax"],
+                      "truncated": m["num_truncated"], "dtype": m["dtype"],
+                      "encoder_flops_per_caption": m["encoder_flops_per_caption"]["mean"],
+                      "captions_per_s": m["captions_per_s"]}))
+    if args.nn_check:
+        ds = Dataset.open(args.data)
+        split = next((s for s in ("val", "test", "train") if len(ds.split(s))), None)
+        if split is not None:
+            print(json.dumps({"nearest_neighbour_check": split, **neighbour_accuracy(cache, ds.split(split),
+                                                                                     args.nn_check)}))
+    return 0
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("text", help="tokenizer, T5 encoder, T5 pretraining, embedding cache",
+                              description="Text stack: SentencePiece tokenizer, T5 encoder (Hugging Face folders "
+                                          "or pretrained here), and the frozen-encoder embedding cache.")
+    p.set_defaults(func=lambda a: (p.print_help(), 0)[1])
+    sub = p.add_subparsers(title="commands", metavar="COMMAND")
+
+    e = sub.add_parser("encode", help="encode texts with an encoder folder",
+                       description="Tokenize with the folder's spiece.model (plus eos) and run the T5 encoder.")
+    e.add_argument("--weights", required=True, metavar="DIR",
+                   help="Hugging Face-format folder: config.json, model.safetensors (or shards), spiece.model")
+    e.add_argument("--json", action="store_true",
+                   help='print {"ids": [[...]], "hidden": [[[...]]]}: ids and last hidden states per text')
+    e.add_argument("--max-len", type=int, default=None, help="truncate to this many tokens (default: none)")
+    e.add_argument("texts", nargs="+", metavar="TEXT")
+    e.set_defaults(func=_encode)
+
+    t = sub.add_parser("tokenizer", help="train a SentencePiece tokenizer on a dataset's captions",
+                       description="Train a unigram SentencePiece model (pad 0, eos 1, unk 2, <extra_id_N> "
+                                   "sentinels) on the train-split captions; writes DIR/tokenizer/spiece.model.")
+    t.add_argument("--data", required=True, metavar="DIR", help="dataset directory")
+    t.add_argument("--vocab-size", type=int, default=4000, help="upper bound on pieces (default 4000)")
+    t.add_argument("--num-extra-ids", type=int, default=32, help="sentinels <extra_id_0..N-1>, N >= 4 (default 32)")
+    t.add_argument("--force", action="store_true", help="replace an existing tokenizer")
+    t.set_defaults(func=_tokenizer)
+
+    r = sub.add_parser("pretrain", help="pretrain a small T5 on the captions (span corruption)",
+                       description="Train encoder + small decoder with T5 span corruption (15%% noise, mean span 3); "
+                                   "resumes from RUN/checkpoints; exports the frozen encoder to RUN/encoder.")
+    r.add_argument("--data", required=True, metavar="DIR", help="dataset directory (tokenizer trained if absent)")
+    r.add_argument("--preset", required=True, choices=("tiny", "small", "base"), help="model size")
+    r.add_argument("--out", required=True, metavar="RUN", help="run folder")
+    r.add_argument("--steps", type=int, default=0, help="training steps (default: the preset's)")
+    r.add_argument("--batch-size", type=int, default=0, help="captions per step (default: the preset's)")
+    r.add_argument("--lr", type=float, default=0.0, help="peak learning rate (default: the preset's)")
+    r.add_argument("--max-len", type=int, default=128, help="encoder input tokens (default 128)")
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--log-every", type=int, default=10)
+    r.add_argument("--ckpt-every", type=int, default=500)
+    r.add_argument("--eval-every", type=int, default=500)
+    r.set_defaults(func=_pretrain)
+
+    c = sub.add_parser("cache", help="encode every caption once into a memory-mapped cache",
+                       description="Encode all captions (3 fields x all levels) with a frozen encoder folder into "
+                                   "DIR/text_cache/<fingerprint>/.")
+    c.add_argument("--data", required=True, metavar="DIR", help="dataset directory")
+    c.add_argument("--encoder", required=True, metavar="E", help="encoder folder (HF format, e.g. RUN/encoder)")
+    c.add_argument("--max-len", type=int, default=128, help="truncate captions to this many tokens (default 128)")
+    c.add_argument("--dtype", choices=("float16", "float32"), default="float16")
+    c.add_argument("--batch-size", type=int, default=128)
+    c.add_argument("--force", action="store_true", help="rebuild even if an up-to-date cache exists")
+    c.add_argument("--nn-check", type=int, default=1000, metavar="N",
+                   help="report nearest-neighbour self-retrieval on N validation captions (0: skip)")
+    c.set_defaults(func=_cache)
+    return p

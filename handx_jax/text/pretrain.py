@@ -1,0 +1,384 @@
+"""Offline T5 pretraining on a dataset's captions with span corruption; exports the frozen encoder.
+
+Used when no pretrained T5 is on disk. Objective (Raffel et al. 2020, §3.1.4 and §3.3.4): drop 15% of
+a caption's tokens in spans of mean length 3, replace each span by one sentinel in the encoder input,
+and train the decoder to emit ``sentinel₀ span₀ sentinel₁ span₁ … </s>``. Recipe of T5 v1.1: gated-GELU
+feed-forward, untied output head, no dropout in pretraining.
+
+A run folder holds ``config.json``, ``metrics.jsonl`` (one JSON line per logged step),
+``checkpoints/`` (orbax) and, when training ends, ``encoder/``: config.json + model.safetensors +
+spiece.model in Hugging Face's layout, so ``t5.load_hf_t5_encoder`` serves stock and home-made
+encoders alike. Batches and corruption noise are pure functions of (seed, step), so a resumed run
+reproduces an uninterrupted one exactly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+from typing import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import orbax.checkpoint as ocp
+
+from handx_jax.io import DataError, append_jsonl, atomic_write_json, atomic_write_jsonl, read_jsonl
+from handx_jax.text import tokenizer as tk
+from handx_jax.text.t5 import T5Config, T5Model, count_params, encoder_params, save_hf_t5_encoder
+
+# Named size ladder: encoder (what downstream models see) + a deliberately small decoder.
+PRESETS: dict[str, dict] = {
+    "tiny": dict(d_model=64, d_kv=16, num_heads=4, d_ff=128, num_layers=2, num_decoder_layers=1),
+    "small": dict(d_model=256, d_kv=32, num_heads=8, d_ff=512, num_layers=4, num_decoder_layers=2),
+    "base": dict(d_model=512, d_kv=64, num_heads=8, d_ff=1024, num_layers=8, num_decoder_layers=2),
+}
+# Per-preset training defaults: (steps, batch size, peak learning rate).
+PRESET_TRAINING = {"tiny": (2000, 64, 2e-3), "small": (6000, 64, 1e-3), "base": (12000, 64, 5e-4)}
+
+
+def model_config(preset: str, vocab_size: int) -> T5Config:
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; choose from {sorted(PRESETS)}")
+    return T5Config(vocab_size=vocab_size, feed_forward_proj="gated-gelu", tie_word_embeddings=False,
+                    **PRESETS[preset])
+
+
+@dataclass(frozen=True)
+class PretrainConfig:
+    preset: str = "tiny"
+    steps: int = 0  # 0: the preset's default
+    batch_size: int = 0  # 0: the preset's default
+    lr: float = 0.0  # 0: the preset's default
+    warmup_frac: float = 0.05
+    weight_decay: float = 0.01
+    grad_clip: float = 1.0
+    max_len: int = 128  # encoder input tokens, eos included
+    noise_density: float = 0.15
+    mean_noise_span_length: float = 3.0
+    seed: int = 0
+    log_every: int = 10
+    ckpt_every: int = 500
+    eval_every: int = 500
+    eval_size: int = 256
+
+    def resolved(self) -> "PretrainConfig":
+        if self.preset not in PRESET_TRAINING:
+            raise ValueError(f"unknown preset {self.preset!r}; choose from {sorted(PRESET_TRAINING)}")
+        steps, bs, lr = PRESET_TRAINING[self.preset]
+        return dataclasses.replace(self, steps=self.steps or steps, batch_size=self.batch_size or bs,
+                                   lr=self.lr or lr)
+
+
+# --------------------------------------------------------------------------------------------------
+# Span corruption (T5's random_spans_noise_mask, with host-side numpy randomness)
+
+
+def _spans(n: int, density: float, mean_span: float, max_spans: int) -> tuple[int, int]:
+    """(noise tokens, spans) for a sequence of n tokens."""
+    num_noise = min(max(int(round(n * density)), 1), max(n - 1, 1))
+    num_spans = max(int(round(num_noise / mean_span)), 1)
+    return num_noise, max(1, min(num_spans, n - num_noise if n > num_noise else 1, max_spans))
+
+
+def _segment(num_items: int, num_segments: int, rng: np.random.Generator) -> np.ndarray:
+    """A uniformly random split of num_items into num_segments positive lengths (0s if no items)."""
+    if num_items == 0:
+        return np.zeros(num_segments, np.int64)
+    cuts = np.sort(rng.choice(num_items - 1, num_segments - 1, replace=False)) + 1 if num_segments > 1 else []
+    return np.diff(np.concatenate([[0], cuts, [num_items]])).astype(np.int64)
+
+
+def span_corrupt(tokens: np.ndarray, sentinels: Sequence[int], rng: np.random.Generator, *,
+                 density: float = 0.15, mean_span: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
+    """One caption (ids without eos) → (encoder input, decoder target), both ending in eos.
+
+    Spans alternate non-noise/noise starting with non-noise, as in T5; span k becomes ``sentinels[k]``.
+    """
+    n = len(tokens)
+    num_noise, num_spans = _spans(n, density, mean_span, len(sentinels))
+    noise_len = _segment(num_noise, num_spans, rng)
+    keep_len = _segment(n - num_noise, num_spans, rng)
+    inputs, targets, pos = [], [], 0
+    for k in range(num_spans):
+        inputs += tokens[pos:pos + keep_len[k]].tolist()
+        pos += keep_len[k]
+        inputs.append(sentinels[k])
+        targets.append(sentinels[k])
+        targets += tokens[pos:pos + noise_len[k]].tolist()
+        pos += noise_len[k]
+    return np.asarray(inputs + [tk.EOS_ID], np.int32), np.asarray(targets + [tk.EOS_ID], np.int32)
+
+
+def target_length(max_tokens: int, density: float, mean_span: float, max_spans: int) -> int:
+    """Longest decoder target any caption of up to ``max_tokens`` tokens can produce."""
+    return max(sum(_spans(n, density, mean_span, max_spans)) + 1 for n in range(1, max_tokens + 1))
+
+
+@dataclass(frozen=True)
+class Batch:
+    ids_BxS: np.ndarray
+    mask_BxS: np.ndarray
+    dec_ids_BxT: np.ndarray  # targets shifted right behind pad (T5's decoder start token)
+    targets_BxT: np.ndarray
+    weights_BxT: np.ndarray
+
+
+def make_batch(seqs: Sequence[np.ndarray], sentinels: Sequence[int], rng: np.random.Generator, S: int, T: int,
+               density: float, mean_span: float) -> Batch:
+    B = len(seqs)
+    ids, targ = np.zeros((B, S), np.int32), np.zeros((B, T), np.int32)
+    for i, s in enumerate(seqs):
+        inp, tgt = span_corrupt(s, sentinels, rng, density=density, mean_span=mean_span)
+        ids[i, :len(inp)], targ[i, :len(tgt)] = inp, tgt
+    mask = (ids != tk.PAD_ID).astype(np.int32)
+    weights = (targ != tk.PAD_ID).astype(np.int32)
+    dec = np.concatenate([np.zeros((B, 1), np.int32), targ[:, :-1]], axis=1)
+    return Batch(ids, mask, dec, targ, weights)
+
+
+class CaptionStream:
+    """Deterministic batches: the batch of step s depends only on (seed, s)."""
+
+    def __init__(self, seqs: list[np.ndarray], sentinels: Sequence[int], cfg: PretrainConfig):
+        self.seqs, self.sentinels, self.cfg = seqs, list(sentinels), cfg
+        self.S = cfg.max_len
+        self.T = target_length(cfg.max_len - 1, cfg.noise_density, cfg.mean_noise_span_length, len(sentinels))
+        self._perm: dict[int, np.ndarray] = {}
+
+    def _perm_for(self, epoch: int) -> np.ndarray:
+        if epoch not in self._perm:
+            self._perm = {epoch: np.random.default_rng([self.cfg.seed, 0, epoch]).permutation(len(self.seqs))}
+        return self._perm[epoch]
+
+    def batch(self, step: int) -> Batch:
+        B, N = self.cfg.batch_size, len(self.seqs)
+        pos = step * B + np.arange(B)
+        idx = [self._perm_for(int(p // N))[int(p % N)] for p in pos]
+        rng = np.random.default_rng([self.cfg.seed, 1, step])
+        return make_batch([self.seqs[i] for i in idx], self.sentinels, rng, self.S, self.T,
+                          self.cfg.noise_density, self.cfg.mean_noise_span_length)
+
+    def fixed(self, seqs: list[np.ndarray], seed: int) -> list[Batch]:
+        """Evaluation batches with fixed corruption."""
+        rng = np.random.default_rng([seed, 2])
+        B = self.cfg.batch_size
+        return [make_batch(seqs[i:i + B], self.sentinels, rng, self.S, self.T, self.cfg.noise_density,
+                           self.cfg.mean_noise_span_length) for i in range(0, len(seqs), B)]
+
+
+# --------------------------------------------------------------------------------------------------
+# Model, loss, optimiser
+
+
+def loss_fn(model: T5Model, params, b: Batch | dict) -> tuple[jax.Array, jax.Array]:
+    """Mean cross-entropy per target token, and the number of target tokens."""
+    g = (lambda k: b[k]) if isinstance(b, dict) else (lambda k: getattr(b, k))  # noqa: E731
+    logits_BxTxV = model.apply({"params": params}, g("ids_BxS"), g("mask_BxS"), g("dec_ids_BxT"), g("weights_BxT"))
+    ce_BxT = optax.softmax_cross_entropy_with_integer_labels(logits_BxTxV.astype(jnp.float32), g("targets_BxT"))
+    w = g("weights_BxT").astype(jnp.float32)
+    n = jnp.maximum(w.sum(), 1.0)
+    return (ce_BxT * w).sum() / n, n
+
+
+def make_schedule(cfg: PretrainConfig) -> optax.Schedule:
+    """Linear warm-up, then cosine decay to a tenth of the peak."""
+    warmup = max(1, int(cfg.warmup_frac * cfg.steps))
+    return optax.warmup_cosine_decay_schedule(0.0, cfg.lr, warmup, max(cfg.steps, warmup + 1), end_value=cfg.lr * 0.1)
+
+
+def make_optimizer(cfg: PretrainConfig) -> optax.GradientTransformation:
+    """AdamW with weight decay on matrices only (not embeddings, norms or position biases)."""
+    sched = make_schedule(cfg)
+    decay_mask = lambda p: jax.tree_util.tree_map_with_path(  # noqa: E731
+        lambda path, _: jax.tree_util.keystr(path).endswith("['kernel']"), p)
+    return optax.chain(optax.clip_by_global_norm(cfg.grad_clip),
+                       optax.adamw(sched, b1=0.9, b2=0.999, eps=1e-8, weight_decay=cfg.weight_decay, mask=decay_mask))
+
+
+def batch_dict(b: Batch) -> dict[str, np.ndarray]:
+    return dataclasses.asdict(b)
+
+
+def init_state(model: T5Model, tx: optax.GradientTransformation, seed: int, S: int, T: int) -> dict:
+    ids = jnp.zeros((1, S), jnp.int32)
+    dec = jnp.zeros((1, T), jnp.int32)
+    params = model.init(jax.random.key(seed), ids, jnp.ones_like(ids), dec, jnp.ones_like(dec))["params"]
+    return {"params": params, "opt_state": tx.init(params), "step": jnp.asarray(0, jnp.int32)}
+
+
+def make_train_step(model: T5Model, tx: optax.GradientTransformation) -> Callable:
+    @partial(jax.jit, donate_argnums=0)
+    def train_step(state, batch):
+        (loss, n), grads = jax.value_and_grad(lambda p: loss_fn(model, p, batch), has_aux=True)(state["params"])
+        updates, opt_state = tx.update(grads, state["opt_state"], state["params"])
+        params = optax.apply_updates(state["params"], updates)
+        return ({"params": params, "opt_state": opt_state, "step": state["step"] + 1},
+                {"loss": loss, "grad_norm": optax.global_norm(grads), "target_tokens": n})
+    return train_step
+
+
+# --------------------------------------------------------------------------------------------------
+# The run
+
+
+def param_counts(cfg: T5Config, params) -> dict[str, int]:
+    emb = int(np.prod(params["shared"]["embedding"].shape))
+    enc = count_params(params["encoder"])
+    return {"all": count_params(params), "embedding": emb, "encoder_non_embedding": enc,
+            "encoder_total": enc + emb, "decoder": count_params(params["decoder"]) +
+            (count_params(params["lm_head"]) if "lm_head" in params else 0)}
+
+
+def _captions(data_dir: Path, split: str) -> list[str]:
+    from handx_jax.data.dataset import Dataset
+
+    ds = Dataset.open(data_dir)
+    caps = tk.dataset_captions(ds, [split])
+    return list(dict.fromkeys(caps))  # unique, in first-appearance order: deterministic
+
+
+def _run_identity(cfg: PretrainConfig, mcfg: T5Config, ds_fp: str, tok: tk.Tokenizer) -> dict:
+    """What a resumed run must share with the original (paths may differ; content may not)."""
+    return {"pretrain": dataclasses.asdict(cfg), "model": dataclasses.asdict(mcfg),
+            "dataset_fingerprint": ds_fp, "tokenizer_fingerprint": tok.fingerprint}
+
+
+def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainConfig,
+             log: Callable[[str], None] = print, tokenizer: tk.Tokenizer | None = None,
+             stop_at_step: int | None = None) -> dict | None:
+    """Train (or resume) a run in ``out``; return the summary also written to ``out/pretrain.json``.
+
+    ``stop_at_step`` ends this invocation early with a checkpoint at that step (a pre-emptible job's
+    time slice) and returns None; rerunning the same call continues from there. The encoder is
+    exported once all ``cfg.steps`` are done.
+    """
+    from handx_jax.data.dataset import Dataset
+
+    t_start = time.perf_counter()
+    cfg = cfg.resolved()
+    data_dir, out = Path(data_dir), Path(out).absolute()
+    ds = Dataset.open(data_dir)
+    if tokenizer is None:
+        try:
+            tokenizer = tk.load_for_dataset(data_dir)
+        except DataError:
+            log(f"no tokenizer beside {data_dir}; training one on its train captions")
+            tokenizer = tk.train_for_dataset(data_dir)
+    mcfg = model_config(cfg.preset, tokenizer.vocab_size)
+    identity = _run_identity(cfg, mcfg, ds.fingerprint, tokenizer)
+
+    train_caps = _captions(data_dir, "train")
+    if not train_caps:
+        raise DataError("the train split has no captions to pretrain on", path=data_dir)
+    eval_caps = _captions(data_dir, "val") or train_caps
+    eval_caps = [eval_caps[i] for i in np.random.default_rng([cfg.seed, 3]).permutation(len(eval_caps))[:cfg.eval_size]]
+    enc = lambda caps: [np.asarray(tokenizer.encode_one(c, add_eos=False)[:cfg.max_len - 1], np.int32)  # noqa: E731
+                        for c in caps]
+    train_seqs, eval_seqs = enc(train_caps), enc(eval_caps)
+    n_trunc = sum(len(tokenizer.encode_one(c, add_eos=False)) > cfg.max_len - 1 for c in train_caps)
+    sentinels = [tokenizer.sentinel_id(i) for i in range(tokenizer.num_sentinels)]
+    stream = CaptionStream(train_seqs, sentinels, cfg)
+    eval_batches = [batch_dict(b) for b in stream.fixed(eval_seqs, cfg.seed)]
+
+    model, tx = T5Model(mcfg), make_optimizer(cfg)
+    abstract = jax.eval_shape(lambda: init_state(model, tx, cfg.seed, stream.S, stream.T))
+    out.mkdir(parents=True, exist_ok=True)
+    cfg_path = out / "config.json"
+    if cfg_path.exists():
+        prev = json.loads(cfg_path.read_text())
+        diff = [k for k in identity if prev.get(k) != json.loads(json.dumps(identity[k]))]
+        if diff:
+            raise DataError(f"run folder was started with a different {', '.join(diff)}; "
+                            "use a new --out or the original settings", path=cfg_path)
+
+    mngr = ocp.CheckpointManager(out / "checkpoints", options=ocp.CheckpointManagerOptions(
+        max_to_keep=2, create=True, enable_async_checkpointing=False))
+    latest = mngr.latest_step()
+    if latest is not None:
+        state = mngr.restore(latest, args=ocp.args.StandardRestore(abstract))
+        log(f"resuming {out} from step {latest}")
+        metrics_path = out / "metrics.jsonl"
+        if metrics_path.exists():  # drop rows logged after the checkpoint; they will be logged again
+            atomic_write_jsonl(metrics_path, [r for r in read_jsonl(metrics_path, strict=False) if r["step"] <= latest])
+    else:
+        state = jax.jit(lambda: init_state(model, tx, cfg.seed, stream.S, stream.T))()
+        counts = param_counts(mcfg, state["params"])
+        atomic_write_json(cfg_path, {**identity, "paths": {"data": str(data_dir), "tokenizer": str(tokenizer.path)},
+                                     "n_params": counts, "train_captions": len(train_seqs),
+                                     "eval_captions": len(eval_seqs), "truncated_train_captions": int(n_trunc),
+                                     "input_len": stream.S, "target_len": stream.T})
+        log(f"pretrain {cfg.preset}: {counts['encoder_total']:,} encoder params ({counts['all']:,} with decoder), "
+            f"{len(train_seqs)} unique train captions, {cfg.steps} steps × batch {cfg.batch_size}")
+
+    eval_step = jax.jit(lambda p, b: loss_fn(model, p, b))
+
+    def evaluate(params) -> float:
+        tot = n = 0.0
+        for b in eval_batches:
+            l, k = eval_step(params, b)
+            tot, n = tot + float(l) * float(k), n + float(k)
+        return tot / max(n, 1.0)
+
+    train_step = make_train_step(model, tx)
+    step = int(state["step"])
+    if step == 0:
+        ev = evaluate(state["params"])
+        append_jsonl(out / "metrics.jsonl", {"step": 0, "eval_loss": ev, "wall_s": time.perf_counter() - t_start})
+        log(f"step 0: eval span-corruption loss {ev:.4f}")
+    sched = make_schedule(cfg)
+    t_loop = time.perf_counter()
+    steps_run = 0
+    last = cfg.steps if stop_at_step is None else min(cfg.steps, stop_at_step)
+    while step < last:
+        b = batch_dict(stream.batch(step))
+        state, m = train_step(state, b)
+        step += 1
+        steps_run += 1
+        row = None
+        if step % cfg.log_every == 0 or step == cfg.steps:
+            m = jax.device_get(m)
+            if not np.isfinite(m["loss"]):
+                raise FloatingPointError(f"loss became {m['loss']} at step {step}; lower --lr")
+            row = {"step": step, "loss": float(m["loss"]), "grad_norm": float(m["grad_norm"]),
+                   "lr": float(sched(step - 1)), "target_tokens": int(m["target_tokens"]),
+                   "steps_per_s": steps_run / (time.perf_counter() - t_loop)}
+        if step % cfg.eval_every == 0 or step == cfg.steps:
+            row = (row or {"step": step}) | {"eval_loss": evaluate(state["params"])}
+        if row is not None:
+            row["wall_s"] = time.perf_counter() - t_start
+            append_jsonl(out / "metrics.jsonl", row)
+            if "eval_loss" in row:
+                log(f"step {step}: loss {row.get('loss', float('nan')):.4f} eval {row['eval_loss']:.4f}")
+        if step % cfg.ckpt_every == 0 or step == last:
+            mngr.save(step, args=ocp.args.StandardSave(state))
+    mngr.wait_until_finished()
+    mngr.close()
+    if step < cfg.steps:
+        log(f"stopped at step {step} of {cfg.steps} after {time.perf_counter() - t_start:.1f} s; rerun to resume")
+        return None
+
+    enc_dir = out / "encoder"
+    save_hf_t5_encoder(enc_dir, mcfg, jax.device_get(encoder_params(state["params"])), tokenizer, overwrite=True,
+                       extra_config={"handx": {"source": "handx text pretrain", "preset": cfg.preset,
+                                               "steps": cfg.steps, "dataset_fingerprint": ds.fingerprint}})
+    rows = read_jsonl(out / "metrics.jsonl", strict=False)
+    evals = [r for r in rows if "eval_loss" in r]
+    trains = [r for r in rows if "loss" in r]
+    summary = {"preset": cfg.preset, "steps": cfg.steps, "batch_size": cfg.batch_size,
+               "eval_loss_start": evals[0]["eval_loss"], "eval_loss_end": evals[-1]["eval_loss"],
+               "train_loss_first": trains[0]["loss"] if trains else None,
+               "train_loss_last": trains[-1]["loss"] if trains else None,
+               "wall_s": time.perf_counter() - t_start, "resumed_from": latest, "encoder": str(enc_dir)}
+    atomic_write_json(out / "pretrain.json", summary)
+    log(f"pretrain done: eval span-corruption loss {summary['eval_loss_start']:.4f} → {summary['eval_loss_end']:.4f}; "
+        f"train loss {summary['train_loss_first']} → {summary['train_loss_last']}; "
+        f"wall {summary['wall_s']:.1f} s; encoder in {enc_dir}")
+    return summary
+

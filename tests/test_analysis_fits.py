@@ -1,0 +1,171 @@
+"""Fits: the t quantile, parameter recovery, CI and prediction-interval coverage, model comparison,
+extrapolation."""
+
+import math
+
+import numpy as np
+import pytest
+
+from analysis import fits
+from analysis.schema import make_row
+
+# Student-t quantiles from standard tables (e.g. Abramowitz & Stegun Table 26.10), 8+ digits.
+T_TABLE = [
+    (0.975, 1, 12.7062047),
+    (0.975, 2, 4.30265273),
+    (0.975, 3, 3.18244631),
+    (0.975, 5, 2.57058184),
+    (0.975, 10, 2.22813885),
+    (0.975, 30, 2.04227246),
+    (0.975, 120, 1.97993040),
+    (0.95, 3, 2.35336343),
+    (0.95, 8, 1.85954804),
+    (0.995, 5, 4.03214298),
+    (0.9995, 4, 8.61030158),
+    (0.999, 1, 318.308839),
+    (0.9, 7, 1.41492393),
+    (0.025, 12, -2.17881283),
+]
+
+
+@pytest.mark.parametrize("p,df,expected", T_TABLE)
+def test_t_ppf_matches_tables(p, df, expected):
+    assert fits.t_ppf(p, df) == pytest.approx(expected, rel=2e-8)
+
+
+def test_t_ppf_inverts_cdf_and_limits():
+    for df in (0.7, 1.5, 2.5, 4, 9.3, 50, 1e4):
+        for p in (1e-6, 0.01, 0.3, 0.5, 0.77, 0.999999):
+            t = fits.t_ppf(p, df)
+            assert fits.t_cdf(t, df) == pytest.approx(p, rel=1e-9, abs=1e-14)
+    assert fits.t_ppf(0.975, math.inf) == pytest.approx(1.959963985, rel=1e-9)
+    assert fits.norm_ppf(0.975) == pytest.approx(1.959963985, rel=1e-9)
+    assert fits.t_ppf(0.3, 6) == pytest.approx(-fits.t_ppf(0.7, 6), rel=1e-12)
+    with pytest.raises(ValueError):
+        fits.t_ppf(1.0, 3)
+
+
+def test_betainc_known_values():
+    assert fits.betainc(1, 1, 0.3) == pytest.approx(0.3)  # uniform
+    assert fits.betainc(2, 3, 0.4) == pytest.approx(0.5248, rel=1e-12)  # 1 - sum binomial
+    assert fits.betainc(0.5, 0.5, 0.5) == pytest.approx(0.5, rel=1e-12)
+
+
+def _synthetic(n, rng, a=0.4, b=-3.5, sigma=0.03):
+    x = np.geomspace(1e9, 1e11, n)
+    return x, a * np.log10(x) + b + rng.normal(0.0, sigma, n)
+
+
+def test_fit_recovers_parameters_within_ci():
+    rng = np.random.default_rng(0)
+    x, y = _synthetic(40, rng)
+    f = fits.fit_log_linear(x, y, n_boot=1000)
+    assert f.slope_ci[0] <= 0.4 <= f.slope_ci[1]
+    assert f.intercept_ci[0] <= -3.5 <= f.intercept_ci[1]
+    assert f.slope == pytest.approx(0.4, abs=0.03)
+    assert f.r > 0.95 and f.n == 40
+    # Noise-free data: exact recovery, r = 1.
+    g = fits.fit_log_linear(x, 0.4 * np.log10(x) - 3.5, method="t")
+    assert (g.slope, g.intercept) == pytest.approx((0.4, -3.5), abs=1e-10)
+
+
+def _binomial_ok(hits, n, p):
+    """Observed rate within 3 binomial standard deviations of the nominal one."""
+    return abs(hits / n - p) <= 3 * math.sqrt(p * (1 - p) / n)
+
+
+@pytest.mark.parametrize("method", ["bootstrap-t", "t"])
+def test_ci_coverage_is_nominal(method):
+    # 200 simulated sweeps the size of the paper's Table B (7 runs).
+    rng = np.random.default_rng(123)
+    sims, cover_a, cover_b = 200, 0, 0
+    for s in range(sims):
+        x, y = _synthetic(7, rng)
+        f = fits.fit_log_linear(x, y, n_boot=500, seed=s, method=method)
+        cover_a += f.slope_ci[0] <= 0.4 <= f.slope_ci[1]
+        cover_b += f.intercept_ci[0] <= -3.5 <= f.intercept_ci[1]
+    assert _binomial_ok(cover_a, sims, 0.95), cover_a / sims
+    assert _binomial_ok(cover_b, sims, 0.95), cover_b / sims
+
+
+def test_prediction_interval_coverage():
+    rng = np.random.default_rng(7)
+    sims, hits = 400, 0
+    for _ in range(sims):
+        x, y = _synthetic(8, rng)
+        f = fits.fit_log_linear(x, y, method="t")
+        x_new = 10 ** rng.uniform(9, 11.3)  # inside and a little past the fitted range
+        y_new = 0.4 * math.log10(x_new) - 3.5 + rng.normal(0, 0.03)
+        lo, hi = f.prediction_interval(x_new)
+        hits += lo <= y_new <= hi
+    assert _binomial_ok(hits, sims, 0.95), hits / sims
+
+
+def test_bootstrap_is_seeded_and_band_nests():
+    rng = np.random.default_rng(1)
+    x, y = _synthetic(9, rng)
+    f1 = fits.fit_log_linear(x, y, seed=5, n_boot=300)
+    f2 = fits.fit_log_linear(x, y, seed=5, n_boot=300)
+    assert f1.slope_ci == f2.slope_ci
+    lo_c, hi_c = f1.confidence_band(x)
+    lo_p, hi_p = f1.prediction_interval(x)
+    assert np.all(lo_p < lo_c) and np.all(hi_c < hi_p)
+
+
+def test_fit_rejects_bad_input():
+    with pytest.raises(ValueError, match="at least 3"):
+        fits.fit_log_linear([1, 2], [1, 2])
+    with pytest.raises(ValueError, match="> 0"):
+        fits.fit_log_linear([1, 0, 3], [1, 2, 3])
+    with pytest.raises(ValueError, match="all x are equal"):
+        fits.fit_log_linear([2, 2, 2], [1, 2, 3])
+
+
+def test_saturating_fit_recovers_curve_and_wins_loo():
+    x = np.geomspace(1e8, 1e12, 12)
+    y_true = 0.8 - 0.5 * (x / 1e10) ** -0.3
+    rng = np.random.default_rng(3)
+    y = y_true + rng.normal(0, 0.004, x.size)
+    sat = fits.fit_saturating(x, y)
+    assert np.max(np.abs(sat.predict(x) - y_true)) < 0.01
+    assert sat.alpha == pytest.approx(0.3, abs=0.05)
+    assert sat.c == pytest.approx(0.8, abs=0.03)
+    cmp = fits.compare_models(x, y)
+    assert cmp.best == "saturating"
+    # On truly log-linear data the simpler law should not lose by much (and usually wins).
+    xl, yl = _synthetic(12, rng)
+    cmp2 = fits.compare_models(xl, yl)
+    assert cmp2.loo_rmse["log_linear"] <= 1.2 * cmp2.loo_rmse["saturating"]
+
+
+def _rows(x, y):
+    return [make_row(run_id=f"r{i}", family="diffusion", flops_per_sample=float(a), rprec_top3=float(b))
+            for i, (a, b) in enumerate(zip(x, y))]
+
+
+def test_extrapolation_on_synthetic_data():
+    rng = np.random.default_rng(11)
+    x = np.geomspace(1e9, 1e11, 10)
+    y = 0.4 * np.log10(x) - 3.5 + rng.normal(0, 0.02, x.size)
+    ext = fits.extrapolate(_rows(x, y), cut=2e10, n_boot=200)
+    assert ext.fit.n == int((x < 2e10).sum()) and len(ext.points) == int((x >= 2e10).sum())
+    assert all(p.x >= 2e10 for p in ext.points)
+    assert ext.rmse < 0.08
+    for p in ext.points:
+        assert p.pi_low < p.predicted < p.pi_high
+    d = ext.to_dict()
+    assert d["n_fit"] + d["n_test"] == 10 and 0 <= d["coverage"] <= 1
+    # A saturating truth: the log-linear law fitted on small runs over-predicts large ones.
+    ys = 0.8 - 0.5 * (x / 1e9) ** -0.8
+    ext2 = fits.extrapolate(_rows(x, ys), cut=1e10, n_boot=200)
+    assert all(p.predicted > p.actual for p in ext2.points)
+    with pytest.raises(ValueError, match="no runs at or above"):
+        fits.extrapolate(_rows(x, y), cut=1e12)
+
+
+def test_select_xy_aliases_and_errors():
+    rows = _rows([1e9, 2e9, 4e9], [0.1, 0.2, 0.3]) + [make_row(run_id="gt", family="ground_truth", rprec_top3=0.9)]
+    xs, ys, used = fits.select_xy(rows, "flops", "rprec_top3")
+    assert xs.tolist() == [1e9, 2e9, 4e9] and len(used) == 3
+    with pytest.raises(ValueError, match="unknown column"):
+        fits.select_xy(rows, "flop", "rprec_top3")
