@@ -20,7 +20,7 @@ def _wrist_clip(speed_mps=0.3, start=20, stop=40, axis=0, T=60):
 
 
 def test_constant_signal_gives_one_constant_event():
-    out = ev.segment(np.full((3, 60), 0.5, np.float32), ev.FLEXING)
+    out = ev.segment(np.full((3, 60), 0.7, np.float32), ev.FLEXING)
     assert out.series.tolist() == [0, 1, 2]
     assert out.constant.all() and out.start.tolist() == [0, 0, 0] and out.end.tolist() == [60] * 3
     assert ev.FLEXING.state_names[out.const_state[0]] == "partially bent"

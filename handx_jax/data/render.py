@@ -39,7 +39,7 @@ def contact_tips(joints_Tx2x21x3: np.ndarray, intra_m: float = 0.020, inter_m: f
 
 
 def render_gif(joints_Tx2x21x3: np.ndarray, out: str | os.PathLike, *, texts: tuple[str, str, str] | None = None,
-               fps: int = sk.FPS, title: str | None = None, dpi: int = 80) -> Path:
+               fps: int = sk.FPS, title: str | None = None, dpi: int = 90) -> Path:
     """Write an animated GIF of both hands. ``texts`` = (left, right, interaction)."""
     import matplotlib
 
@@ -52,27 +52,29 @@ def render_gif(joints_Tx2x21x3: np.ndarray, out: str | os.PathLike, *, texts: tu
         raise ValueError(f"expected joints of shape (T, 2, 21, 3), got {x.shape}")
     T = x.shape[0]
     contacts = contact_tips(x)
-    fig = plt.figure(figsize=(6.4, 7.2 if texts else 5.2))
-    ax = fig.add_axes([0.0, 0.36 if texts else 0.0, 1.0, 0.64 if texts else 1.0], projection="3d")
+    wrapped = []
+    if texts:
+        for name, t in zip(("Left", "Right", "Both"), texts):
+            t = t if len(t) <= 600 else t[:600].rsplit(" ", 1)[0] + " …"
+            wrapped.append(textwrap.fill(f"{name}: {t}", width=95, subsequent_indent="    "))
+    n_lines = sum(w.count("\n") + 1 for w in wrapped)
+    text_h = 0.14 * n_lines + 0.2 if texts else 0.0  # inches
+    fig = plt.figure(figsize=(6.0, 5.4 + text_h))
+    frac = text_h / (5.4 + text_h)
+    ax = fig.add_axes([0.0, frac, 1.0, 1.0 - frac], projection="3d")
     lo, hi = np.nanmin(x.reshape(-1, 3), 0), np.nanmax(x.reshape(-1, 3), 0)
-    centre, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 0.05) * 1.05
+    centre, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 0.05) * 0.8  # equal axes, tight
     ax.set_xlim(centre[0] - half, centre[0] + half)
     ax.set_ylim(centre[1] - half, centre[1] + half)
     ax.set_zlim(centre[2] - half, centre[2] + half)
     ax.set_box_aspect((1, 1, 1))
-    ax.view_init(elev=25, azim=-75)
+    ax.view_init(elev=30, azim=-60)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
     ax.tick_params(labelsize=6)
     if texts:
-        body = "\n".join(
-            textwrap.fill(f"{name}: {t}", width=100, subsequent_indent="    ")
-            for name, t in zip(("Left", "Right", "Both"), texts)
-        )
-        if len(body) > 1800:
-            body = body[:1800] + " …"
-        fig.text(0.02, 0.34, body, va="top", ha="left", fontsize=6.5, family="sans-serif", wrap=True)
+        fig.text(0.03, frac - 0.01, "\n".join(wrapped), va="top", ha="left", fontsize=7, family="sans-serif")
     lines = [[ax.plot([], [], [], color=HAND_COLORS[h], lw=1.6)[0] for _ in sk.BONES] for h in (0, 1)]
     joints_art = [ax.plot([], [], [], "o", color=HAND_COLORS[h], ms=2.5)[0] for h in (0, 1)]
     contact_art = ax.plot([], [], [], "o", color=CONTACT_COLOR, ms=6)[0]

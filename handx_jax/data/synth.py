@@ -279,16 +279,17 @@ class _Interaction:
     contact: str | None = None                # contact geometry (see _contact_points)
     gap: str | None = None                    # gap schedule (see _gap_schedule)
     half_sep: tuple[float, float] = (0.06, 0.12)
+    flat_fingers: bool = False                # palms meet: fingers may spread or bend back, not curl
 
 
 _NATURAL = ((-20.0, 25.0), (-20.0, 20.0), (-10.0, 60.0))
 INTERACTION_SPECS: dict[str, _Interaction] = {
     "fingertip_touch": _Interaction(("point",), None, "mirror", ((75, 100), (-10, 15), (-20, 40)), None,
                                     "index_tips", "touch"),
-    "palm_press": _Interaction(("spread_close", "finger_wiggle", "hyperextend", "claw"), None, "mirror",
-                               ((-10, 15), (50, 85), (80, 95)), None, "palms", "touch"),
+    "palm_press": _Interaction(("spread_close", "finger_wiggle", "hyperextend"), None, "mirror",
+                               ((-10, 15), (50, 85), (80, 95)), None, "palms", "touch", flat_fingers=True),
     "clap": _Interaction(("spread_close", "finger_wiggle", "hyperextend"), None, "mirror",
-                         ((-5, 20), (15, 60), (80, 95)), None, "palms", "clap", (0.10, 0.16)),
+                         ((-5, 20), (15, 60), (80, 95)), None, "palms", "clap", (0.10, 0.16), flat_fingers=True),
     "tap_palm": _Interaction(("finger_tap", "finger_wiggle"), ("spread_close", "finger_wiggle", "hyperextend"),
                              "independent", ((-15, 15), (-40, -20), (-10, 10)),
                              ((-10, 15), (-5, 15), (160, 185)), "tips_on_palm", "tap"),
@@ -318,6 +319,7 @@ class _Programs:
     act_NxSx2: np.ndarray     # index into ACTIONS per hand (left, right), −1 when idle
     pairing_NxS: np.ndarray   # _PAIRING code: left hand shares the right hand's action parameters
     offset_NxS: np.ndarray    # time offset (s) of the left hand in "alternate" pairing
+    flat_NxS: np.ndarray      # bool: fingers must stay straight or bend back (palm contact)
 
     def to_dicts(self) -> list[list[dict]]:
         out = []
@@ -352,7 +354,8 @@ def _sample_programs(rng: np.random.Generator, cfg: SynthConfig) -> _Programs:
         pairing[m] = _PAIRING[spec.pairing]
     act[idle] = -1
     offset = np.where(pairing == _PAIRING["alternate"], rng.uniform(0.25, 0.6, (N, S)), 0.0)
-    return _Programs(idle, inter, act, pairing, offset)
+    flat_ids = [i for i, n in enumerate(INTERACTIONS) if INTERACTION_SPECS[n].flat_fingers]
+    return _Programs(idle, inter, act, pairing, offset, np.isin(inter, flat_ids))
 
 
 # ---- per-segment channels ----------------------------------------------------------------------
@@ -388,6 +391,12 @@ def _segment_channels(rng: np.random.Generator, prog: _Programs, cfg: SynthConfi
                 for arr, o in zip((pose, rot, pos), out):
                     arr[seq[sec], s, :, 0] = o[sec]
         _fill_idle(rng, prog, pose, s, cfg)
+    # Pressed or clapping palms leave no room for curled fingers (they would meet first).
+    flat = prog.flat_NxS[:, :, None, None, None]
+    pose[..., H.MCP] = np.where(flat, np.minimum(pose[..., H.MCP], 0.0), pose[..., H.MCP])
+    pose[..., H.PIP] = np.where(flat, np.minimum(pose[..., H.PIP], 5.0), pose[..., H.PIP])
+    thumb = slice(H.T_CMC_FLEX, H.T_IP + 1)  # the thumb stays near the palm plane, beside its twin
+    pose[..., thumb] = np.where(flat, np.minimum(pose[..., thumb], 0.0), pose[..., thumb])
     base_rot, base_pos = _segment_placement(rng, prog, cfg)
     rot += base_rot[:, :, None]
     pos += base_pos[:, :, None]
@@ -435,7 +444,7 @@ def _segment_placement(rng: np.random.Generator, prog: _Programs, cfg: SynthConf
 
 
 def _add_circling(rng: np.random.Generator, prog: _Programs, pos: np.ndarray, cfg: SynthConfig) -> None:
-    """"circle": the wrists orbit in the sagittal plane in antiphase (hands rolling over each other)."""
+    """The "circle" interaction: the wrists orbit in the sagittal plane in antiphase (hands rolling over each other)."""
     n_idx, s_idx = np.nonzero(prog.inter_NxS == INTERACTIONS.index("circle"))
     if n_idx.size == 0:
         return
@@ -497,7 +506,8 @@ def _raise_intensity(rng: np.random.Generator, pose: np.ndarray, prog: _Programs
         f = cycles * cfg.fps / L
         amp = np.clip((cfg.min_intensity_dps + 5.0 - omega) / (2 * f * 13.4 / 65 * k_free), 0, 45) * need
         osc = 0.5 - 0.5 * np.cos(2 * np.pi * cycles[:, :, None] * t[:, None] / L)   # (N,S,L,2)
-        sign = np.where(pose[..., H.MCP].mean(2) > 40, -1.0, 1.0)                   # room to move
+        room_to_flex = (pose[..., H.MCP].mean(2) <= 40) & ~prog.flat_NxS[..., None, None]
+        sign = np.where(room_to_flex, 1.0, -1.0)                                       # (N,S,2,4)
         delta = (amp[..., None] * sign * free)[:, :, None] * osc[..., None]           # (N,S,L,2,4)
         pose[..., H.MCP] += delta
         pose[..., H.PIP] += 1.2 * delta
@@ -558,7 +568,7 @@ def _contact_points(kind: str, Jr: np.ndarray, Jl: np.ndarray, scale: np.ndarray
     (k,L,21,3). The first pair is the intended contact point."""
     s, sc = scale[:, None, None], scale[:, None]
     _, nr, palm_r = _palm(Jr, False, s)
-    _, nl, palm_l = _palm(Jl, True, s)
+    _, _, palm_l = _palm(Jl, True, s)
     zero = np.zeros((Jr.shape[0], 1))
     if kind == "index_tips":
         return Jr[..., [17], :], Jl[..., [17], :], _unit(Jr[..., 17, :] - Jr[..., 3, :]), 0.004 * sc

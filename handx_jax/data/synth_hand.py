@@ -58,7 +58,7 @@ ABD_SPREAD_FAN_4 = np.array([22.0, 5.0, -11.0, -25.0])
 
 # Thumb rest frame (columns: lateral, along the metacarpal, nail side). At rest the thumb lies near
 # the palm plane, pointing forward and away from the index; its pad faces the palm and the pinky.
-_T_ALONG = np.array([-0.6, 0.8, -0.15]) / np.linalg.norm([-0.6, 0.8, -0.15])
+_T_ALONG = np.array([-0.6, 0.8, -0.05]) / np.linalg.norm([-0.6, 0.8, -0.05])
 _T_NAIL = np.array([-0.5, 0.0, 0.85]) - _T_ALONG * (np.array([-0.5, 0.0, 0.85]) @ _T_ALONG)
 _T_NAIL = _T_NAIL / np.linalg.norm(_T_NAIL)
 _T_LAT = np.cross(_T_ALONG, _T_NAIL)

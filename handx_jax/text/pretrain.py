@@ -19,7 +19,7 @@ import json
 import os
 import time
 from dataclasses import dataclass
-from functools import partial
+from functools import lru_cache, partial
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -166,11 +166,20 @@ class CaptionStream:
                           self.cfg.noise_density, self.cfg.mean_noise_span_length)
 
     def fixed(self, seqs: list[np.ndarray], seed: int) -> list[Batch]:
-        """Evaluation batches with fixed corruption."""
+        """Evaluation batches with fixed corruption, all of one shape (the last is padded with
+        zero-weight rows, so a single compiled eval step serves them all)."""
         rng = np.random.default_rng([seed, 2])
         B = self.cfg.batch_size
-        return [make_batch(seqs[i:i + B], self.sentinels, rng, self.S, self.T, self.cfg.noise_density,
-                           self.cfg.mean_noise_span_length) for i in range(0, len(seqs), B)]
+        out = []
+        for i in range(0, len(seqs), B):
+            b = make_batch(seqs[i:i + B], self.sentinels, rng, self.S, self.T, self.cfg.noise_density,
+                           self.cfg.mean_noise_span_length)
+            if len(b.ids_BxS) < B:
+                pad = lambda a: np.concatenate([a, np.zeros((B - len(a),) + a.shape[1:], a.dtype)])  # noqa: E731
+                b = Batch(*(pad(getattr(b, f.name)) for f in dataclasses.fields(Batch)))
+                b.mask_BxS[len(seqs) - i:, 0] = 1  # keep padded encoder rows non-empty
+            out.append(b)
+        return out
 
 
 # --------------------------------------------------------------------------------------------------
@@ -220,7 +229,7 @@ def make_train_step(model: T5Model, tx: optax.GradientTransformation) -> Callabl
         updates, opt_state = tx.update(grads, state["opt_state"], state["params"])
         params = optax.apply_updates(state["params"], updates)
         return ({"params": params, "opt_state": opt_state, "step": state["step"] + 1},
-                {"loss": loss, "grad_norm": optax.global_norm(grads), "target_tokens": n})
+                {"loss": loss, "grad_norm": optax.tree.norm(grads), "target_tokens": n})
     return train_step
 
 
@@ -242,6 +251,15 @@ def _captions(data_dir: Path, split: str) -> list[str]:
     ds = Dataset.open(data_dir)
     caps = tk.dataset_captions(ds, [split])
     return list(dict.fromkeys(caps))  # unique, in first-appearance order: deterministic
+
+
+@lru_cache(maxsize=4)
+def _compiled(mcfg: T5Config, cfg: PretrainConfig, S: int, T: int):
+    """Model, optimiser and jitted init/train/eval for one configuration, shared by repeated calls in a
+    process (a resumed or sliced run does not recompile)."""
+    model, tx = T5Model(mcfg), make_optimizer(cfg)
+    init = jax.jit(lambda: init_state(model, tx, cfg.seed, S, T))
+    return model, tx, init, make_train_step(model, tx), jax.jit(lambda p, b: loss_fn(model, p, b))
 
 
 def _run_identity(cfg: PretrainConfig, mcfg: T5Config, ds_fp: str, tok: tk.Tokenizer) -> dict:
@@ -287,8 +305,8 @@ def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainC
     stream = CaptionStream(train_seqs, sentinels, cfg)
     eval_batches = [batch_dict(b) for b in stream.fixed(eval_seqs, cfg.seed)]
 
-    model, tx = T5Model(mcfg), make_optimizer(cfg)
-    abstract = jax.eval_shape(lambda: init_state(model, tx, cfg.seed, stream.S, stream.T))
+    _, _, init, train_step, eval_step = _compiled(mcfg, cfg, stream.S, stream.T)
+    abstract = jax.eval_shape(init)
     out.mkdir(parents=True, exist_ok=True)
     cfg_path = out / "config.json"
     if cfg_path.exists():
@@ -308,7 +326,9 @@ def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainC
         if metrics_path.exists():  # drop rows logged after the checkpoint; they will be logged again
             atomic_write_jsonl(metrics_path, [r for r in read_jsonl(metrics_path, strict=False) if r["step"] <= latest])
     else:
-        state = jax.jit(lambda: init_state(model, tx, cfg.seed, stream.S, stream.T))()
+        if (out / "metrics.jsonl").exists():  # a start that died before its first checkpoint
+            atomic_write_jsonl(out / "metrics.jsonl", [])
+        state = init()
         counts = param_counts(mcfg, state["params"])
         atomic_write_json(cfg_path, {**identity, "paths": {"data": str(data_dir), "tokenizer": str(tokenizer.path)},
                                      "n_params": counts, "train_captions": len(train_seqs),
@@ -317,8 +337,6 @@ def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainC
         log(f"pretrain {cfg.preset}: {counts['encoder_total']:,} encoder params ({counts['all']:,} with decoder), "
             f"{len(train_seqs)} unique train captions, {cfg.steps} steps × batch {cfg.batch_size}")
 
-    eval_step = jax.jit(lambda p, b: loss_fn(model, p, b))
-
     def evaluate(params) -> float:
         tot = n = 0.0
         for b in eval_batches:
@@ -326,7 +344,6 @@ def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainC
             tot, n = tot + float(l) * float(k), n + float(k)
         return tot / max(n, 1.0)
 
-    train_step = make_train_step(model, tx)
     step = int(state["step"])
     if step == 0:
         ev = evaluate(state["params"])

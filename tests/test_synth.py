@@ -1,0 +1,185 @@
+"""Tests for the procedural two-hand corpus (handx_jax/data/synth.py, synth_hand.py)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from handx_jax import skeleton as sk
+from handx_jax.data import clips, synth
+from handx_jax.data import synth_hand as H
+
+SMALL = synth.SynthConfig(chunk_size=16)
+CLEAN = dataclasses.replace(SMALL, noise_m=0.0, white_noise_m=0.0, defect_prob=0.0)
+L = synth.SynthConfig().segment_len
+
+
+def _segments(chunk: synth.SynthChunk, cfg: synth.SynthConfig):
+    """Yield (sequence, segment, program, joints (L, 2, 21, 3)) for every segment of a chunk."""
+    for n, row in enumerate(chunk.programs):
+        for s, prog in enumerate(row):
+            yield n, s, prog, chunk.joints[n, s * cfg.segment_len:(s + 1) * cfg.segment_len]
+
+
+@pytest.fixture(scope="module")
+def interacting() -> tuple[synth.SynthChunk, synth.SynthConfig]:
+    cfg = dataclasses.replace(CLEAN, chunk_size=64, interaction_prob=1.0, idle_prob=0.0)
+    return synth.synth_chunk(7, 0, cfg), cfg
+
+
+def test_vocabularies():
+    assert len(synth.ACTIONS) >= 12 and len(synth.INTERACTIONS) >= 8
+    assert {"pinch_index", "pinch_middle", "pinch_ring", "pinch_pinky"} <= set(synth.ACTIONS)
+
+
+def test_shapes_dtype_and_programs():
+    c = synth.synth_chunk(0, 0, SMALL)
+    T = SMALL.segments_per_sequence * SMALL.segment_len
+    assert c.joints.shape == (SMALL.chunk_size, T, 2, sk.NUM_JOINTS, 3) and c.joints.dtype == np.float32
+    assert len(c.programs) == SMALL.chunk_size
+    for row in c.programs:
+        assert len(row) == SMALL.segments_per_sequence
+        for p in row:
+            assert set(p) == {"left", "right", "interaction", "idle"}
+            if p["idle"]:
+                assert p["interaction"] is None
+            else:
+                assert p["left"] in synth.ACTIONS and p["right"] in synth.ACTIONS
+                assert p["interaction"] is None or p["interaction"] in synth.INTERACTIONS
+
+
+def test_deterministic_per_seed_and_chunk():
+    a, b = synth.synth_chunk(3, 1, SMALL), synth.synth_chunk(3, 1, SMALL)
+    assert np.array_equal(a.joints, b.joints, equal_nan=True) and a.programs == b.programs
+    for other in (synth.synth_chunk(4, 1, SMALL), synth.synth_chunk(3, 2, SMALL)):
+        assert not np.array_equal(a.joints, other.joints, equal_nan=True)
+
+
+def test_bone_lengths_constant_and_anatomical():
+    c = synth.synth_chunk(1, 0, CLEAN)
+    bones = sk.bone_lengths(c.joints)                                   # (N, T, 2, 20)
+    assert np.abs(bones - bones[:, :1]).max() < 2e-5                    # rigid bones over time
+    assert np.abs(bones[:, :, 0] - bones[:, :, 1]).max() < 2e-5         # one person: equal hands
+    index_proximal = bones[:, 0, 0, sk.JOINT_INDEX["index_pip"] - 1]    # bone k ends at joint k+1
+    assert index_proximal.min() > 0.035 and index_proximal.max() < 0.055
+    sizes = bones[:, 0, 0].sum(-1)
+    assert sizes.max() / sizes.min() > 1.1                              # hand size varies
+
+
+def _signed_mcp_flexion_deg(joints_x2x21x3: np.ndarray) -> np.ndarray:
+    """Signed MCP flexion of index..pinky (+ toward the palm), (..., 2, 4), from joints alone."""
+    w, i, p = joints_x2x21x3[..., 0, :], joints_x2x21x3[..., 1, :], joints_x2x21x3[..., 7, :]
+    n = np.cross(i - w, p - w)
+    n[..., 0, :] *= -1.0                                                # the left hand is mirrored
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    mcp, pip = [1, 4, 10, 7], [2, 5, 11, 8]
+    bone = joints_x2x21x3[..., pip, :] - joints_x2x21x3[..., mcp, :]
+    bone /= np.linalg.norm(bone, axis=-1, keepdims=True)
+    return np.degrees(np.arcsin(np.clip(np.einsum("...fc,...c->...f", bone, n), -1, 1)))
+
+
+def test_joint_limits_and_hyperextension():
+    c = synth.synth_chunk(2, 0, dataclasses.replace(CLEAN, chunk_size=32))
+    ang = clips.interior_angles_deg(c.joints)                           # (N, T, 2, 15)
+    names = [sk.JOINT_NAMES[j] for _, j, _ in sk.INTERIOR_TRIPLES]
+    limit = {"mcp": 91.0, "pip": 106.0, "dip": 71.0, "thumb_ip": 81.0}
+    for k, name in enumerate(names):
+        kind = name if name == "thumb_ip" else name.split("_")[-1]
+        if kind in limit:
+            assert ang[..., k].max() <= limit[kind], name
+    flex = _signed_mcp_flexion_deg(c.joints)
+    assert flex.min() > -45.0                                           # no finger snapped back
+    assert (flex < -20.0).any()                                         # but hyperextension occurs
+
+
+def test_fingertip_contact_arises_and_releases(interacting):
+    chunk, cfg = interacting
+    found = 0
+    for _, _, prog, x in _segments(chunk, cfg):
+        if prog["interaction"] != "fingertip_touch":
+            continue
+        found += 1
+        d = np.linalg.norm(x[:, 0, 17] - x[:, 1, 17], axis=-1)
+        assert d.min() < 0.02                                           # index tips meet
+        assert d.max() > d.min() + 0.01                                 # and the distance changes
+    assert found >= 2
+
+
+def test_palm_and_grip_interactions_touch(interacting):
+    chunk, cfg = interacting
+    seen, palm_min = set(), []
+    for _, _, prog, x in _segments(chunk, cfg):
+        kind = prog["interaction"]
+        if kind in ("palm_press", "clap"):
+            # Palm centroids sit ~2 cm apart when the palm surfaces touch; thumbs and cupped
+            # pinkies can hold them a little further apart.
+            cen = x[:, :, [0, 1, 4, 10, 7]].mean(2)
+            palm_min.append(np.linalg.norm(cen[:, 0] - cen[:, 1], axis=-1).min())
+            assert palm_min[-1] < 0.08
+        elif kind in ("grip_finger", "grip_wrist", "tap_palm", "steeple", "fist_bump", "interlock"):
+            d = np.linalg.norm(x[:, 0, :, None] - x[:, 1, None], axis=-1).min(axis=(1, 2))
+            assert d.min() < 0.02, kind
+        else:
+            continue
+        seen.add(kind)
+    assert len(seen) >= 5
+    assert np.median(palm_min) < 0.04
+
+
+def test_hands_apart_without_interaction():
+    cfg = dataclasses.replace(CLEAN, chunk_size=32, interaction_prob=0.0)
+    c = synth.synth_chunk(5, 0, cfg)
+    d = np.linalg.norm(c.joints[:, :, 0, :, None] - c.joints[:, :, 1, None], axis=-1).min(axis=(2, 3))
+    assert d.min() > 0.05
+    wrist = np.linalg.norm(c.joints[:, :, 0, 0] - c.joints[:, :, 1, 0], axis=-1)
+    assert wrist.min() > 0.10 and wrist.max() < 0.7
+
+
+def test_intensity_filter_keeps_motion_and_drops_idle():
+    cfg = dataclasses.replace(SMALL, chunk_size=48, defect_prob=0.0, idle_prob=0.2)
+    c = synth.synth_chunk(11, 0, cfg)
+    windows = c.joints.reshape(-1, cfg.segment_len, 2, sk.NUM_JOINTS, 3)
+    idle = np.array([p["idle"] for row in c.programs for p in row])
+    keep = clips.keep_mask(clips.hand_intensity(windows))
+    assert idle.sum() >= 5 and (~idle).sum() >= 100
+    assert keep[~idle].mean() >= 0.9
+    assert not keep[idle].any()
+
+
+def test_clean_sequences_have_no_defective_frames():
+    c = synth.synth_chunk(6, 0, dataclasses.replace(SMALL, defect_prob=0.0))
+    for seq in c.joints:
+        masks = clips.defective_frames(seq)
+        assert not any(m.any() for m in masks.values()), {k: int(m.sum()) for k, m in masks.items()}
+        _, _, _, rep = clips.extract_clips(seq)
+        assert rep.windows == SMALL.segments_per_sequence
+
+
+def test_defects_are_flagged():
+    c = synth.synth_chunk(6, 0, dataclasses.replace(SMALL, defect_prob=1.0))
+    kinds = set()
+    for seq in c.joints:
+        masks = clips.defective_frames(seq)
+        bad = [k for k, m in masks.items() if m.any()]
+        assert bad
+        kinds.update(bad)
+    assert {"nonfinite", "jump"} <= kinds
+
+
+def test_pinch_poses_touch():
+    geom = H.hand_geometry(np.ones(1), np.zeros((1, 5, 3)))
+    for finger in range(4):
+        for flat in (False, True):
+            j = H.hand_fk(H.couple_neighbours(np.array(H.pinch_pose(finger, flat)))[None], geom)[0]
+            tip = sk.CHAINS[("index", "middle", "ring", "pinky")[finger]][4]
+            assert np.linalg.norm(j[16] - j[tip]) < 0.006
+
+
+def test_closed_form_angles_match_fk():
+    rng = np.random.default_rng(0)
+    pose = rng.uniform(H.LIMITS_LO_16, H.LIMITS_HI_16, (200, H.NUM_CHANNELS))
+    j = H.hand_fk(pose, H.hand_geometry(np.ones(1), np.zeros((1, 5, 3))))
+    measured = clips.interior_angles_deg(np.stack([j, j], 1))[:, 0]
+    assert np.abs(measured - H.interior_angles_from_pose(pose)).max() < 0.05
