@@ -344,6 +344,8 @@ def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainC
             tot, n = tot + float(l) * float(k), n + float(k)
         return tot / max(n, 1.0)
 
+    # Fresh and restored states alike committed to one device: the same compiled step serves both.
+    state = jax.device_put(state, jax.devices()[0])
     step = int(state["step"])
     if step == 0:
         ev = evaluate(state["params"])
