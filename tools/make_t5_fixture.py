@@ -90,6 +90,7 @@ def build(name: str, overrides: dict, spiece: bytes, seed: int) -> None:
             else:  # HF's init scale, redrawn so the fixture does not depend on its init code
                 p.copy_(torch.randn_like(p) * p.shape[-1] ** -0.5)
     model.save_pretrained(out, safe_serialization=True)
+    (out / "model.safetensors").chmod(0o644)
 
     tok = T5Tokenizer.from_pretrained(out)  # reads spiece.model; adds <extra_id_0..99> past the pieces
     batch = tok(SENTENCES, padding=True, return_tensors="pt")

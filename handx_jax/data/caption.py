@@ -166,20 +166,34 @@ class _Hand:
         self.wrist = ev.get("wrist_trajectory", {})
 
     # -- fingers --------------------------------------------------------------------------
-    def _signature(self, finger: str, exact: bool) -> tuple:
-        q = 1 if exact else 8
-        return tuple((m["from"], m["to"], m["start"] // q, m["end"] // q, _joints_phrase(finger, m["joints"]) != "")
-                     for m in self.moves.get(finger, []))
+    def _same_moves(self, f: str, g: str, tol: int) -> bool:
+        a, b = self.moves[f], self.moves[g]
+        return len(a) == len(b) and all(
+            (m["from"], m["to"]) == (n["from"], n["to"]) and abs(m["start"] - n["start"]) <= tol
+            and abs(m["end"] - n["end"]) <= tol
+            and (_joints_phrase(f, m["joints"]) == "") == (_joints_phrase(g, n["joints"]) == "")
+            for m, n in zip(a, b))
 
     def finger_clauses(self, detail: int) -> list[str]:
-        """Clauses for moving fingers, grouped by identical move sequences, in temporal order."""
-        groups: dict[tuple, list[str]] = {}
+        """Clauses for moving fingers, grouped when they do the same thing at about the same time
+        (within 3 frames at level 4, 8 below), in temporal order."""
+        tol = 3 if detail >= 4 else 8
+        groups: list[list[str]] = []
         for f in _FINGERS:
-            if self.moves.get(f):
-                groups.setdefault(self._signature(f, detail >= 4), []).append(f)
+            if not self.moves.get(f):
+                continue
+            for grp in groups:
+                if grp[0] != "thumb" and f != "thumb" and self._same_moves(grp[0], f, tol):
+                    grp.append(f)
+                    break
+            else:
+                groups.append([f])
         items = []
-        for sig, fingers in groups.items():
-            mv = self.moves[fingers[0]]
+        for fingers in groups:
+            mv = [dict(m) for m in self.moves[fingers[0]]]
+            for g in fingers[1:]:  # the group's range covers all its fingers
+                for m, n in zip(mv, self.moves[g]):
+                    m["start"], m["end"] = min(m["start"], n["start"]), max(m["end"], n["end"])
             items.append((mv[0]["start"], fingers, mv))
         items.sort(key=lambda t: t[0])
         out = []
@@ -297,12 +311,13 @@ class _Hand:
         for axis, lst in self.wrist.items():
             for e in lst:
                 if "direction" in e:
-                    evs.append(dict(e))
+                    evs.append(dict(e, axis=axis))
         evs.sort(key=lambda e: e["start"])
         segs: list[dict] = []
         for e in evs:
             for s in segs:
-                if e["start"] < s["end"] - 5 and s["start"] < e["end"] - 5:
+                if e["start"] < s["end"] - 5 and s["start"] < e["end"] - 5 and \
+                        all(p["axis"] != e["axis"] for p in s["parts"]):
                     s["start"], s["end"] = min(s["start"], e["start"]), max(s["end"], e["end"])
                     s["parts"].append(e)
                     break
@@ -458,7 +473,7 @@ class _Interaction:
                 elif b is None:
                     txt = f"the right hand moves from {a} the left hand into line with it"
                 else:
-                    txt = f"the right hand moves from {a} the left hand to {b} it"
+                    txt = f"the right hand moves from {a} the left hand to end up {b} it"
                 if detail >= 3:
                     txt += " " + self.rng.choice(_SPEED_ADV[e["speed"]])
                 if detail >= 4:

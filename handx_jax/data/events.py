@@ -12,7 +12,8 @@ Segmentation of a series x_0 … x_{T−1} (one descriptor of one clip):
 1. velocity v_t = (x_t − x_{t−1})·fps, v_0 = 0;
 2. greedy scan from i = 0: the event starting at i ends at the LARGEST j (j ≤ T, j − i ≥
    ``min_duration``, T − j a multiple of ``unit_len``) such that |x_{j−1} − x_i| ≥ ``delta``, at
-   least ``sign_ratio`` (80 %) of v[i:j] is ≥ 0 or at least 80 % is ≤ 0, and — for descriptors with
+   least ``sign_ratio`` (80 %) of v[i:j] is ≥ 0 or at least 80 % is ≤ 0 (by default counted over
+   the moving frames only, ``ignore_still``; see AnnotationConfig), and — for descriptors with
    states — the state labels of x_i and x_{j−1} differ. The event is emitted and the scan continues
    at i = j; if no j qualifies, i advances by ``unit_len``;
 3. speed = interval label of |mean v| over the event; start/end states = labels of x_i and x_{j−1};
@@ -131,6 +132,11 @@ class AnnotationConfig:
     # an event, since zero velocity passes either sign test). 0 reproduces the reference ranges.
     # The scan itself and the state labels are unaffected; speed is measured on the trimmed range.
     trim_fraction: float = 0.1
+    # Sign test over MOVING frames only (our reading of the paper's "detectable change"): frames
+    # slower than the descriptor's "slow" speed edge count for neither sign. The reference counts a
+    # zero velocity as both signs, so with exact holds (clean or synthetic motion) one event can
+    # swallow a bend, the hold and part of the release. False reproduces the reference test.
+    ignore_still: bool = True
     # Series processed per block of the vectorised scan (block × T² cells in memory).
     scan_block: int = 1024
 
@@ -163,22 +169,35 @@ def _labels(x: np.ndarray, edges: Sequence[float]) -> np.ndarray:
 
 
 def _best_ends(x_SxT: np.ndarray, v_SxT: np.ndarray, lab_SxT: np.ndarray | None, spec: SegmentSpec,
-               ratio: Fraction) -> np.ndarray:
-    """``bestj[s, i]``: the largest valid end j for an event starting at i (0 where none)."""
+               ratio: Fraction, still: float | None) -> np.ndarray:
+    """``bestj[s, i]``: the largest valid end j for an event starting at i (0 where none).
+
+    ``still is None``: reference sign test, ≥ ratio of v[i:j] is ≥ 0 (or ≤ 0), zeros counting for
+    both. Otherwise frames with |v| < still count for neither sign and the ratio is taken over the
+    moving frames of v[i:j] (at least one must move).
+    """
     S, T = x_SxT.shape
     num, den = ratio.numerator, ratio.denominator
-    k = np.arange(T + 1, dtype=np.int32)
     ppos = np.zeros((S, T + 1), np.int32)
     pneg = np.zeros((S, T + 1), np.int32)
-    np.cumsum(v_SxT >= 0, axis=1, out=ppos[:, 1:])
-    np.cumsum(v_SxT <= 0, axis=1, out=pneg[:, 1:])
-    A = den * ppos - num * k  # ≥ num/den of v[i:j] non-negative  ⟺  A[j] ≥ A[i]
-    B = den * pneg - num * k
+    if still is None:
+        np.cumsum(v_SxT >= 0, axis=1, out=ppos[:, 1:])
+        np.cumsum(v_SxT <= 0, axis=1, out=pneg[:, 1:])
+        pall = np.broadcast_to(np.arange(T + 1, dtype=np.int32), (S, T + 1))
+    else:
+        np.cumsum(v_SxT >= still, axis=1, out=ppos[:, 1:])
+        np.cumsum(v_SxT <= -still, axis=1, out=pneg[:, 1:])
+        pall = ppos + pneg
+    # "≥ num/den of the counted frames of v[i:j] are positive" ⟺ A[j] ≥ A[i].
+    A = den * ppos - num * pall
+    B = den * pneg - num * pall
     # Cells [s, i, e] with e = j − 1 ∈ [0, T).
     i_idx = np.arange(T)[:, None]
     e_idx = np.arange(T)[None, :]
     struct = ((e_idx + 1 - i_idx) >= spec.min_duration) & (((T - (e_idx + 1)) % spec.unit_len) == 0)
     ok = (A[:, None, 1:] >= A[:, :T, None]) | (B[:, None, 1:] >= B[:, :T, None])
+    if still is not None:
+        ok &= pall[:, None, 1:] > pall[:, :T, None]
     ok &= struct[None]
     if spec.delta is not None:
         ok &= np.abs(x_SxT[:, None, :] - x_SxT[:, :, None]) >= np.float32(spec.delta)
@@ -211,7 +230,7 @@ def _trim(x_SxT: np.ndarray, s_: np.ndarray, i_: np.ndarray, j_: np.ndarray,
 
 
 def segment(x_SxT: np.ndarray, spec: SegmentSpec, *, fps: int = sk.FPS, sign_ratio: float = 0.8,
-            block: int = 1024, trim_fraction: float = 0.0) -> _Events:
+            block: int = 1024, trim_fraction: float = 0.0, ignore_still: bool = False) -> _Events:
     """Greedy event segmentation of S series at once (module docstring, reference §6.2)."""
     x = np.asarray(x_SxT, dtype=np.float32)
     S, T = x.shape
@@ -225,7 +244,8 @@ def segment(x_SxT: np.ndarray, spec: SegmentSpec, *, fps: int = sk.FPS, sign_rat
     ev_s, ev_i, ev_j = [], [], []
     for b in range(0, len(live_idx), block):
         idx = live_idx[b:b + block]
-        bestj = _best_ends(x[idx], v[idx], None if lab is None else lab[idx], spec, ratio)
+        bestj = _best_ends(x[idx], v[idx], None if lab is None else lab[idx], spec, ratio,
+                           spec.speed_edges[0] if ignore_still else None)
         n = len(idx)
         cur = np.zeros(n, np.int32)
         rows = np.arange(n)
@@ -244,6 +264,9 @@ def segment(x_SxT: np.ndarray, spec: SegmentSpec, *, fps: int = sk.FPS, sign_rat
     s_ = np.concatenate(ev_s) if ev_s else np.zeros(0, np.int64)
     i_ = np.concatenate(ev_i).astype(np.int64) if ev_i else np.zeros(0, np.int64)
     j_ = np.concatenate(ev_j).astype(np.int64) if ev_j else np.zeros(0, np.int64)
+    # States come from the scan's endpoints x_i and x_{j−1} (they differ by construction).
+    st0 = lab[s_, i_] if lab is not None else np.zeros(len(s_), np.int8)
+    st1 = lab[s_, j_ - 1] if lab is not None else np.zeros(len(s_), np.int8)
     if trim_fraction > 0 and len(s_) and spec.delta is not None:
         i_, j_ = _trim(x, s_, i_, j_, trim_fraction * spec.delta)
     cv = np.zeros((S, T + 1), np.float64)
@@ -251,8 +274,6 @@ def segment(x_SxT: np.ndarray, spec: SegmentSpec, *, fps: int = sk.FPS, sign_rat
     mean_v = np.abs(cv[s_, j_] - cv[s_, i_]) / np.maximum(j_ - i_, 1)
     speed = _labels(mean_v, spec.speed_edges)
     dx = (x[s_, j_ - 1] - x[s_, i_]) if len(s_) else np.zeros(0, np.float32)
-    st0 = lab[s_, i_] if lab is not None else np.zeros(len(s_), np.int8)
-    st1 = lab[s_, j_ - 1] if lab is not None else np.zeros(len(s_), np.int8)
     # Constant events for series without any event.
     has_ev = np.zeros(S, bool)
     has_ev[s_] = True
@@ -356,7 +377,7 @@ def annotate(joints_NxTx2x21x3: np.ndarray, cfg: AnnotationConfig = AnnotationCo
         for r, cid in zip(records, ids):
             r["id"] = cid
     seg = lambda arr, spec: segment(arr, spec, fps=cfg.fps, sign_ratio=cfg.sign_ratio, block=cfg.scan_block,
-                                    trim_fraction=cfg.trim_fraction)
+                                    trim_fraction=cfg.trim_fraction, ignore_still=cfg.ignore_still)
 
     def series(a_NxTx_: np.ndarray) -> np.ndarray:  # (N, T, ...) → (N·K, T), clip-major
         return np.moveaxis(a_NxTx_.reshape(N, T, -1), 1, 2).reshape(-1, T)

@@ -348,34 +348,42 @@ def palm_relation(clouds_NxTx2xPx3: np.ndarray, cfg: FeatureConfig = FeatureConf
 
 
 def finger_palm_distance(joints_NxTx2x21x3: np.ndarray, clouds_NxTx2xPx3: np.ndarray,
-                         cfg: FeatureConfig = FeatureConfig()) -> np.ndarray:
+                         cfg: FeatureConfig = FeatureConfig(), W_Px21: np.ndarray | None = None) -> np.ndarray:
     """Mean distance of each tip of hand h to the k closest points of the OTHER hand's palm cloud.
 
     Shape (..., 2, 5): [h, finger] with fingers thumb..pinky (paper App. B, reference §6.1).
+    Since palm point p is Σ_j W_pj J_j over the six palm joints, the tip·point products are one GEMM
+    of the (tip · palm-joint) products with Wᵀ: |t − q_p|² = |t|² − 2 Σ_j W_pj (t·J_j) + |q_p|².
     """
     x = np.asarray(joints_NxTx2x21x3, dtype=np.float32)
     c = np.asarray(clouds_NxTx2xPx3, dtype=np.float32)
+    W = palm_weights(cfg) if W_Px21 is None else W_Px21
     lead = x.shape[:-3]
     P = c.shape[-2]
-    tips = x[..., list(sk.TIPS), :].reshape(-1, 2, 5, 3)
-    other = c.reshape(-1, 2, P, 3)[:, ::-1]  # palm of the other hand
-    centre = other.mean(-2, keepdims=True)
-    t = (tips - centre).reshape(-1, 5, 3)
-    o = (other - centre).reshape(-1, P, 3)
-    # |t − o|² expanded coordinate by coordinate: (M*2, 5, P) with no stacked small matmuls.
-    d2 = np.sum(t * t, -1)[:, :, None] + np.sum(o * o, -1)[:, None, :]
-    for ci in range(3):
-        d2 -= 2.0 * t[:, :, ci, None] * o[:, None, :, ci]
-    d2 = np.maximum(d2, 0.0)
+    palm_j = np.flatnonzero(W.any(0))  # the six palm joints
+    W6 = np.ascontiguousarray(W[:, palm_j].T)  # (6, P)
+    xx = x.reshape(-1, 2, sk.NUM_JOINTS, 3)
+    centre = xx[:, :, 0:1, :].mean(1, keepdims=True)  # between the wrists: keeps float32 exact
+    xx = xx - centre
+    tips = xx[:, :, list(sk.TIPS), :]  # (M, 2, 5, 3)
+    J = xx[:, ::-1][:, :, palm_j, :]  # the other hand's palm joints, (M, 2, 6, 3)
+    G = np.einsum("mhkc,mhjc->mhkj", tips, J)  # (M, 2, 5, 6)
+    dot = (G.reshape(-1, len(palm_j)) @ W6).reshape(-1, 2, 5, P)
+    q = c.reshape(-1, 2, P, 3)[:, ::-1] - centre  # other hand's cloud, same centring
+    d2 = dot
+    d2 *= -2.0
+    d2 += np.sum(tips * tips, -1)[..., None]
+    d2 += np.sum(q * q, -1)[:, :, None, :]
     k = cfg.finger_palm_k
     near = np.partition(d2, k - 1, axis=-1)[..., :k]
-    return np.sqrt(near).mean(-1).reshape(*lead, 2, 5).astype(np.float32)
+    return np.sqrt(np.maximum(near, 0.0)).mean(-1).reshape(*lead, 2, 5).astype(np.float32)
 
 
 def compute_features(joints_NxTx2x21x3: np.ndarray, cfg: FeatureConfig = FeatureConfig()) -> Features:
     """All six descriptors for a batch of clips."""
     x = _as_joints(joints_NxTx2x21x3)
-    clouds = palm_clouds(x, cfg)
+    W = palm_weights(cfg)
+    clouds = palm_clouds(x, cfg, W)
     intra, inter = tip_distances(x)
     pd, pv = palm_relation(clouds, cfg)
     return Features(
@@ -385,7 +393,7 @@ def compute_features(joints_NxTx2x21x3: np.ndarray, cfg: FeatureConfig = Feature
         inter_tip_NxTx5x5=inter.astype(np.float32),
         palm_dist_NxT=pd,
         palm_vec_NxTx3=pv,
-        finger_palm_NxTx2x5=finger_palm_distance(x, clouds, cfg),
+        finger_palm_NxTx2x5=finger_palm_distance(x, clouds, cfg, W),
         wrist_NxTx2x3=np.ascontiguousarray(x[..., 0, :]),
     )
 

@@ -16,6 +16,7 @@ Generator training reads this cache and never runs the text encoder inside its s
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -33,9 +34,15 @@ CACHE_DIRNAME = "text_cache"
 DTYPES = ("float16", "float32")
 
 
-def cache_fingerprint(dataset_fp: str, encoder_fp: str, tokenizer_fp: str, max_len: int, dtype: str) -> str:
+JOINED = "joined"  # the three prompts in one sequence (evaluator text side, AR prefix; reference §1.2)
+
+
+def cache_fingerprint(dataset_fp: str, encoder_fp: str, tokenizer_fp: str, max_len: int, dtype: str,
+                      joined: bool = False) -> str:
     doc = {"format": FORMAT, "version": FORMAT_VERSION, "dataset": dataset_fp, "encoder": encoder_fp,
            "tokenizer": tokenizer_fp, "max_len": int(max_len), "dtype": dtype}
+    if joined:
+        doc["fields"] = JOINED
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -57,13 +64,24 @@ def _bucket(n: int, step: int, cap: int) -> int:
     return min(cap, -(-n // step) * step)
 
 
+def joined_texts(texts: Sequence[dict]) -> list[dict]:
+    """Per clip and level, ``<extra_id_0> L <extra_id_1> R <extra_id_2> I <extra_id_3>`` (reference §1.2,
+    with real T5 sentinels: the reference's evaluator writes ``<extra_id0>``, which T5 reads as text)."""
+    from handx_jax.text.tokenizer import join_fields, sentinel
+
+    return [{"id": t.get("id"), JOINED: [f"{join_fields(l, r, i)} {sentinel(3)}"
+                                        for l, r, i in zip(t["left"], t["right"], t["interaction"])]}
+            for t in texts]
+
+
 def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, max_len: int = 128,
-                dtype: str = "float16", batch_size: int = 128, overwrite: bool = False,
+                dtype: str = "float16", batch_size: int = 128, overwrite: bool = False, joined: bool = False,
                 log: Callable[[str], None] = print) -> Path:
     """Encode every caption of the dataset at ``data_dir`` with the encoder folder; return the cache dir.
 
-    An existing cache with the same fingerprint is complete by construction (atomic write) and is
-    reused unless ``overwrite``.
+    ``joined`` caches one sequence per (clip, level) holding the three prompts behind separators
+    (field name ``"joined"``) instead of one row per field. An existing cache with the same
+    fingerprint is complete by construction (atomic write) and is reused unless ``overwrite``.
     """
     from handx_jax.data.dataset import TEXT_FIELDS, Dataset
     from handx_jax.text.t5 import load_hf_t5_encoder
@@ -72,13 +90,14 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
         raise ValueError(f"dtype must be one of {DTYPES}, got {dtype!r}")
     ds = Dataset.open(data_dir)
     enc = load_hf_t5_encoder(encoder_dir)
-    fp = cache_fingerprint(ds.fingerprint, enc.fingerprint, enc.tokenizer.fingerprint, max_len, dtype)
+    fp = cache_fingerprint(ds.fingerprint, enc.fingerprint, enc.tokenizer.fingerprint, max_len, dtype, joined)
     out = Path(data_dir) / CACHE_DIRNAME / fp
     if out.exists() and not overwrite:
         log(f"text cache {out} is up to date")
         return out
 
-    texts, rows = caption_table(ds.texts, TEXT_FIELDS)
+    fields = (JOINED,) if joined else TEXT_FIELDS
+    texts, rows = caption_table(joined_texts(ds.texts) if joined else ds.texts, fields)
     seqs = [enc.tokenizer.encode_one(t) for t in texts]
     lengths = np.array([len(s) for s in seqs], np.int64)
     L = int(min(max_len, lengths.max(initial=1)))
@@ -115,16 +134,16 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
             "format": FORMAT, "format_version": FORMAT_VERSION, "fingerprint": fp,
             "dataset_fingerprint": ds.fingerprint, "encoder_fingerprint": enc.fingerprint,
             "tokenizer_fingerprint": enc.tokenizer.fingerprint, "encoder_path": str(Path(encoder_dir).absolute()),
-            "encoder_config": json.loads(json.dumps(enc.cfg.__dict__)), "max_len": int(max_len), "Lmax": L,
+            "encoder_config": dataclasses.asdict(enc.cfg), "max_len": int(max_len), "Lmax": L,
             "d_model": D, "dtype": dtype, "num_rows": len(texts), "num_captions": int(rows.size),
-            "num_clips": int(rows.shape[0]), "levels": int(rows.shape[2]), "fields": list(TEXT_FIELDS),
+            "num_clips": int(rows.shape[0]), "levels": int(rows.shape[2]), "fields": list(fields),
             "num_truncated": num_truncated, "mean_tokens": float(kept.mean()) if len(kept) else 0.0,
             "encoder_flops_per_caption": {
                 "mean": float(flops.mean()) if len(kept) else 0.0, "at_Lmax": int(enc.flops(L)),
                 "counting": "analytic matmul FLOPs of one forward at the caption's own length (t5.encoder_flops)"},
             "build_seconds": wall, "captions_per_s": len(texts) / max(wall, 1e-9),
         }
-        atomic_write_json(tmp / "index.json", {"fields": list(TEXT_FIELDS), "levels": int(rows.shape[2]),
+        atomic_write_json(tmp / "index.json", {"fields": list(fields), "levels": int(rows.shape[2]),
                                                "clip_ids": ds.ids, "rows": rows.tolist(), "texts": texts}, indent=None)
         atomic_write_json(tmp / "meta.json", meta)
     log(f"text cache {out}: {len(texts)} distinct of {rows.size} captions, Lmax {L} ({num_truncated} truncated), "
@@ -189,14 +208,14 @@ class TextCache:
 
 
 def open_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, max_len: int = 128,
-               dtype: str = "float16") -> TextCache:
+               dtype: str = "float16", joined: bool = False) -> TextCache:
     """The cache for this dataset + encoder folder, verified; a clear error if there is none."""
     from handx_jax.data.dataset import Dataset
     from handx_jax.text.t5 import load_hf_t5_encoder
 
     ds = Dataset.open(data_dir)
     enc = load_hf_t5_encoder(encoder_dir)
-    fp = cache_fingerprint(ds.fingerprint, enc.fingerprint, enc.tokenizer.fingerprint, max_len, dtype)
+    fp = cache_fingerprint(ds.fingerprint, enc.fingerprint, enc.tokenizer.fingerprint, max_len, dtype, joined)
     root = Path(data_dir) / CACHE_DIRNAME / fp
     if not root.exists():
         others = sorted(p.name for p in (Path(data_dir) / CACHE_DIRNAME).glob("*") if p.is_dir()

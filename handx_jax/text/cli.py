@@ -63,7 +63,7 @@ def _cache(args: argparse.Namespace) -> int:
     from handx_jax.text.cache import TextCache, build_cache, neighbour_accuracy
 
     root = build_cache(args.data, args.encoder, max_len=args.max_len, dtype=args.dtype,
-                       batch_size=args.batch_size, overwrite=args.force)
+                       batch_size=args.batch_size, overwrite=args.force, joined=args.joined)
     cache = TextCache.open(root)
     m = cache.meta
     print(json.dumps({"cache": str(root), "rows": m["num_rows"], "captions": m["num_captions"], "Lmax": m["Lmax"],
@@ -130,6 +130,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     c.add_argument("--dtype", choices=("float16", "float32"), default="float16")
     c.add_argument("--batch-size", type=int, default=128)
     c.add_argument("--force", action="store_true", help="rebuild even if an up-to-date cache exists")
+    c.add_argument("--joined", action="store_true",
+                   help="cache the three prompts joined by separators, one row per (clip, level) (evaluator text)")
     c.add_argument("--nn-check", type=int, default=1000, metavar="N",
                    help="report nearest-neighbour self-retrieval on N validation captions (0: skip)")
     c.set_defaults(func=_cache)

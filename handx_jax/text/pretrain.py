@@ -245,12 +245,8 @@ def param_counts(cfg: T5Config, params) -> dict[str, int]:
             (count_params(params["lm_head"]) if "lm_head" in params else 0)}
 
 
-def _captions(data_dir: Path, split: str) -> list[str]:
-    from handx_jax.data.dataset import Dataset
-
-    ds = Dataset.open(data_dir)
-    caps = tk.dataset_captions(ds, [split])
-    return list(dict.fromkeys(caps))  # unique, in first-appearance order: deterministic
+def _captions(ds, split: str) -> list[str]:
+    return list(dict.fromkeys(tk.dataset_captions(ds, [split])))  # unique, first-appearance order
 
 
 @lru_cache(maxsize=4)
@@ -284,23 +280,24 @@ def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainC
     data_dir, out = Path(data_dir), Path(out).absolute()
     ds = Dataset.open(data_dir)
     if tokenizer is None:
-        try:
+        if (tk.tokenizer_dir(data_dir) / tk.MODEL_FILENAME).exists():
             tokenizer = tk.load_for_dataset(data_dir)
-        except DataError:
+        else:
             log(f"no tokenizer beside {data_dir}; training one on its train captions")
             tokenizer = tk.train_for_dataset(data_dir)
     mcfg = model_config(cfg.preset, tokenizer.vocab_size)
     identity = _run_identity(cfg, mcfg, ds.fingerprint, tokenizer)
 
-    train_caps = _captions(data_dir, "train")
+    train_caps = _captions(ds, "train")
     if not train_caps:
         raise DataError("the train split has no captions to pretrain on", path=data_dir)
-    eval_caps = _captions(data_dir, "val") or train_caps
+    eval_caps = _captions(ds, "val") or train_caps
     eval_caps = [eval_caps[i] for i in np.random.default_rng([cfg.seed, 3]).permutation(len(eval_caps))[:cfg.eval_size]]
-    enc = lambda caps: [np.asarray(tokenizer.encode_one(c, add_eos=False)[:cfg.max_len - 1], np.int32)  # noqa: E731
-                        for c in caps]
-    train_seqs, eval_seqs = enc(train_caps), enc(eval_caps)
-    n_trunc = sum(len(tokenizer.encode_one(c, add_eos=False)) > cfg.max_len - 1 for c in train_caps)
+    # Captions are cut to max_len - 1 tokens so that the corrupted input plus eos fits in max_len.
+    train_full = [tokenizer.encode_one(c, add_eos=False) for c in train_caps]
+    n_trunc = sum(len(t) > cfg.max_len - 1 for t in train_full)
+    train_seqs = [np.asarray(t[:cfg.max_len - 1], np.int32) for t in train_full]
+    eval_seqs = [np.asarray(tokenizer.encode_one(c, add_eos=False)[:cfg.max_len - 1], np.int32) for c in eval_caps]
     sentinels = [tokenizer.sentinel_id(i) for i in range(tokenizer.num_sentinels)]
     stream = CaptionStream(train_seqs, sentinels, cfg)
     eval_batches = [batch_dict(b) for b in stream.fixed(eval_seqs, cfg.seed)]

@@ -63,7 +63,8 @@ class T5Config:
 
     def __post_init__(self):
         if self.feed_forward_proj not in FEED_FORWARD:
-            raise ValueError(f"feed_forward_proj {self.feed_forward_proj!r} is not supported; use one of {FEED_FORWARD}")
+            raise ValueError(f"feed_forward_proj {self.feed_forward_proj!r} is not supported; "
+                             f"use one of {FEED_FORWARD}")
         for f in ("vocab_size", "d_model", "d_kv", "d_ff", "num_layers", "num_heads", "relative_attention_num_buckets"):
             if int(getattr(self, f)) <= 0:
                 raise ValueError(f"{f} must be positive, got {getattr(self, f)}")
@@ -314,7 +315,9 @@ def encoder_params(params: Params) -> Params:
 def hf_param_names(cfg: T5Config, *, encoder_only: bool = True) -> list[tuple[str, tuple[str, ...], bool]]:
     """(HF tensor name, our path, transpose?) for every parameter. PyTorch Linear stores (out, in)."""
     out = [("shared.weight", ("shared", "embedding"), False)]
-    stacks = [("encoder", cfg.num_layers, False)] + ([] if encoder_only else [("decoder", cfg.num_decoder_layers, True)])
+    stacks = [("encoder", cfg.num_layers, False)]
+    if not encoder_only:
+        stacks.append(("decoder", cfg.num_decoder_layers, True))
     ffn = ("wi_0", "wi_1", "wo") if cfg.gated else ("wi", "wo")
     for stack, n, dec in stacks:
         out.append((f"{stack}.block.0.layer.0.SelfAttention.relative_attention_bias.weight",
@@ -418,9 +421,10 @@ def _open_weights(folder: Path) -> dict[str, _SafetensorsFile]:
 def params_fingerprint(cfg: T5Config, params: Params) -> str:
     """Content hash of config and weights: identical numbers give the same key whatever the file layout."""
     h = hashlib.sha256(json.dumps(dataclasses.asdict(cfg), sort_keys=True).encode())
-    for path, leaf in sorted(jax.tree_util.tree_flatten_with_path(params)[0], key=lambda kv: jax.tree_util.keystr(kv[0])):
-        a = np.ascontiguousarray(np.asarray(leaf, np.float32))
-        h.update(jax.tree_util.keystr(path).encode())
+    leaves = {jax.tree_util.keystr(path): leaf for path, leaf in jax.tree_util.tree_flatten_with_path(params)[0]}
+    for name in sorted(leaves):
+        a = np.ascontiguousarray(np.asarray(leaves[name], np.float32))
+        h.update(name.encode())
         h.update(str(a.shape).encode())
         h.update(a.tobytes())
     return h.hexdigest()[:16]
@@ -485,8 +489,10 @@ def load_hf_t5_encoder(folder: str | os.PathLike) -> FrozenEncoder:
     if not (folder / WEIGHTS_FILE).is_file() and not (folder / INDEX_FILE).is_file():
         missing.append(f"{WEIGHTS_FILE} (or {INDEX_FILE} with shards)")
     if missing:
+        other = sorted(p.name for p in folder.iterdir() if p.suffix in (".bin", ".h5", ".msgpack", ".ckpt"))
+        hint = f"; found {other}: convert them to safetensors" if other else ""
         raise DataError(f"missing {', '.join(missing)}; an encoder folder needs {CONFIG_FILE}, {WEIGHTS_FILE} "
-                        f"and {MODEL_FILENAME}", path=folder)
+                        f"and {MODEL_FILENAME}{hint}", path=folder)
     cfg = T5Config.from_hf(_read_json(folder / CONFIG_FILE), folder / CONFIG_FILE)
     tok = Tokenizer.load(folder / MODEL_FILENAME)
     tensors = _open_weights(folder)

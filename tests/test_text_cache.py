@@ -1,0 +1,116 @@
+"""Embedding cache: read-back equals direct encoding, fingerprint checks, FLOPs record, CLI."""
+
+import argparse
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from handx_jax.data.dataset import TEXT_FIELDS, Dataset
+from handx_jax.io import DataError
+from handx_jax.text import cli
+from handx_jax.text import tokenizer as tk
+from handx_jax.text.cache import TextCache, build_cache, neighbour_accuracy, open_cache
+from handx_jax.text.t5 import T5Config, T5EncoderModel, encoder_flops, load_hf_t5_encoder, save_hf_t5_encoder
+from handx_jax.text.toy import write_toy_dataset
+
+
+def _random_encoder(path, tok, seed):
+    cfg = T5Config(vocab_size=tok.vocab_size, d_model=32, d_kv=8, d_ff=64, num_layers=2, num_heads=4,
+                   feed_forward_proj="gated-gelu")
+    ids = jnp.ones((1, 4), jnp.int32)
+    params = jax.jit(T5EncoderModel(cfg).init)(jax.random.key(seed), ids, ids)["params"]
+    return save_hf_t5_encoder(path, cfg, jax.device_get(params), tok)
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    root = tmp_path_factory.mktemp("cache")
+    data = write_toy_dataset(root / "data", num_clips=24)
+    tok = tk.train_for_dataset(data, vocab_size=200)
+    return data, _random_encoder(root / "enc_a", tok, 0), _random_encoder(root / "enc_b", tok, 1)
+
+
+def test_cache_reads_back_direct_encoding(setup):
+    data, enc_dir, _ = setup
+    root = build_cache(data, enc_dir, dtype="float32", batch_size=32, log=lambda s: None)
+    assert root.parent.name == "text_cache" and root.parent.parent == data
+    cache = open_cache(data, enc_dir, dtype="float32")
+    ds, enc = Dataset.open(data), load_hf_t5_encoder(enc_dir)
+    L = cache.meta["Lmax"]
+    for f in TEXT_FIELDS:
+        for level in (0, 4):
+            clips = np.arange(len(ds))
+            h, m = cache.lookup(clips, f, np.full(len(clips), level))
+            e, direct = enc.encode([t[f][level] for t in ds.texts], max_len=L)
+            np.testing.assert_array_equal(m, e.mask_BxL.astype(bool))
+            assert np.abs(h - direct * e.mask_BxL[..., None]).max() < 1e-5
+            assert [cache.texts[r] for r in cache.row(clips, f, level)] == [t[f][level] for t in ds.texts]
+    # identical texts share one row
+    assert cache.meta["num_rows"] == len({c for t in ds.texts for f in TEXT_FIELDS for c in t[f]})
+    assert cache.meta["num_captions"] == len(ds) * 3 * 5
+    # analytic FLOPs per caption recorded at each caption's own length
+    lengths = cache.mask.sum(1)
+    assert cache.meta["encoder_flops_per_caption"]["mean"] == pytest.approx(encoder_flops(enc.cfg, lengths).mean())
+    assert cache.meta["encoder_flops_per_caption"]["at_Lmax"] == encoder_flops(enc.cfg, L)
+    # the acceptance check runs; a random encoder still separates distinct texts
+    assert neighbour_accuracy(cache, ds.split("val"), 200)["accuracy"] >= 0.9
+
+
+def test_float16_and_determinism(setup):
+    data, enc_dir, _ = setup
+    a = TextCache.open(build_cache(data, enc_dir, dtype="float32", batch_size=32, log=lambda s: None))
+    b = TextCache.open(build_cache(data, enc_dir, dtype="float16", batch_size=32, log=lambda s: None))
+    assert b.hidden.dtype == np.float16 and a.fingerprint != b.fingerprint
+    assert np.abs(np.asarray(b.hidden, np.float32) - a.hidden).max() < 1e-2
+    before = np.array(a.hidden)
+    again = TextCache.open(build_cache(data, enc_dir, dtype="float32", batch_size=32, overwrite=True,
+                                       log=lambda s: None))
+    assert again.root == a.root
+    np.testing.assert_array_equal(again.hidden, before)  # same settings, same numbers
+    other = TextCache.open(build_cache(data, enc_dir, dtype="float32", batch_size=7, overwrite=True,
+                                       log=lambda s: None))
+    assert np.abs(other.hidden - before).max() < 1e-5  # batch composition: float rounding only
+
+
+def test_fingerprint_mismatch_refused(setup, tmp_path):
+    data, enc_a, enc_b = setup
+    root = build_cache(data, enc_a, dtype="float32", log=lambda s: None)
+    ds, eb = Dataset.open(data), load_hf_t5_encoder(enc_b)
+    with pytest.raises(DataError, match="fingerprint mismatch: built for encoder"):
+        TextCache.open(root, dataset_fingerprint=ds.fingerprint, encoder_fingerprint=eb.fingerprint)
+    with pytest.raises(DataError, match="fingerprint mismatch: built for dataset"):
+        TextCache.open(root, dataset_fingerprint="0" * 16)
+    with pytest.raises(DataError, match="no text cache for this dataset"):
+        open_cache(data, enc_b, dtype="float32")
+    # another dataset with the same encoder: no cache either
+    other = write_toy_dataset(tmp_path / "other", num_clips=24, seed=5)
+    with pytest.raises(DataError, match="no text cache"):
+        open_cache(other, enc_a, dtype="float32")
+    with pytest.raises(DataError, match="not a text cache"):
+        TextCache.open(tmp_path)
+
+
+def test_cli_cache_and_encode(setup, capsys):
+    data, enc_dir, _ = setup
+    p = argparse.ArgumentParser()
+    cli.add_parser(p.add_subparsers())
+    a = p.parse_args(["text", "cache", "--data", str(data), "--encoder", str(enc_dir), "--nn-check", "100"])
+    assert a.func(a) == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
+    assert lines[0]["rows"] > 0 and lines[0]["dtype"] == "float16" and "captions_per_s" in lines[0]
+    assert lines[1]["nearest_neighbour_check"] == "val" and 0 <= lines[1]["accuracy"] <= 1
+
+    texts = ["left thumb taps", tk.join_fields("left hand waves", "right hand rests", "hands touch")]
+    a = p.parse_args(["text", "encode", "--weights", str(enc_dir), "--json", *texts])
+    assert a.func(a) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert set(doc) == {"ids", "hidden"}
+    enc = load_hf_t5_encoder(enc_dir)
+    e, h = enc.encode(texts)
+    for i, t in enumerate(texts):
+        n = int(e.lengths_B[i])
+        assert doc["ids"][i] == enc.tokenizer.encode_one(t) == e.ids_BxL[i, :n].tolist()
+        np.testing.assert_allclose(np.array(doc["hidden"][i]), h[i, :n], atol=1e-6)

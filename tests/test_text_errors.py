@@ -1,0 +1,119 @@
+"""Clear errors: encoder folders missing files, unsupported configs, vocabulary mismatches, bad weights."""
+
+import argparse
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from handx_jax.io import DataError
+from handx_jax.text import cli
+from handx_jax.text import tokenizer as tk
+from handx_jax.text.t5 import load_hf_t5_encoder
+from handx_jax.text.toy import write_toy_dataset
+
+FIXTURE = Path(__file__).parent / "fixtures" / "t5_tiny_relu"
+
+
+@pytest.fixture
+def folder(tmp_path):
+    dst = tmp_path / "enc"
+    shutil.copytree(FIXTURE, dst)
+    return dst
+
+
+def _edit_config(folder, **changes):
+    doc = json.loads((folder / "config.json").read_text())
+    doc.update(changes)
+    (folder / "config.json").write_text(json.dumps(doc))
+
+
+def test_missing_folder_and_files(folder, tmp_path):
+    with pytest.raises(DataError, match="does not exist"):
+        load_hf_t5_encoder(tmp_path / "nope")
+    for name, msg in (("config.json", "missing config.json"), ("spiece.model", "missing spiece.model"),
+                      ("model.safetensors", "missing model.safetensors")):
+        broken = tmp_path / f"no_{name}"
+        shutil.copytree(folder, broken)
+        (broken / name).unlink()
+        with pytest.raises(DataError, match=msg) as e:
+            load_hf_t5_encoder(broken)
+        assert str(broken) in str(e.value)  # the message names the folder
+
+
+def test_pytorch_bin_only_is_explained(folder):
+    (folder / "model.safetensors").rename(folder / "pytorch_model.bin")
+    with pytest.raises(DataError, match=r"pytorch_model.bin.*safetensors|safetensors.*pytorch_model.bin"):
+        load_hf_t5_encoder(folder)
+
+
+def test_missing_shard(folder):
+    (folder / "model.safetensors").rename(folder / "model-00001-of-00002.safetensors")
+    (folder / "model.safetensors.index.json").write_text(json.dumps({"weight_map": {
+        "shared.weight": "model-00001-of-00002.safetensors", "encoder.final_layer_norm.weight":
+            "model-00002-of-00002.safetensors"}}))
+    with pytest.raises(DataError, match="shard model-00002-of-00002.safetensors .* missing"):
+        load_hf_t5_encoder(folder)
+
+
+@pytest.mark.parametrize("changes,msg", [
+    ({"model_type": "bart"}, "unsupported config: model_type 'bart'"),
+    ({"feed_forward_proj": "gated-silu"}, "unsupported config: feed_forward_proj 'gated-silu'"),
+    ({"num_heads": None}, "unsupported config: required key 'num_heads'"),
+    ({"d_kv": -1}, "unsupported config: d_kv must be positive"),
+])
+def test_unsupported_config(folder, changes, msg):
+    _edit_config(folder, **changes)
+    with pytest.raises(DataError, match=msg):
+        load_hf_t5_encoder(folder)
+
+
+def test_config_that_does_not_fit_the_weights(folder):
+    _edit_config(folder, feed_forward_proj="gated-gelu")  # relu weights have wi, not wi_0/wi_1
+    with pytest.raises(DataError, match="weights lack .*wi_0"):
+        load_hf_t5_encoder(folder)
+    _edit_config(folder, feed_forward_proj="relu", d_ff=128)
+    with pytest.raises(DataError, match="DenseReluDense.wi.weight.* shape"):
+        load_hf_t5_encoder(folder)
+
+
+def test_vocab_mismatch(folder):
+    _edit_config(folder, vocab_size=500)  # config disagrees with the embedding
+    with pytest.raises(DataError, match="vocab mismatch: embedding has 184 rows but config.json says vocab_size=500"):
+        load_hf_t5_encoder(folder)
+    # a tokenizer with more ids than the weights have rows
+    rng = np.random.default_rng(0)
+    words = ["".join(rng.choice(list("abcdefghijklmnopqrstuvwxyz"), 6)) for _ in range(400)]
+    big = tk.Tokenizer.train([" ".join(rng.choice(words, 12)) for _ in range(400)], vocab_size=400)
+    assert big.vocab_size > 184
+    _edit_config(folder, vocab_size=184)
+    (folder / "spiece.model").write_bytes(big.model_proto)
+    with pytest.raises(DataError, match="vocab mismatch: spiece.model emits ids up to"):
+        load_hf_t5_encoder(folder)
+
+
+def test_corrupt_weights(folder):
+    (folder / "model.safetensors").write_bytes(b"\x05\x00\x00\x00\x00\x00\x00\x00{bad}")
+    with pytest.raises(DataError, match="not a safetensors file"):
+        load_hf_t5_encoder(folder)
+
+
+def test_cli_errors_and_help(tmp_path, capsys):
+    p = argparse.ArgumentParser(prog="handx")
+    cli.add_parser(p.add_subparsers())
+    for argv in (["text", "--help"], ["text", "encode", "--help"], ["text", "tokenizer", "--help"],
+                 ["text", "pretrain", "--help"], ["text", "cache", "--help"]):
+        with pytest.raises(SystemExit) as e:
+            p.parse_args(argv)
+        assert e.value.code == 0
+    assert "usage: handx text" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        p.parse_args(["text", "pretrain", "--data", "d", "--out", "o", "--preset", "huge"])
+    a = p.parse_args(["text", "encode", "--weights", str(tmp_path / "none"), "hello"])
+    with pytest.raises(DataError, match="encoder folder does not exist"):
+        a.func(a)
+    data = write_toy_dataset(tmp_path / "data", num_clips=8)
+    with pytest.raises(DataError, match="missing spiece.model"):
+        tk.load_for_dataset(data)
