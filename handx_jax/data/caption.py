@@ -468,6 +468,8 @@ class _Interaction:
                         const.append(_REL_PHRASE[e["state"]])
                     continue
                 a, b = _REL_PHRASE[e["start_state"]], _REL_PHRASE[e["end_state"]]
+                if a is not None and a.startswith("to "):
+                    a = "being " + a  # "moves from being to the right of …"
                 if a is None:
                     txt = f"the right hand moves from level with the left hand to {b} it"
                 elif b is None:

@@ -347,19 +347,21 @@ def palm_relation(clouds_NxTx2xPx3: np.ndarray, cfg: FeatureConfig = FeatureConf
     return dist.reshape(lead), vec.reshape(*lead, 3)
 
 
-def finger_palm_distance(joints_NxTx2x21x3: np.ndarray, clouds_NxTx2xPx3: np.ndarray,
+def finger_palm_distance(joints_NxTx2x21x3: np.ndarray, clouds_NxTx2xPx3: np.ndarray | None = None,
                          cfg: FeatureConfig = FeatureConfig(), W_Px21: np.ndarray | None = None) -> np.ndarray:
     """Mean distance of each tip of hand h to the k closest points of the OTHER hand's palm cloud.
 
     Shape (..., 2, 5): [h, finger] with fingers thumb..pinky (paper App. B, reference §6.1).
     Since palm point p is Σ_j W_pj J_j over the six palm joints, the tip·point products are one GEMM
     of the (tip · palm-joint) products with Wᵀ: |t − q_p|² = |t|² − 2 Σ_j W_pj (t·J_j) + |q_p|².
+    The clouds themselves are therefore not needed (``clouds_NxTx2xPx3`` is only checked).
     """
     x = np.asarray(joints_NxTx2x21x3, dtype=np.float32)
-    c = np.asarray(clouds_NxTx2xPx3, dtype=np.float32)
     W = palm_weights(cfg) if W_Px21 is None else W_Px21
+    if clouds_NxTx2xPx3 is not None and clouds_NxTx2xPx3.shape[-2] != W.shape[0]:
+        raise ValueError("palm clouds and palm weights disagree on the number of points")
     lead = x.shape[:-3]
-    P = c.shape[-2]
+    P = W.shape[0]
     palm_j = np.flatnonzero(W.any(0))  # the six palm joints
     W6 = np.ascontiguousarray(W[:, palm_j].T)  # (6, P)
     xx = x.reshape(-1, 2, sk.NUM_JOINTS, 3)
@@ -367,13 +369,14 @@ def finger_palm_distance(joints_NxTx2x21x3: np.ndarray, clouds_NxTx2xPx3: np.nda
     xx = xx - centre
     tips = xx[:, :, list(sk.TIPS), :]  # (M, 2, 5, 3)
     J = xx[:, ::-1][:, :, palm_j, :]  # the other hand's palm joints, (M, 2, 6, 3)
-    G = np.einsum("mhkc,mhjc->mhkj", tips, J)  # (M, 2, 5, 6)
-    dot = (G.reshape(-1, len(palm_j)) @ W6).reshape(-1, 2, 5, P)
-    q = c.reshape(-1, 2, P, 3)[:, ::-1] - centre  # other hand's cloud, same centring
-    d2 = dot
-    d2 *= -2.0
+    nj = len(palm_j)
+    G = np.einsum("mhkc,mhjc->mhkj", tips, J)  # (M, 2, 5, 6) tip · palm joint
+    d2 = (G.reshape(-1, nj) @ (-2.0 * W6)).reshape(-1, 2, 5, P)
+    # |q_p|² = Σ_ij W_pi W_pj (J_i · J_j): one more GEMM from the palm joints' Gram matrices.
+    gram = np.einsum("mhic,mhjc->mhij", J, J).reshape(-1, nj * nj)
+    WW = (W6[:, None, :] * W6[None, :, :]).reshape(nj * nj, P)
+    d2 += (gram @ WW).reshape(-1, 2, 1, P)
     d2 += np.sum(tips * tips, -1)[..., None]
-    d2 += np.sum(q * q, -1)[:, :, None, :]
     k = cfg.finger_palm_k
     near = np.partition(d2, k - 1, axis=-1)[..., :k]
     return np.sqrt(np.maximum(near, 0.0)).mean(-1).reshape(*lead, 2, 5).astype(np.float32)
