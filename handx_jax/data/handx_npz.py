@@ -4,6 +4,10 @@ Format (handx-reference.md §1.1): an ``np.savez`` archive of a dict, so each me
 0-d object array whose pickled payload is a dict. Keys are ``"0"``, ``"1"``, …. Motion archives
 (``*_can_pos_all_wotextfeat.npz``) hold ``motion`` ``(60, 2, 21, 3)`` (hand 0 = left, metres) and the
 three equally long string lists ``left_annotation``, ``right_annotation``, ``interaction_annotation``.
+Generated-motion archives (what ``handx eval run`` reads) may add two optional fields per entry:
+``source_clip`` (str, the reference dataset's clip id the entry was generated for) and ``group`` (int,
+the generation index for that prompt, 0..G−1). They round-trip through :class:`HandXClip`; the
+official loaders ignore unknown keys.
 MANO archives (``*_mano.npz``, §1.9) hold ``{left,right}_pose (60, 48)``, ``{left,right}_shape
 (60, 10)`` and ``{left,right}_trans (60, 3)``.
 
@@ -40,6 +44,10 @@ from handx_jax.io import DataError, atomic_write_bytes
 
 MOTION_FIELD = "motion"
 ANNOTATION_FIELDS = ("left_annotation", "right_annotation", "interaction_annotation")
+# Optional per-entry fields written by handx-jax generators for evaluation (``handx eval run``): the
+# reference clip id the entry was generated for, and the generation index for that prompt (0..G-1).
+# The official loaders read only the fields above and ignore these.
+SOURCE_CLIP_FIELD, GROUP_FIELD = "source_clip", "group"
 MANO_FIELDS = {
     "left_pose": 48, "right_pose": 48,
     "left_shape": 10, "right_shape": 10,
@@ -192,21 +200,32 @@ class HandXClip:
     left: list[str]
     right: list[str]
     interaction: list[str]
+    source_clip: str | None = None  # optional: reference clip id (evaluation; ignored by official loaders)
+    group: int | None = None  # optional: generation index for this prompt (evaluation)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "key", str(self.key))
+        if self.source_clip is not None:
+            object.__setattr__(self, "source_clip", str(self.source_clip))
+        if self.group is not None:
+            object.__setattr__(self, "group", int(self.group))
         object.__setattr__(self, "motion", np.asarray(self.motion, dtype=np.float32))
         for name in ("left", "right", "interaction"):
             object.__setattr__(self, name, list(getattr(self, name)))
 
     def to_entry(self) -> dict:
-        """The dict stored under this key in the official archive."""
-        return {
+        """The dict stored under this key in the official archive (optional fields only when set)."""
+        entry = {
             MOTION_FIELD: self.motion,
             "left_annotation": list(self.left),
             "right_annotation": list(self.right),
             "interaction_annotation": list(self.interaction),
         }
+        if self.source_clip is not None:
+            entry[SOURCE_CLIP_FIELD] = self.source_clip
+        if self.group is not None:
+            entry[GROUP_FIELD] = self.group
+        return entry
 
 
 def _array_field(d: dict, name: str, shape: tuple[int | None, ...], path: Path, key: str,
@@ -263,10 +282,32 @@ def _annotations(d: dict, path: Path, key: str) -> list[list[str]]:
     return out
 
 
+def _optional_fields(d: dict, path: Path, key: str) -> dict:
+    out: dict = {}
+    if d.get(SOURCE_CLIP_FIELD) is not None:
+        v = d[SOURCE_CLIP_FIELD]
+        if isinstance(v, np.ndarray) and v.shape == () and v.dtype.kind == "U":
+            v = str(v)
+        if not isinstance(v, str) or not v:
+            raise DataError(f"expected a non-empty string, got {type(v).__name__} {v!r}", path=path, clip=key,
+                            field=SOURCE_CLIP_FIELD)
+        out["source_clip"] = v
+    if d.get(GROUP_FIELD) is not None:
+        v = d[GROUP_FIELD]
+        if isinstance(v, np.ndarray) and v.shape == ():
+            v = v.item()
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise DataError(f"expected a non-negative integer, got {type(v).__name__} {v!r}", path=path, clip=key,
+                            field=GROUP_FIELD)
+        out["group"] = int(v)
+    return out
+
+
 def _validate_clip(d: dict, path: Path, key: str, clip_len: int | None, allow_nonfinite: bool) -> HandXClip:
     motion = _array_field(d, MOTION_FIELD, (clip_len, sk.NUM_HANDS, sk.NUM_JOINTS, 3), path, key, allow_nonfinite)
     left, right, inter = _annotations(d, path, key)
-    return HandXClip(key=key, motion=motion, left=left, right=right, interaction=inter)
+    return HandXClip(key=key, motion=motion, left=left, right=right, interaction=inter,
+                     **_optional_fields(d, path, key))
 
 
 def read_handx_npz(path: str | os.PathLike, *, clip_len: int | None = sk.CLIP_LEN,
