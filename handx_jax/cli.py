@@ -2,7 +2,15 @@
 
     handx data ...      corpus synthesis, import/export, statistics, rendering   (handx_jax.data.cli)
     handx text ...      tokenizer, T5 encoder, pretraining, embedding cache       (handx_jax.text.cli)
+    handx train ...     train a model family (diffusion)                          (handx_jax.commands.train)
+    handx generate ...  sample motion from text, with masked-constraint tasks    (handx_jax.commands.generate)
+    handx eval ...      train the evaluator, score generated motion              (handx_jax.commands.eval)
+    handx params ...    parameter counts and analytic FLOPs                      (handx_jax.commands.params)
+    handx sweep ...     launch sweeps locally or on SLURM, resumable             (sweeps.cli)
     handx analyze ...   scaling fits, tables and plots                           (analysis.cli)
+    handx train ...     train a model family into a run folder                   (handx_jax.commands.train)
+    handx generate ...  sample motion from a trained diffusion run               (handx_jax.commands.generate)
+    handx params ...    parameter count and analytic FLOPs of a configuration    (handx_jax.commands.params)
 
 Subcommand modules import heavy dependencies (jax, matplotlib) inside their handlers, so ``--help``
 stays fast.
@@ -19,7 +27,12 @@ import sys
 GROUPS = (
     ("data", "handx_jax.data.cli"),
     ("text", "handx_jax.text.cli"),
+    ("eval", "handx_jax.commands.eval"),
     ("analyze", "analysis.cli"),
+    ("train", "handx_jax.commands.train"),
+    ("generate", "handx_jax.commands.generate"),
+    ("params", "handx_jax.commands.params"),
+    ("sweep", "sweeps.cli"),
 )
 
 

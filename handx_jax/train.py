@@ -12,8 +12,10 @@ plus a ``get_batch(indices) -> pytree of arrays``; everything else lives here:
   step and rng; a killed run resumes from the latest one and ends with the same parameters.
 - The run folder gets ``config.json`` (atomic) and ``metrics.jsonl`` (one fsynced line per log);
   wandb mirrors them (offline by default; WANDB_MODE overrides).
-- Data parallel across all local devices through ``jax.sharding``: the batch is split along a
-  ("data",) mesh axis and parameters are replicated.
+- Data parallel across all devices through ``jax.sharding``: the batch is split along a ("data",)
+  mesh axis and parameters are replicated. Multi-host: call :func:`initialize_distributed` before
+  any other JAX call (the ``handx train`` command does); each process then loads only its slice of
+  the global batch, and only process 0 writes the run files.
 """
 
 from __future__ import annotations
@@ -56,6 +58,9 @@ class TrainConfig:
     ckpt_every: int = 500
     keep_checkpoints: int = 2
     ema_decay: float = 0.0  # 0 disables EMA
+    # Warm-up of the EMA decay, min(ema_decay, (1 + k)/(10 + k)) at update k, so that a short run's EMA
+    # is not dominated by the initial weights.
+    ema_warmup: bool = False
     bf16: bool = False
     wandb: str = "offline"  # offline | online | disabled
     optim: OptimConfig = OptimConfig()
@@ -88,15 +93,48 @@ def batch_indices(n: int, batch_size: int, seed: int, step: int) -> np.ndarray:
     return perm[k * batch_size:(k + 1) * batch_size]
 
 
+def initialize_distributed() -> bool:
+    """Start multi-host JAX when launched that way; a no-op (False) for a single process.
+
+    Explicit launch: ``JAX_COORDINATOR_ADDRESS`` (host:port), ``JAX_NUM_PROCESSES``, ``JAX_PROCESS_ID``.
+    Cluster launch: SLURM (``SLURM_NTASKS`` > 1) or Open MPI (``OMPI_COMM_WORLD_SIZE`` > 1), whose
+    settings ``jax.distributed.initialize`` detects itself. Must run before any other JAX call.
+    """
+    env = os.environ
+    if env.get("JAX_COORDINATOR_ADDRESS"):
+        jax.distributed.initialize(coordinator_address=env["JAX_COORDINATOR_ADDRESS"],
+                                   num_processes=int(env["JAX_NUM_PROCESSES"]),
+                                   process_id=int(env["JAX_PROCESS_ID"]))
+        return True
+    if int(env.get("SLURM_NTASKS", "1")) > 1 or int(env.get("OMPI_COMM_WORLD_SIZE", "1")) > 1:
+        jax.distributed.initialize()
+        return True
+    return False
+
+
+def _global_batch(get_batch: Callable[[np.ndarray], Any], idx: np.ndarray, sharding) -> Any:
+    """The step's batch as a global array sharded over ("data",); each process loads only its rows."""
+    n = jax.process_count()
+    if n == 1:
+        return jax.device_put(get_batch(idx), sharding)
+    per = len(idx) // n
+    local = get_batch(idx[jax.process_index() * per:(jax.process_index() + 1) * per])
+    return jax.tree_util.tree_map(
+        lambda x: jax.make_array_from_process_local_data(sharding, x, (len(idx),) + x.shape[1:]), local)
+
+
 class RunLogger:
-    """config.json + metrics.jsonl in the run folder, mirrored to wandb."""
+    """config.json + metrics.jsonl in the run folder, mirrored to wandb (process 0 only)."""
 
     def __init__(self, run_dir: Path, config: dict, mode: str = "offline"):
         self.run_dir = Path(run_dir)
+        self.enabled = jax.process_index() == 0
+        self._wandb = None
+        self.metrics_path = self.run_dir / "metrics.jsonl"
+        if not self.enabled:
+            return
         self.run_dir.mkdir(parents=True, exist_ok=True)
         atomic_write_json(self.run_dir / "config.json", config)
-        self.metrics_path = self.run_dir / "metrics.jsonl"
-        self._wandb = None
         mode = os.environ.get("WANDB_MODE", mode)
         if mode != "disabled":
             try:
@@ -111,13 +149,15 @@ class RunLogger:
                 print(f"[wandb disabled: {e}]")
 
     def log(self, row: dict) -> None:
+        if not self.enabled:
+            return
         append_jsonl(self.metrics_path, row)
         if self._wandb is not None:
             self._wandb.log({k: v for k, v in row.items() if k != "step"}, step=int(row["step"]))
 
     def truncate_after(self, step: int) -> None:
         """On resume, drop metric lines logged after the checkpoint we restart from."""
-        if self.metrics_path.exists():
+        if self.enabled and self.metrics_path.exists():
             rows = [r for r in read_jsonl(self.metrics_path, strict=False) if r.get("step", 0) <= step]
             from handx_jax.io import atomic_write_jsonl
 
@@ -149,11 +189,13 @@ def train(
     config: dict,
     stop_at: int | None = None,
     on_log: Callable[[dict], None] | None = None,
+    flops_per_sample: float | None = None,
 ) -> dict:
     """Train (or resume) a run; returns {"params", "ema", "step"}.
 
     ``stop_at`` ends the process early (as if killed) after that step's checkpoint logic — used by the
-    kill-and-resume tests.
+    kill-and-resume tests. ``flops_per_sample`` (forward FLOPs of the trainable model per sample) makes
+    every log line carry the cumulative ``train_flops`` = 3 × forward × samples seen (fwd + bwd).
     """
     import orbax.checkpoint as ocp
     from jax.sharding import NamedSharding, PartitionSpec as P
@@ -199,7 +241,9 @@ def train(
         params = optax.apply_updates(state["params"], updates)
         ema = state["ema"]
         if cfg.ema_decay > 0:
-            ema = jax.tree_util.tree_map(lambda e, p: cfg.ema_decay * e + (1 - cfg.ema_decay) * p, ema, params)
+            k = state["step"].astype(jnp.float32)
+            d = jnp.minimum(cfg.ema_decay, (1 + k) / (10 + k)) if cfg.ema_warmup else cfg.ema_decay
+            ema = jax.tree_util.tree_map(lambda e, p: d * e + (1 - d) * p, ema, params)
         new = {"params": params, "opt_state": opt_state, "ema": ema, "step": state["step"] + 1}
         metrics = {"loss": l, "grad_norm": optax.tree.norm(grads), "lr": sched(state["step"]), **aux}
         return new, metrics
@@ -209,7 +253,7 @@ def train(
     t_last, n_since = time.perf_counter(), 0
     for step in range(start, end):
         idx = batch_indices(num_examples, cfg.batch_size, cfg.seed, step)
-        batch = jax.device_put(get_batch(idx), data_sharding)
+        batch = _global_batch(get_batch, idx, data_sharding)
         state, metrics = jstep(state, batch, jax.random.fold_in(jax.random.fold_in(rng, 1), step))
         n_since += cfg.batch_size
         done = step + 1
@@ -219,6 +263,8 @@ def train(
                 raise FloatingPointError(f"loss is {m['loss']} at step {done} (run {run_dir})")
             dt = time.perf_counter() - t_last
             row = {"step": done, **m, "samples_per_s": n_since / max(dt, 1e-9), "samples_seen": done * cfg.batch_size}
+            if flops_per_sample:
+                row["train_flops"] = 3.0 * float(flops_per_sample) * row["samples_seen"]
             logger.log(row)
             if on_log:
                 on_log(row)

@@ -183,3 +183,30 @@ def test_closed_form_angles_match_fk():
     j = H.hand_fk(pose, H.hand_geometry(np.ones(1), np.zeros((1, 5, 3))))
     measured = clips.interior_angles_deg(np.stack([j, j], 1))[:, 0]
     assert np.abs(measured - H.interior_angles_from_pose(pose)).max() < 0.05
+
+
+def test_intensity_top_up_is_one_coordinated_gesture():
+    """The top-up moves the free fingers together (shared profile, small per-finger variation),
+    leaves the action's fixed finger alone and vanishes at the segment ends."""
+    cfg = synth.SynthConfig(chunk_size=6, segments_per_sequence=1)
+    N, L = cfg.chunk_size, cfg.segment_len
+    acts = np.array([synth.ACTIONS.index(a) for a in ("ok_sign", "pinch_ring", "fist", "ok_sign", "point", "claw")])
+    prog = synth._Programs(idle_NxS=np.zeros((N, 1), bool), inter_NxS=np.full((N, 1), -1),
+                           act_NxSx2=np.repeat(acts[:, None, None], 2, 2), pairing_NxS=np.zeros((N, 1), np.int64),
+                           offset_NxS=np.zeros((N, 1)), flat_NxS=np.zeros((N, 1), bool))
+    pose = np.broadcast_to(H.RELAXED, (N, 1, L, 2, H.NUM_CHANNELS)).copy()          # a still hand
+    out = synth._raise_intensity(np.random.default_rng(0), pose, prog, cfg)
+    omega = synth._hand_intensity_from_pose(out, cfg.fps)
+    assert (omega >= cfg.min_intensity_dps).all()
+    delta = (out - pose)[:, 0, :, :, H.MCP]                                           # (N, L, 2, 4)
+    assert np.abs(delta[:, [0, -1]]).max() < 1.0                                      # zero at both ends
+    for n, a in enumerate(synth.ACTIONS[i] for i in acts):
+        free = np.flatnonzero(synth._FREE_4[a])
+        fixed = np.flatnonzero(~synth._FREE_4[a])
+        assert not fixed.size or np.abs(delta[n][..., fixed]).max() == 0.0                # the pinch keeps its contact
+        for h in range(2):
+            d = delta[n, :, h][:, free]
+            amp = np.ptp(d, axis=0)
+            assert amp.min() > 0.8 * amp.max()                                        # similar amplitudes
+            c = np.corrcoef(d.T)
+            assert c[np.triu_indices(len(free), 1)].min() > 0.9                       # one shared rhythm

@@ -488,30 +488,85 @@ def _hand_intensity_from_pose(pose_NxSxLx2x16: np.ndarray, fps: int) -> np.ndarr
 def _raise_intensity(rng: np.random.Generator, pose: np.ndarray, prog: _Programs, cfg: SynthConfig) -> np.ndarray:
     """Top up a hand whose fingers move too little in a non-idle segment.
 
-    The deficit is filled by a flexion oscillation of the fingers the action leaves free (a
-    pinching finger keeps its contact). It has a whole number of cycles in the segment, so it is
-    zero at both ends and does not disturb the transitions. Each free finger oscillating with MCP
-    peak-to-peak A (PIP 1.2A, DIP 0.8A) at f Hz adds 2·A·f·(9 + 3.6 + 0.8)/65 deg/s.
+    The deficit is filled by ONE coordinated gesture of the fingers the action leaves free (a
+    pinching finger keeps its contact): they curl and release together, like a relaxed hand
+    opening and closing, sharing one raised-cosine time profile with small per-finger differences —
+    amplitude within ±12 % and a lag of up to 1.5/cycles frames per finger, a gentle wave from
+    index to pinky or back. Independent per-finger wiggles would read as many unrelated finger events.
+    When the action itself flexes the fingers (its mean flexion spans ≥ 15°), the profile is the
+    action's own flexion rhythm, so the free fingers curl a little as the hand closes (sympathetic
+    co-movement) and their events coincide with the action's; otherwise it is a raised cosine with
+    a whole number of cycles, the fewest (1–3) that reach the floor within the amplitude limit.
+    Either profile is zero at both ends (the action's is tapered over 8 frames), so it does not
+    disturb the transitions; the lag is a time warp that vanishes at both ends. The amplitude is
+    solved on the closed-form intensity: a linear first guess (per degree of MCP amplitude, PIP
+    1.2×, DIP 0.8×, a finger adds |d profile/dt|·(9 + 3.6 + 0.8)/65 deg/s), then two secant steps.
     """
     L = cfg.segment_len
-    free = np.where(prog.act_NxSx2[..., None] >= 0, np.stack([_FREE_4[a] for a in ACTIONS])[prog.act_NxSx2], False)
+    omega0 = _hand_intensity_from_pose(pose, cfg.fps)
+    need = (~prog.idle_NxS[..., None]) & (omega0 < cfg.min_intensity_dps)
+    if not need.any():
+        return pose
+    n_i, s_i, h_i = np.nonzero(need)
+    k = n_i.size
+    free = np.stack([_FREE_4[a] for a in ACTIONS])[prog.act_NxSx2[n_i, s_i, h_i]]          # (k, 4)
     k_free = np.maximum(free.sum(-1), 1)
-    t = np.arange(L)
+    target = cfg.min_intensity_dps + 5.0
+    deficit = target - omega0[n_i, s_i, h_i]
+    gain1 = 2 * (cfg.fps / L) * 13.4 / 65 * k_free                       # deg/s per degree, one cycle
+    # The fewest cycles that need at most 22° of MCP amplitude: below the 30° change an event
+    # needs (events.FLEXING.delta), so the top-up rarely reads as finger events of its own.
+    cycles = np.clip(np.ceil(deficit / (22.0 * gain1)), 1, 4)
+    famp = rng.uniform(0.88, 1.12, (k, 4)) * free
+    # Lag per finger (frames), smaller for faster rhythms: the wave spans < 0.1 cycle.
+    lag = rng.uniform(0.0, 1.5, (k, 1)) / cycles[:, None] * np.where(rng.random((k, 1)) < 0.5, 1.0, -1.0)
+    t = np.arange(L, dtype=np.float64)
+    # Finger i runs the shared profile lag·(i − 1.5) frames late in the middle of the segment.
+    warp = t[None, None] - lag[:, :, None] * (np.arange(4)[None, :, None] - 1.5) * np.sin(np.pi * t / L)
+    osc = 0.5 - 0.5 * np.cos(2 * np.pi * cycles[:, None, None] * warp / L)                  # (k, 4, L)
+    base = pose[n_i, s_i, :, h_i]                                                            # (k, L, 16)
+    # Where the action itself flexes the fingers, the free ones follow ITS rhythm instead (they
+    # curl a little as the hand closes, a sympathetic co-movement), tapered to zero at both ends.
+    act = base[..., H.MCP].mean(-1) + base[..., H.PIP].mean(-1)                             # (k, L)
+    span = act.max(1) - act.min(1)
+    prof = (act - act.min(1, keepdims=True)) / np.maximum(span, 1e-6)[:, None]
+    taper = _smoothstep(t / 8.0) * _smoothstep((L - 1 - t) / 8.0)
+    w0 = np.clip(warp, 0, L - 1)
+    i0 = np.floor(w0).astype(np.int64)
+    i1 = np.minimum(i0 + 1, L - 1)
+    rows = np.arange(k)[:, None, None]
+    follow = (prof[rows, i0] * (1 - (w0 - i0)) + prof[rows, i1] * (w0 - i0)) * taper
+    use = (span >= 15.0) & ~prog.flat_NxS[n_i, s_i]  # pressed palms: fingers only bend back
+    osc = np.where(use[:, None, None], follow, osc)
+    flat = prog.flat_NxS[n_i, s_i]
+    sign = np.where((base[..., H.MCP].mean((1, 2)) <= 40) & ~flat, 1.0, -1.0)
+    shape = np.swapaxes(osc * famp[..., None], 1, 2) * sign[:, None, None]                # (k, L, 4)
+
+    def intensity(amp):
+        p = base.copy()
+        d = amp[:, None, None] * shape
+        p[..., H.MCP] += d
+        p[..., H.PIP] += 1.2 * d
+        p = H.clip_to_limits(p)
+        ang = H.interior_angles_from_pose(p)
+        lam = np.tile(np.asarray(clips.ClipConfig().weights, dtype=np.float64), 5)
+        return p, (np.abs(np.diff(ang, axis=1)) * cfg.fps * lam).sum(-1).mean(1) / lam.sum()
+
+    om0 = omega0[n_i, s_i, h_i]
+    # Linear first guess from the profile's mean rate: per degree of amplitude, each free finger
+    # adds |d osc/dt|·(9 + 3.6 + 0.8)/65 deg/s.
+    rate = np.abs(np.diff(osc, axis=2)).mean((1, 2)) * cfg.fps
+    amp = np.clip(deficit / np.maximum(rate * 13.4 / 65 * k_free, 1e-3), 0.0, 45.0)
     for _ in range(2):
-        omega = _hand_intensity_from_pose(pose, cfg.fps)
-        need = (~prog.idle_NxS[..., None]) & (omega < cfg.min_intensity_dps)
-        if not need.any():
+        p, om = intensity(amp)
+        short = om < target - 1.0
+        if not short.any():
             break
-        cycles = rng.integers(2, 5, need.shape)
-        f = cycles * cfg.fps / L
-        amp = np.clip((cfg.min_intensity_dps + 5.0 - omega) / (2 * f * 13.4 / 65 * k_free), 0, 45) * need
-        osc = 0.5 - 0.5 * np.cos(2 * np.pi * cycles[:, :, None] * t[:, None] / L)   # (N,S,L,2)
-        room_to_flex = (pose[..., H.MCP].mean(2) <= 40) & ~prog.flat_NxS[..., None, None]
-        sign = np.where(room_to_flex, 1.0, -1.0)                                       # (N,S,2,4)
-        delta = (amp[..., None] * sign * free)[:, :, None] * osc[..., None]           # (N,S,L,2,4)
-        pose[..., H.MCP] += delta
-        pose[..., H.PIP] += 1.2 * delta
-        pose = H.clip_to_limits(pose)
+        slope = np.maximum((om - om0) / np.maximum(amp, 1e-6), 0.05 * rate * 13.4 / 65 * k_free)
+        amp = np.where(short, np.clip(amp + (target - om) / slope, 0.0, 45.0), amp)
+    p, _ = intensity(amp)
+    pose = pose.copy()
+    pose[n_i, s_i, :, h_i] = p
     return pose
 
 

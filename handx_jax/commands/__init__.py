@@ -1,0 +1,1 @@
+"""``handx`` subcommand groups that span several packages (eval, train, generate, params)."""

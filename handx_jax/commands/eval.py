@@ -1,0 +1,146 @@
+"""``handx eval …``: train the text–motion evaluator and score generated motion (paper Table 2).
+
+    handx eval train-evaluator --data DIR --encoder ENC --out E [--preset small] [--steps N] [--set k=v]
+    handx eval run --evaluator E --generated G.npz --reference DIR [--json] [--out RUN_DIR]
+    handx eval run --evaluator E --ground-truth --reference DIR [--json]
+
+``--json`` prints one object whose keys are the analysis schema's metric names and ``<name>_ci``
+(what the sweep launcher records); ``--out`` also writes it as ``RUN_DIR/eval.json`` (+ ``_meta``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+
+TRAIN_KEYS = ("lr", "warmup", "weight_decay", "schedule", "seed", "log_every", "ckpt_every", "keep_checkpoints",
+              "max_len", "train_levels", "eval_level", "wandb")
+
+
+def _parse_sets(items: list[str]) -> tuple[dict, dict]:
+    """``key=value`` pairs → (evaluator-config overrides, training/text-policy overrides)."""
+    from handx_jax.models.evaluator import EvaluatorConfig
+
+    fields = {f.name: f for f in dataclasses.fields(EvaluatorConfig)}
+    model, train = {}, {}
+    for kv in items:
+        if "=" not in kv:
+            raise SystemExit(f"handx: error: --set expects key=value, got {kv!r}")
+        k, v = kv.split("=", 1)
+        k = k.strip()
+        if k in fields:
+            typ = type(getattr(EvaluatorConfig(), k))
+            model[k] = (v.lower() in ("1", "true", "yes")) if typ is bool else typ(v)
+        elif k in TRAIN_KEYS:
+            if k == "train_levels":
+                train[k] = None if v in ("all", "") else tuple(int(x) for x in v.split(","))
+            elif k in ("schedule", "wandb"):
+                train[k] = v
+            elif k in ("lr", "weight_decay"):
+                train[k] = float(v)
+            else:
+                train[k] = int(v)
+        else:
+            raise SystemExit(f"handx: error: unknown --set key {k!r}; evaluator config keys: {sorted(fields)}; "
+                             f"training keys: {list(TRAIN_KEYS)}")
+    return model, train
+
+
+def _train(args: argparse.Namespace) -> int:
+    from handx_jax.evaluation import TextPolicy, train_evaluator
+    from handx_jax.metrics import MetricConfig
+
+    model, tr = _parse_sets(args.set)
+    policy = TextPolicy(max_len=tr.pop("max_len", args.max_len),
+                        train_levels=tr.pop("train_levels", _levels(args.train_levels)),
+                        eval_level=tr.pop("eval_level", args.eval_level))
+    kw = {"lr": args.lr, "warmup": args.warmup, **tr}
+    train_evaluator(args.data, args.encoder, args.out, preset=args.preset, steps=args.steps,
+                    batch_size=args.batch_size, policy=policy, overrides=model, force=args.force,
+                    final_eval=not args.no_final_eval, metric_cfg=MetricConfig(rprec_block=args.block), **kw)
+    return 0
+
+
+def _levels(s: str) -> tuple[int, ...] | None:
+    return None if s in ("all", "") else tuple(int(x) for x in s.split(","))
+
+
+def _run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from handx_jax.data.dataset import Dataset
+    from handx_jax.evaluation import (evaluate_generated, evaluate_ground_truth, format_table, load_evaluator,
+                                      write_eval_json)
+    from handx_jax.metrics import MetricConfig
+
+    if bool(args.generated) == bool(args.ground_truth):
+        raise SystemExit("handx: error: give exactly one of --generated G.npz or --ground-truth")
+    cfg = MetricConfig(rprec_block=args.block, replications=args.replications, seed=args.seed,
+                       mpjpe_root=args.mpjpe_root)
+    ev = load_evaluator(args.evaluator, encoder=args.encoder)
+    ds = Dataset.open(args.reference)
+    if args.ground_truth:
+        res, name = evaluate_ground_truth(ev, ds, cfg, split=args.split), "Ground Truth"
+    else:
+        from handx_jax.data.handx_npz import read_handx_npz
+
+        res = evaluate_generated(ev, read_handx_npz(args.generated), ds, cfg, split=args.split)
+        res.meta["generated"] = str(Path(args.generated).absolute())
+        name = args.label or Path(args.generated).stem
+    if args.out:
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        write_eval_json(Path(args.out) / "eval.json", res)
+    if args.json:
+        json.dump(res.flat(), sys.stdout)
+        sys.stdout.write("\n")
+    else:
+        print(format_table([(name, res)], block=args.block))
+        s = res.meta["seconds"]
+        print(f"{res.meta['prompts']} prompts × {res.meta['groups']} group(s), {args.replications} replications; "
+              f"embedding {s['text_embedding'] + s['motion_embedding']:.2f} s, metrics {s['metrics']:.2f} s")
+    return 0
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser("eval", help="evaluator training and Table 2 metrics",
+                              description="Train the text–motion evaluator; score generated motion.")
+    sub = p.add_subparsers(dest="eval_command", metavar="SUBCOMMAND")
+    sub.required = True
+
+    t = sub.add_parser("train-evaluator", help="train a contrastive evaluator; write a versioned checkpoint folder")
+    t.add_argument("--data", required=True, help="dataset directory (trains on its train split)")
+    t.add_argument("--encoder", required=True, help="frozen T5 encoder folder (Hugging Face layout)")
+    t.add_argument("--out", required=True, help="evaluator folder E (resumed if unfinished)")
+    t.add_argument("--preset", default="small", choices=["tiny", "small", "paper"])
+    t.add_argument("--steps", type=int, default=3000)
+    t.add_argument("--batch-size", type=int, default=128)
+    t.add_argument("--lr", type=float, default=3e-4)
+    t.add_argument("--warmup", type=int, default=200)
+    t.add_argument("--max-len", type=int, default=256, help="joined-caption token limit")
+    t.add_argument("--train-levels", default="0", help="comma-separated caption levels to train on, or 'all'")
+    t.add_argument("--eval-level", type=int, default=0, help="caption level used at evaluation (−1 = most detailed)")
+    t.add_argument("--block", type=int, default=32, help="R-Precision block of the final Ground Truth row")
+    t.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override an evaluator config field (latent, layers, heads, ff, dropout, temperature, "
+                        "w_infonce, recon, ...) or a training key (lr, warmup, schedule, weight_decay, seed, ...)")
+    t.add_argument("--no-final-eval", action="store_true", help="skip the Ground Truth row on the test split")
+    t.add_argument("--force", action="store_true", help="retrain over a finished evaluator folder")
+    t.set_defaults(func=_train)
+
+    r = sub.add_parser("run", help="Table 2 metrics of generated motion (or the Ground Truth row)")
+    r.add_argument("--evaluator", required=True, help="evaluator folder E")
+    r.add_argument("--generated", help="generated clips: HandX .npz (entries may carry source_clip, group)")
+    r.add_argument("--ground-truth", action="store_true", help="score the reference split's GT motion itself")
+    r.add_argument("--reference", required=True, help="the dataset the evaluator was trained on")
+    r.add_argument("--split", default="test", help="reference split (GT row; generated files without source_clip)")
+    r.add_argument("--encoder", help="encoder folder, if moved since training (fingerprint-checked)")
+    r.add_argument("--replications", type=int, default=20)
+    r.add_argument("--block", type=int, default=32, help="R-Precision block size (32: Table 2; 16: Fig. 4)")
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--mpjpe-root", default="none", choices=["none", "left_wrist", "per_hand_wrist"])
+    r.add_argument("--label", help="row name in the printed table")
+    r.add_argument("--json", action="store_true", help="print {metric: mean, metric_ci: half-width} as JSON")
+    r.add_argument("--out", help="run folder: also write RUN_DIR/eval.json")
+    r.set_defaults(func=_run)

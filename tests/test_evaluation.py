@@ -1,0 +1,208 @@
+"""Evaluator pipeline: checkpoint round trip, fingerprint refusals, generated-file layout, CLI JSON keys,
+the Ground Truth row, and a few training steps lowering InfoNCE. Tiny fixtures, seconds on CPU."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from analysis.schema import METRICS
+from handx_jax.data.dataset import Dataset
+from handx_jax.data.handx_npz import HandXClip, read_handx_npz, write_handx_npz
+from handx_jax.evaluation import (JOINED, TextPolicy, TrainingData, align_generated, evaluate_generated,
+                                  evaluate_ground_truth, evaluator_stats, load_evaluator, train_evaluator)
+from handx_jax.io import DataError
+from handx_jax.metrics import MetricConfig
+
+ENCODER = Path(__file__).parent / "fixtures" / "t5_tiny_gated"
+
+TINY = dict(preset="tiny", batch_size=8, lr=1e-3, warmup=0, log_every=5, wandb="disabled",
+            policy=TextPolicy(max_len=64, train_levels=None, eval_level=0), log=lambda s: None)
+CFG = MetricConfig(replications=4, rprec_block=4)
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    from handx_jax.data.build import BuildConfig, build_corpus
+
+    root = tmp_path_factory.mktemp("evaluation")
+    data = build_corpus(root / "ds", BuildConfig(clips=32, seed=5, workers=1, val_fraction=0.2, test_fraction=0.25),
+                        progress=False)
+    E = train_evaluator(data, ENCODER, root / "E", steps=10, final_eval=False, **TINY)
+    return root, data, E
+
+
+def test_checkpoint_round_trip_and_versioned_meta(setup):
+    root, data, E = setup
+    meta = json.loads((E / "evaluator.json").read_text())
+    assert meta["format"] == "handx-jax-evaluator" and meta["format_version"] == 1
+    ds = Dataset.open(data)
+    assert meta["dataset"]["fingerprint"] == ds.fingerprint
+    assert meta["text"]["max_len"] == 64 and meta["text"]["train_levels"] == [0, 1, 2, 3, 4]
+    for key in ("path", "fingerprint", "tokenizer_fingerprint"):
+        assert meta["encoder"][key]
+    ev = load_evaluator(E)
+    np.testing.assert_array_equal(ev.stats.mean, ds.stats["evaluator_mean"])
+    clips = ds.split("test")
+    m1, t1 = ev.embed_motion(ds.motion[clips]), ev.embed_text(*ev.captions(ds, clips))
+    assert m1.shape == (len(clips), 32) and t1.shape == m1.shape
+    ev2 = load_evaluator(E)
+    np.testing.assert_array_equal(ev2.embed_motion(ds.motion[clips]), m1)
+    np.testing.assert_array_equal(ev2.embed_text(*ev2.captions(ds, clips)), t1)
+    # batching does not change an embedding
+    np.testing.assert_allclose(ev.embed_motion(ds.motion[clips[:1]]), m1[:1], atol=1e-5)
+    # on-the-fly text encoding reproduces the cached features the evaluator was trained on
+    from handx_jax.text.cache import open_cache
+
+    cache = open_cache(data, ENCODER, joined=True, max_len=64)
+    td = TrainingData(ds, cache, evaluator_stats(ds), clips, [0], 0)
+    b = td.batch(np.arange(len(clips)), np.zeros(len(clips), int))
+    from handx_jax.models.evaluator import Evaluator
+
+    mu_t, _ = Evaluator(ev.cfg).apply(ev.params, b["text"], b["text_mask"], method=Evaluator.encode_text)
+    np.testing.assert_allclose(np.asarray(mu_t), t1, atol=2e-3)
+    assert cache.texts[cache.row(clips[0], JOINED, 0)].startswith("<extra_id_0> ")
+
+
+def test_refuses_other_dataset_and_changed_encoder(setup, tmp_path):
+    root, data, E = setup
+    from handx_jax.data.dataset import write_dataset
+
+    ds = Dataset.open(data)
+    other = write_dataset(tmp_path / "other", np.asarray(ds.motion[:8]) * 1.01, ds.texts[:8],
+                          splits={"train": list(range(6)), "val": [], "test": [6, 7]})
+    ev = load_evaluator(E)
+    with pytest.raises(DataError, match="dataset fingerprint mismatch: this evaluator was trained on dataset"):
+        evaluate_ground_truth(ev, Dataset.open(other), CFG)
+    # an encoder folder whose weights changed is refused at load time
+    enc = shutil.copytree(ENCODER, tmp_path / "enc")
+    from safetensors.numpy import load_file, save_file
+
+    w = load_file(str(enc / "model.safetensors"))
+    k = sorted(w)[0]
+    w[k] = w[k] + 1e-3
+    save_file(w, str(enc / "model.safetensors"), metadata={"format": "pt"})
+    with pytest.raises(DataError, match="encoder fingerprint mismatch"):
+        load_evaluator(E, encoder=enc)
+    # an unfinished or foreign folder is refused with a clear message
+    with pytest.raises(DataError, match="not an evaluator checkpoint"):
+        load_evaluator(tmp_path)
+
+
+def test_npz_optional_fields_round_trip(tmp_path):
+    m = np.zeros((60, 2, 21, 3), np.float32)
+    clips = [HandXClip("0", m, ["l"], ["r"], ["i"], source_clip="synth-7", group=2),
+             HandXClip("1", m + 1, ["l"], ["r"], ["i"])]
+    p = write_handx_npz(tmp_path / "g.npz", clips)
+    back = read_handx_npz(p)
+    assert back[0].source_clip == "synth-7" and back[0].group == 2
+    assert back[1].source_clip is None and back[1].group is None
+    raw = np.load(p, allow_pickle=True)["0"].item()  # what the official loaders see: extra keys only
+    assert raw["source_clip"] == "synth-7" and raw["group"] == 2 and raw["motion"].shape == (60, 2, 21, 3)
+    bad = [HandXClip("0", m, ["l"], ["r"], ["i"], group=-1)]
+    with pytest.raises(DataError, match="group"):
+        write_handx_npz(tmp_path / "bad.npz", bad)
+
+
+def _generated(ds, groups=2, noise=0.0, with_source=True):
+    clips = ds.split("test")
+    rng = np.random.default_rng(0)
+    out = []
+    for g in range(groups):
+        for c in clips:
+            t = ds.texts[c]
+            out.append(HandXClip(str(len(out)), ds.motion[c] + noise * rng.normal(size=(60, 2, 21, 3)),
+                                 t["left"], t["right"], t["interaction"],
+                                 source_clip=t["id"] if with_source else None, group=g if with_source else None))
+    return out
+
+
+def test_ground_truth_row_and_self_evaluation(setup):
+    root, data, E = setup
+    ds = Dataset.open(data)
+    ev = load_evaluator(E)
+    gt = evaluate_ground_truth(ev, ds, CFG)
+    assert gt.metrics["fid"][0] == pytest.approx(0.0, abs=1e-4)
+    assert gt.metrics["mpjpe"][0] == 0.0
+    for k in ("contact_f1_intra", "contact_f1_inter"):
+        assert gt.metrics[k][0] in (0.0, pytest.approx(1.0, abs=1e-6))
+    assert "multimodality" not in gt.metrics
+    # the dataset evaluated against itself as a generation of 2 groups: FID 0, R-Precision equal to GT's
+    same = evaluate_generated(ev, _generated(ds), ds, CFG)
+    assert same.metrics["fid"][0] == pytest.approx(0.0, abs=1e-4)
+    assert same.metrics["multimodality"][0] == pytest.approx(0.0, abs=1e-5)
+    assert same.metrics["mpjpe"][0] == 0.0
+    # entries without source_clip are matched by order to the test split
+    by_order = evaluate_generated(ev, _generated(ds, with_source=False), ds, CFG)
+    assert by_order.metrics["rprec_top1"] == same.metrics["rprec_top1"]
+    noisy = evaluate_generated(ev, _generated(ds, noise=0.02), ds, CFG)
+    assert noisy.metrics["fid"][0] > 0 and noisy.metrics["mpjpe"][0] > 0
+
+
+def test_misaligned_generations_are_refused(setup):
+    root, data, E = setup
+    ds = Dataset.open(data)
+    gen = _generated(ds, groups=2)
+    with pytest.raises(DataError, match="group 1 lacks 1"):
+        align_generated(gen[:-1], ds)
+    wrong = gen[0]
+    gen[0] = HandXClip(wrong.key, wrong.motion, ["another prompt"], wrong.right, wrong.interaction,
+                       source_clip=wrong.source_clip, group=0)
+    with pytest.raises(DataError, match="captions differ"):
+        align_generated(gen, ds)
+
+
+def test_cli_run_json_keys_and_eval_json(setup, tmp_path, capsys):
+    from analysis.schema import row_from_run_dir  # noqa: F401  (the contract eval.json must satisfy)
+    from handx_jax.cli import main
+
+    root, data, E = setup
+    ds = Dataset.open(data)
+    g = write_handx_npz(tmp_path / "gen.npz", _generated(ds, groups=2, noise=0.01))
+    rc = main(["eval", "run", "--evaluator", str(E), "--generated", str(g), "--reference", str(data), "--json",
+               "--replications", "3", "--block", "4", "--out", str(tmp_path / "run")])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    base = {k for k in out if not k.endswith("_ci")}
+    assert base == set(METRICS)
+    assert all(f"{k}_ci" in out for k in base)
+    ev_json = json.loads((tmp_path / "run" / "eval.json").read_text())
+    assert ev_json["_meta"]["groups"] == 2
+    from analysis.schema import _eval_values
+
+    assert set(_eval_values(ev_json, tmp_path / "run" / "eval.json")) == set(out)
+    rc = main(["eval", "run", "--evaluator", str(E), "--ground-truth", "--reference", str(data),
+               "--replications", "3", "--block", "4"])
+    text = capsys.readouterr().out
+    assert rc == 0 and "Ground Truth" in text and "Top-1" in text and "FID" in text
+    rc = main(["eval", "run", "--evaluator", str(E), "--ground-truth", "--reference", str(tmp_path / "nope")])
+    assert rc == 2
+
+
+def test_training_lowers_infonce_and_resumes(setup, tmp_path):
+    root, data, _ = setup
+    out = tmp_path / "E"
+    train_evaluator(data, ENCODER, out, steps=30, final_eval=False, **TINY)
+    rows = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    first, last = rows[0]["infonce"], rows[-1]["infonce"]
+    assert last < first - 0.3, (first, last)
+    with pytest.raises(FileExistsError):
+        train_evaluator(data, ENCODER, out, steps=30, final_eval=False, **TINY)
+
+
+def test_item_levels_are_a_function_of_the_batch(setup):
+    root, data, _ = setup
+    ds = Dataset.open(data)
+    from handx_jax.text.cache import open_cache
+
+    cache = open_cache(data, ENCODER, joined=True, max_len=64)
+    td = TrainingData(ds, cache, evaluator_stats(ds), ds.split("train"), [0, 2, 4], seed=3)
+    idx = np.arange(8)
+    a, b = td.item_levels(idx), td.item_levels(idx)
+    np.testing.assert_array_equal(a, b)
+    assert set(td.item_levels(np.arange(len(td)))) <= {0, 2, 4}
+    batch = td.batch(idx)
+    assert batch["motion"].shape == (8, 60, 126) and batch["text"].shape[:2] == batch["text_mask"].shape
+    assert batch["text"].shape[1] % 16 == 0 or batch["text"].shape[1] == cache.meta["Lmax"]
