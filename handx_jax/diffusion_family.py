@@ -289,7 +289,8 @@ def train_diffusion(run_dir: str | os.PathLike, cfg: DiffusionRunConfig, *, stop
     record = run_record(cfg, data.cache.meta)
     _check_resume(run_dir, record, cfg)
     run_dir.mkdir(parents=True, exist_ok=True)
-    np.savez(run_dir / NORM_FILE, **data.norm.to_npz_dict("diffusion"))
+    if jax.process_index() == 0:
+        np.savez(run_dir / NORM_FILE, **data.norm.to_npz_dict("diffusion"))
     model = make_model(cfg.model, cfg.train.bf16)
     L = int(data.cache.meta["Lmax"])
 
@@ -322,7 +323,8 @@ class DiffusionRun:
         """Hidden states (N, L, D) float32 and mask (N, L) bool, at the run's text max_len."""
         e, h = self.encoder.encode(list(texts), max_len=self.cfg.data.text_max_len)
         m = e.mask_BxL.astype(bool)
-        return (h * m[..., None]).astype(np.float32), m
+        # Rounded through the cache dtype, so prompts look exactly like the training text.
+        return (h * m[..., None]).astype(self.cfg.data.cache_dtype).astype(np.float32), m
 
 
 def load_run(run_dir: str | os.PathLike, *, ema: bool = True, encoder: str | None = None,

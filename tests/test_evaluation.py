@@ -181,15 +181,29 @@ def test_cli_run_json_keys_and_eval_json(setup, tmp_path, capsys):
     assert rc == 2
 
 
-def test_training_lowers_infonce_and_resumes(setup, tmp_path):
+def test_training_lowers_infonce_and_refuses_overwrite(setup, tmp_path):
+    import jax
+
+    from handx_jax.evaluation import _init_params
+    from handx_jax.models.evaluator import Evaluator, evaluator_loss
+    from handx_jax.text.cache import open_cache
+
     root, data, _ = setup
     out = tmp_path / "E"
-    train_evaluator(data, ENCODER, out, steps=30, final_eval=False, **TINY)
-    rows = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
-    first, last = rows[0]["infonce"], rows[-1]["infonce"]
-    assert last < first - 0.3, (first, last)
+    train_evaluator(data, ENCODER, out, steps=40, final_eval=False, **TINY)
+    ev = load_evaluator(out)
+    ds = Dataset.open(data)
+    cache = open_cache(data, ENCODER, joined=True, max_len=64)
+    clips = ds.split("train")
+    td = TrainingData(ds, cache, evaluator_stats(ds), clips, [0], 0)
+    batch = td.batch(np.arange(len(td)), np.zeros(len(td), int))  # a fixed batch, deterministic forward
+    model = Evaluator(ev.cfg)
+    loss = lambda p: float(evaluator_loss(model, p, batch, jax.random.PRNGKey(0), False)[1]["infonce"])  # noqa: E731
+    init = jax.jit(lambda r: _init_params(ev.cfg, 64, r))(jax.random.fold_in(jax.random.PRNGKey(42), 0))
+    before, after = loss(init), loss(ev.params)
+    assert after < before - 0.5, (before, after)
     with pytest.raises(FileExistsError):
-        train_evaluator(data, ENCODER, out, steps=30, final_eval=False, **TINY)
+        train_evaluator(data, ENCODER, out, steps=40, final_eval=False, **TINY)
 
 
 def test_item_levels_are_a_function_of_the_batch(setup):

@@ -45,6 +45,9 @@ def _run(args: argparse.Namespace) -> int:
     from handx_jax.diffusion_family import load_run
     from handx_jax.generation import SampleOptions, generate, generate_long, load_source, write_generated
 
+    if args.task not in ("text2motion", "long") and not (args.source or args.reference):
+        print(f"handx generate: error: --task {args.task} needs a constraint clip: --source (or --reference)")
+        return 2
     try:
         prompts = _prompts(args)
         run = load_run(args.run, ema=not args.no_ema, encoder=args.encoder, overrides=args.set or [])

@@ -74,17 +74,17 @@ _FINGER_VERBS = {
     (1, "straight"): ("flex slightly", "bend a little"),
     (1, "back"): ("ease out of hyperextension",),
     (-1, "straight"): ("straighten", "extend fully", "uncurl until straight"),
-    (-1, "half"): ("loosen halfway", "partly straighten", "uncurl partway"),
+    (-1, "half"): ("loosen halfway", "straighten partway", "uncurl partway"),
     (-1, "hooked"): ("open into a hook", "straighten at the knuckle into a hook"),
     (-1, "curled"): ("relax slightly", "loosen a little"),
     (-1, "back"): ("bend back into hyperextension", "hyperextend by bending backwards"),
 }
 _HAND_VERBS = {  # subject "the hand": all four fingers together
     (1, "curled"): ("close into a fist", "clench into a fist", "curl into a fist"),
-    (1, "half"): ("half close", "curl halfway closed"),
+    (1, "half"): ("close halfway", "curl halfway closed"),
     (1, "hooked"): ("curl into a claw", "form a claw"),
     (-1, "straight"): ("open flat", "open up fully", "open out"),
-    (-1, "half"): ("partly open", "loosen halfway open"),
+    (-1, "half"): ("open halfway", "loosen halfway open"),
     (-1, "back"): ("open and bend its fingers back into hyperextension",),
 }
 _THUMB_VERBS = {
@@ -94,8 +94,8 @@ _THUMB_VERBS = {
     (1, "straight"): ("flex slightly",),
     (1, "back"): ("ease out of hyperextension",),
     (-1, "straight"): ("straighten", "extend"),
-    (-1, "half"): ("loosen", "partly straighten"),
-    (-1, "hooked"): ("partly straighten",),
+    (-1, "half"): ("loosen", "straighten partway"),
+    (-1, "hooked"): ("straighten partway",),
     (-1, "curled"): ("relax slightly",),
     (-1, "back"): ("bend back into hyperextension",),
 }
@@ -226,16 +226,17 @@ def _compose(facts: list[_Fact], level: int, rng: random.Random, fallback: str,
         forcing = f.must
         if level == 0 and f.must and forced >= 2:
             continue  # level 0 names at most two mandatory facts
-        if (left < 4 or _words(f.text(0)) + 1 > left) and not (forcing or not chosen):
+        if (left < 4 or _words(f.text(0 if level < 3 else 2)) + 1 > left) and not (forcing or not chosen):
             continue
         txt = None
-        for d in (level, level - 1, 0) if level >= 2 else (level, 0):
+        # Levels 3–4 only take a fact with its timing (detail ≥ 2); lower levels may shorten it.
+        for d in (level, level - 1) if level >= 3 else (level, level - 1, 0) if level == 2 else (level, 0):
             t = f.text(d)
             if _words(t) + 1 <= left:
                 txt = t
                 break
         if txt is None and (forcing or not chosen):
-            txt = f.text(0)
+            txt = f.text(0 if level < 3 else 2)
         if txt is None:
             continue
         chosen[i] = txt

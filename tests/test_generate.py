@@ -1,0 +1,125 @@
+"""`handx generate`: every task writes a valid official .npz; constrained joints match the source
+(exactly with p_hard = 1, within 15% of the gap with the default 0.85); long-horizon chaining."""
+
+import numpy as np
+import pytest
+
+from handx_jax import diffusion as D
+from handx_jax.cli import main
+from handx_jax.data.dataset import Dataset
+from handx_jax.data.handx_npz import read_handx_npz
+from handx_jax.diffusion_family import load_run, train_diffusion
+from handx_jax.generation import Prompt, SampleOptions, generate, generate_long, task_gamma
+from tests.diffusion_fixtures import make_dataset, tiny_config
+
+FAST = ["--sampler", "ddim", "--steps", "8", "--samples", "2"]
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    root = tmp_path_factory.mktemp("gen")
+    data = make_dataset(root)
+    train_diffusion(root / "run", tiny_config(data, "train.steps=4", "train.ckpt_every=4"))
+    return data, root / "run"
+
+
+def _centres(task):
+    c = D.task_centers(task, 60, 42, k_inbet=5, keyframes=(30,), fixed_hand="left")
+    return c.reshape(60, 2, 21)
+
+
+def _gen(setup, tmp_path, task, *extra):
+    data, run = setup
+    out = tmp_path / f"{task}.npz"
+    assert main(["generate", "--run", str(run), "--task", task, "--source", str(data), "--clip", "3", *FAST,
+                 "--out", str(out), *extra]) == 0
+    clips = read_handx_npz(out)  # validates the official layout (60 frames, finite, 3 equal lists)
+    assert len(clips) == 2 and [c.group for c in clips] == [0, 1]
+    return np.stack([c.motion for c in clips]), np.asarray(Dataset.open(data).motion[3])
+
+
+@pytest.mark.parametrize("task", ["inbetween", "keyframes", "wrist", "reaction"])
+def test_tasks_match_the_source_exactly_with_p_hard_1(setup, tmp_path, task):
+    gen, src = _gen(setup, tmp_path, task, "--set", "diffusion.p_hard=1.0")
+    m = _centres(task)
+    assert m.any()
+    np.testing.assert_allclose(gen[:, m], np.broadcast_to(src[m], gen[:, m].shape), atol=1e-4)
+    assert np.abs(gen[:, ~m] - src[~m]).max() > 1e-3  # the rest is generated, not copied
+
+
+@pytest.mark.parametrize("task", ["inbetween", "wrist"])
+def test_default_p_hard_leaves_at_most_15_percent_of_the_gap(setup, tmp_path, task):
+    gen, src = _gen(setup, tmp_path, task)
+    free, _ = _gen(setup, tmp_path, "text2motion")  # same seed and prompt, unconstrained
+    m = _centres(task)
+    err, gap = np.abs(gen[:, m] - src[m]).mean(), np.abs(free[:, m] - src[m]).mean()
+    assert 0 < err <= 0.15 * gap, (err, gap)
+
+
+def test_xt_blend_and_ddpm_are_exact_too(setup, tmp_path):
+    gen, src = _gen(setup, tmp_path, "inbetween", "--set", "diffusion.p_hard=1.0", "--set", "diffusion.blend=xt")
+    m = _centres("inbetween")
+    np.testing.assert_allclose(gen[:, m], np.broadcast_to(src[m], gen[:, m].shape), atol=1e-4)
+    data, run = setup
+    r = load_run(run, overrides=["diffusion.p_hard=1.0"])
+    j = generate(r, [Prompt("a", "b", "c")], SampleOptions(sampler="ddpm", seed=1), task="reaction", sources=[src])
+    mr = _centres("reaction")
+    np.testing.assert_allclose(j[0, 0][mr], src[mr], atol=1e-4)
+
+
+def test_text2motion_prompts_gif_and_batch_mode(setup, tmp_path):
+    data, run = setup
+    out, gif = tmp_path / "t.npz", tmp_path / "t.gif"
+    assert main(["generate", "--run", str(run), "--left", "the left hand waves", "--right", "right fist",
+                 "--interaction", "hands apart", *FAST, "--out", str(out), "--gif", str(gif)]) == 0
+    c = read_handx_npz(out)
+    assert len(c) == 2 and c[0].left == ["the left hand waves"] and gif.stat().st_size > 0
+    # CFG really guides: guidance 1 and 2.5 give different samples from the same noise.
+    assert main(["generate", "--run", str(run), "--left", "the left hand waves", "--right", "right fist",
+                 "--interaction", "hands apart", *FAST, "--guidance", "1", "--out", str(tmp_path / "g1.npz")]) == 0
+    assert not np.allclose(read_handx_npz(tmp_path / "g1.npz")[0].motion, c[0].motion)
+    # Batch mode: every test clip × G, with source_clip/group fields.
+    ds = Dataset.open(data)
+    assert main(["generate", "--run", str(run), "--reference", str(data), "--split", "test", "--limit", "3", *FAST,
+                 "--out", str(tmp_path / "b.npz")]) == 0
+    b = read_handx_npz(tmp_path / "b.npz")
+    test_ids = {ds.ids[i] for i in ds.split("test")}
+    assert len(b) == 6 and {x.source_clip for x in b} <= test_ids and len({x.source_clip for x in b}) == 3
+    assert [x.group for x in b] == [0, 1] * 3
+    by_id = dict(zip(ds.ids, ds.texts))
+    assert all(x.left == [by_id[x.source_clip]["left"][-1]] for x in b)
+
+
+def test_long_horizon_chains_segments_with_the_overlap(setup, tmp_path):
+    data, run = setup
+    r = load_run(run, overrides=["diffusion.p_hard=1.0"])
+    opts = SampleOptions(sampler="ddim", steps=8, seed=5)
+    p = [Prompt("a", "b", "c"), Prompt("d", "e", "f"), Prompt("g", "h", "i")]
+    first = generate_long(r, p[:1], opts)
+    chain = generate_long(r, p, opts)
+    assert first.shape == (1, 60, 2, 21, 3) and chain.shape == (1, 60 + 2 * 50, 2, 21, 3)
+    # Segment 2 starts on the last 10 frames of segment 1; its 5 centre frames equal them (p_hard = 1).
+    np.testing.assert_allclose(chain[0, :55], first[0, :55], atol=1e-4)
+    g = task_gamma("long", r.cfg.diffusion)
+    assert g[:5].min() == 1.0 and g[9, 0] == pytest.approx(0.1) and g[10:].max() == 0
+    # CLI: a source clip is continued; entries list one prompt per segment.
+    out = tmp_path / "long.npz"
+    assert main(["generate", "--run", str(run), "--task", "long", "--source", str(data), "--clip", "3",
+                 "--left", "a", "--right", "b", "--interaction", "c", "--left", "d", "--right", "e",
+                 "--interaction", "f", *FAST, "--out", str(out)]) == 0
+    c = read_handx_npz(out, clip_len=None)
+    assert len(c) == 2 and c[0].motion.shape == (100, 2, 21, 3) and c[0].left == ["a", "d"]
+
+
+def test_generate_errors(setup, tmp_path, capsys):
+    data, run = setup
+    base = ["generate", "--run", str(run), "--out", str(tmp_path / "x.npz")]
+    assert main(base + ["--task", "inbetween", "--left", "a", "--right", "b", "--interaction", "c"]) == 2
+    assert "needs a constraint clip" in capsys.readouterr().out
+    assert main(base + ["--left", "a", "--right", "b"]) == 2
+    assert "same number of times" in capsys.readouterr().out
+    assert main(base + ["--left", "a", "--right", "b", "--interaction", "c", "--set", "train.steps=3"]) == 2
+    assert "only override diffusion" in capsys.readouterr().out
+    assert main(base + ["--left", "a", "--right", "b", "--interaction", "c", "--set", "diffusion.p_hrd=1"]) == 2
+    assert "did you mean 'diffusion.p_hard'" in capsys.readouterr().out
+    assert not (tmp_path / "x.npz").exists()
