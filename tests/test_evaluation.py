@@ -30,7 +30,7 @@ def setup(tmp_path_factory):
     root = tmp_path_factory.mktemp("evaluation")
     data = build_corpus(root / "ds", BuildConfig(clips=32, seed=5, workers=1, val_fraction=0.2, test_fraction=0.25),
                         progress=False)
-    E = train_evaluator(data, ENCODER, root / "E", steps=10, final_eval=False, **TINY)
+    E = train_evaluator(data, ENCODER, root / "E", steps=40, final_eval=False, **TINY)
     return root, data, E
 
 
@@ -181,29 +181,26 @@ def test_cli_run_json_keys_and_eval_json(setup, tmp_path, capsys):
     assert rc == 2
 
 
-def test_training_lowers_infonce_and_refuses_overwrite(setup, tmp_path):
+def test_training_lowers_infonce_and_refuses_overwrite(setup):
     import jax
 
     from handx_jax.evaluation import _init_params
     from handx_jax.models.evaluator import Evaluator, evaluator_loss
     from handx_jax.text.cache import open_cache
 
-    root, data, _ = setup
-    out = tmp_path / "E"
-    train_evaluator(data, ENCODER, out, steps=40, final_eval=False, **TINY)
-    ev = load_evaluator(out)
+    root, data, E = setup  # trained for 40 steps from the init below (train seed 42, fold_in 0)
+    ev = load_evaluator(E)
     ds = Dataset.open(data)
     cache = open_cache(data, ENCODER, joined=True, max_len=64)
-    clips = ds.split("train")
-    td = TrainingData(ds, cache, evaluator_stats(ds), clips, [0], 0)
+    td = TrainingData(ds, cache, evaluator_stats(ds), ds.split("train"), [0], 0)
     batch = td.batch(np.arange(len(td)), np.zeros(len(td), int))  # a fixed batch, deterministic forward
     model = Evaluator(ev.cfg)
     loss = lambda p: float(evaluator_loss(model, p, batch, jax.random.PRNGKey(0), False)[1]["infonce"])  # noqa: E731
-    init = jax.jit(lambda r: _init_params(ev.cfg, 64, r))(jax.random.fold_in(jax.random.PRNGKey(42), 0))
+    init = _init_params(ev.cfg, 64, jax.random.fold_in(jax.random.PRNGKey(42), 0))
     before, after = loss(init), loss(ev.params)
     assert after < before - 0.5, (before, after)
-    with pytest.raises(FileExistsError):
-        train_evaluator(data, ENCODER, out, steps=40, final_eval=False, **TINY)
+    with pytest.raises(FileExistsError, match="already holds a trained evaluator"):
+        train_evaluator(data, ENCODER, E, steps=40, final_eval=False, **TINY)
 
 
 def test_item_levels_are_a_function_of_the_batch(setup):

@@ -1,0 +1,112 @@
+"""Time to evaluate N generated clips (default 2,000) with R replications (default 20) on this machine.
+
+Prints one JSON object: text embedding, motion embedding (GT + generated) and metric seconds, measured
+on a second, warm pass (the first pass, which includes XLA compilation, is reported as ``cold``).
+
+    JAX_PLATFORMS=cpu .venv/bin/python benchmarks/eval_speed.py                       # random-init small evaluator
+    JAX_PLATFORMS=cpu .venv/bin/python benchmarks/eval_speed.py --evaluator E --reference DIR   # a trained one
+
+Without ``--evaluator`` the timing uses a randomly initialised evaluator of ``--preset`` (embedding
+cost depends on the architecture, not on the weights), the tiny T5 test fixture as text encoder, and
+synthetic motion/captions; with one, the first N clips of the reference dataset are used.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+from handx_jax.evaluation import (TextPolicy, TrainedEvaluator, _init_params, evaluate_embeddings_and_motion,  # noqa: E402
+                                  load_evaluator, model_config)
+from handx_jax.metrics import MetricConfig  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def synthetic(n: int, seed: int = 0):
+    """Smooth random two-hand motion around a rest pose and toy captions (shapes and scales realistic)."""
+    from handx_jax.text.toy import toy_texts
+
+    rng = np.random.default_rng(seed)
+    base = rng.normal(scale=0.05, size=(1, 1, 2, 21, 3)).astype(np.float32)
+    base[..., 0, :, 0] -= 0.15
+    walk = np.cumsum(rng.normal(scale=0.002, size=(n, 60, 2, 21, 3)), axis=1).astype(np.float32)
+    texts = toy_texts(n, seed)
+    return base + walk, [t["left"][0] for t in texts], [t["right"][0] for t in texts], \
+        [t["interaction"][0] for t in texts]
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--clips", type=int, default=2000)
+    p.add_argument("--groups", type=int, default=1, help="generation groups (clips = prompts × groups)")
+    p.add_argument("--replications", type=int, default=20)
+    p.add_argument("--evaluator")
+    p.add_argument("--reference")
+    p.add_argument("--preset", default="small")
+    p.add_argument("--encoder", default=str(ROOT / "tests" / "fixtures" / "t5_tiny_gated"))
+    a = p.parse_args()
+    N = a.clips // a.groups
+    if a.evaluator:
+        from handx_jax.data.dataset import Dataset
+
+        ev = load_evaluator(a.evaluator)
+        ds = Dataset.open(a.reference or ev.meta["dataset"]["path"])
+        clips = np.arange(min(N, len(ds)))
+        N = len(clips)
+        gt = np.asarray(ds.motion[clips], np.float32)
+        prompts = ev.captions(ds, clips)
+        source = {"evaluator": a.evaluator, "reference": str(ds.root)}
+    else:
+        from handx_jax.representation import NormStats
+        from handx_jax.text.t5 import load_hf_t5_encoder
+
+        enc = load_hf_t5_encoder(a.encoder)
+        gt, *prompts = synthetic(N)
+        from handx_jax.representation import to_evaluator
+
+        cfg = model_config(a.preset, enc.cfg.d_model)
+
+        feats = to_evaluator(gt).reshape(-1, 126)
+        stats = NormStats(feats.mean(0), feats.std(0) + 1e-3)
+        ev = TrainedEvaluator(cfg=cfg, params=_init_params(cfg, 256, jax.random.PRNGKey(0)), stats=stats,
+                              encoder=enc, policy=TextPolicy(max_len=256))
+        source = {"evaluator": f"random-init {a.preset}", "encoder": a.encoder}
+    rng = np.random.default_rng(1)
+    gen = gt[None] + rng.normal(scale=0.005, size=(a.groups,) + gt.shape).astype(np.float32)
+    mcfg = MetricConfig(replications=a.replications)
+
+    def run():
+        t0 = time.perf_counter()
+        text = ev.embed_text(*prompts)
+        t1 = time.perf_counter()
+        res = evaluate_embeddings_and_motion(ev, text, gen, gt, mcfg)
+        return t1 - t0, res.meta["seconds"]["motion_embedding"], res.meta["seconds"]["metrics"], res
+
+    cold = run()
+    warm = run()
+    out = {
+        "clips": int(N * a.groups), "prompts": int(N), "groups": a.groups, "replications": a.replications,
+        "seconds": {"text_embedding": warm[0], "motion_embedding": warm[1], "embedding_total": warm[0] + warm[1],
+                    "metrics": warm[2], "total": sum(warm[:3])},
+        "cold_seconds_with_compile": {"embedding": cold[0] + cold[1], "metrics": cold[2], "total": sum(cold[:3])},
+        "evaluator": {"latent": ev.cfg.latent, "layers": ev.cfg.layers, "ff": ev.cfg.ff,
+                      "text_max_len": ev.policy.max_len, "encoder_d_model": ev.encoder.cfg.d_model, **source},
+        "rprec_top1": warm[3].metrics["rprec_top1"][0],
+        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "backend": jax.default_backend(),
+                    "loadavg_1m": os.getloadavg()[0]},
+    }
+    print(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
