@@ -59,3 +59,11 @@ def test_atomic_files_get_normal_permissions(tmp_path):
     ref = tmp_path / "ref.txt"
     ref.write_text("x")
     assert (p.stat().st_mode & 0o777) == (ref.stat().st_mode & 0o777)
+
+
+def test_atomic_dir_gets_normal_permissions(tmp_path):
+    with io.atomic_dir(tmp_path / "d") as t:
+        (t / "x").write_text("1")
+    ref = tmp_path / "ref"
+    ref.mkdir()
+    assert ((tmp_path / "d").stat().st_mode & 0o777) == (ref.stat().st_mode & 0o777)
