@@ -111,7 +111,7 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
                    "--steps", str(cfg.sampler_steps), "--out", str(d / "generated.npz"), env=env)
         if not state["evaluate"]:
             _handx("eval", "run", "--evaluator", cfg.evaluator, "--generated", str(d / "generated.npz"),
-                   "--reference", cfg.data, "--json", "--out", str(d / "eval.json"), env=env)
+                   "--reference", cfg.data, "--json", "--out", str(d), env=env)
     collect_results(cfg.out)
     return stage_state(cfg, spec)
 
