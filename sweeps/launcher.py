@@ -121,10 +121,11 @@ def collect_results(out: str | os.PathLike) -> Path:
     from analysis.schema import row_from_run_dir
 
     out = Path(out)
-    rows = []
-    for d in sorted((out / "runs").glob("*")):
-        if (d / "train_done.json").exists():
-            rows.append(row_from_run_dir(d))
+    dirs = sorted((out / "runs").glob("*"))
+    if (out / "sweep.json").exists():  # keep the sweep file's order (e.g. by size), not the folder names'
+        order = {r["name"]: i for i, r in enumerate(json.loads((out / "sweep.json").read_text())["runs"])}
+        dirs.sort(key=lambda d: (order.get(d.name, len(order)), d.name))
+    rows = [row_from_run_dir(d) for d in dirs if (d / "train_done.json").exists()]
     path = out / "results.jsonl"
     atomic_write_jsonl(path, rows)
     return path
