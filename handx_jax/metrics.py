@@ -141,21 +141,14 @@ def acceleration_jitter(joints_NxTx2x21x3: jax.Array, fps: int = sk.FPS):
 
 
 def palm_barycentric(points: int = 100, seed: int = 0) -> np.ndarray:
-    """(P, 21) weights: P/4 uniform barycentric samples in each palm triangle (reference §5.4).
+    """(P, 21) weights of the palm cloud: uniform samples in the four palm triangles (reference §5.4).
 
-    Fixed by the seed (the reference redraws them unseeded on every call, §9.17).
+    The same sampler as the annotation pipeline's palm clouds (``features.palm_weights``), fixed by the
+    seed (the reference redraws them unseeded on every call, §9.17).
     """
-    rng = np.random.default_rng([seed, 0xA1])
-    per = points // len(sk.PALM_TRIANGLES)
-    W = np.zeros((per * len(sk.PALM_TRIANGLES), sk.NUM_JOINTS), np.float32)
-    for t, tri in enumerate(sk.PALM_TRIANGLES):
-        u = rng.random((per, 2))
-        flip = u.sum(1) > 1  # reflect into the triangle: uniform barycentric coordinates
-        u[flip] = 1 - u[flip]
-        bary = np.stack([1 - u.sum(1), u[:, 0], u[:, 1]], 1)
-        for c, j in enumerate(tri):
-            W[t * per:(t + 1) * per, j] = bary[:, c]
-    return W
+    from handx_jax.data.features import FeatureConfig, palm_weights
+
+    return palm_weights(FeatureConfig(palm_points=points, palm_seed=seed))
 
 
 @partial(jax.jit, static_argnames=("intra_m", "inter_m"))
@@ -197,6 +190,14 @@ def mean_ci(values) -> tuple[float, float]:
     return float(v.mean()), float(1.96 * v.std() / math.sqrt(len(v))) if len(v) > 1 else 0.0
 
 
+@partial(jax.jit, static_argnames=("block", "top_k"))
+def _replicated_r_precision(text_NxD, gen_GxNxD, perms_RxN, groups_R, *, block: int, top_k: int):
+    """R-Precision and MM-Dist for every replication r: group groups_R[r], prompt order perms_RxN[r]."""
+    def one(perm, g):
+        return r_precision(text_NxD[perm], gen_GxNxD[g][perm], block=block, top_k=top_k)
+    return jax.vmap(one)(perms_RxN, groups_R)
+
+
 def replicate_embedding_metrics(text_NxD, gen_GxNxD, gt_NxD, cfg: MetricConfig = MetricConfig()) -> dict:
     """R-Precision, MM-Dist, FID, Diversity (and MultiModality if G > 1), mean ± CI over replications.
 
@@ -212,11 +213,8 @@ def replicate_embedding_metrics(text_NxD, gen_GxNxD, gt_NxD, cfg: MetricConfig =
     perms = np.stack([rng.permutation(N) for _ in range(R)])  # (R, N)
     groups = np.arange(R) % G
 
-    @jax.jit
-    def per_rep(perm, g):
-        return r_precision(text[perm], gen[g][perm], block=cfg.rprec_block, top_k=cfg.top_k)
-
-    hits_RxK, mm_R = jax.vmap(per_rep)(jnp.asarray(perms), jnp.asarray(groups))
+    hits_RxK, mm_R = _replicated_r_precision(text, gen, jnp.asarray(perms), jnp.asarray(groups),
+                                             block=cfg.rprec_block, top_k=cfg.top_k)
     hits_RxK, mm_R = np.asarray(hits_RxK), np.asarray(mm_R)
     fids_G = [fid(gt, np.asarray(gen[g])) for g in range(G)]
     div = []
