@@ -25,6 +25,8 @@ Checkpoint folder ``E`` (format ``handx-jax-evaluator`` v1), complete once ``eva
     norm_stats.npz   evaluator_mean/std/eps used to normalise motion features
     eval.json        the Ground Truth row on the training dataset's test split (schema metric names)
     config.json, metrics.jsonl, checkpoints/   the training run (handx_jax.train; resumable)
+    reference_cache/ text and GT-motion embeddings of evaluated reference clips, one file per key
+                     (:func:`reference_embeddings`; safe to delete, rebuilt on the next evaluation)
 
 :func:`load_evaluator` refuses a folder of another format/version, an encoder whose weights changed,
 and (through :meth:`TrainedEvaluator.check_dataset`) a reference dataset other than the one trained on.
@@ -33,6 +35,7 @@ and (through :meth:`TrainedEvaluator.check_dataset`) a reference dataset other t
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import io
 import json
 import os
@@ -101,11 +104,13 @@ def _level_index(level: int, levels: int) -> int:
 class TrainingData:
     """(clip, level) items of one split: motion from the dataset memmap, text from the joined cache."""
 
-    def __init__(self, ds, cache, stats: rep.NormStats, clips: np.ndarray, levels: Sequence[int], seed: int):
+    def __init__(self, ds, cache, stats: rep.NormStats, clips: np.ndarray, levels: Sequence[int], seed: int,
+                 text_bucket: int = 16):
         self.ds, self.cache, self.stats = ds, cache, stats
         self.clips = np.asarray(clips, np.int64)
         self.levels = np.asarray(levels, np.int64)
         self.seed = int(seed)
+        self.text_bucket = int(text_bucket)
 
     def __len__(self) -> int:
         return len(self.clips)
@@ -122,9 +127,12 @@ class TrainingData:
         joints = np.empty((len(clips),) + self.ds.motion.shape[1:], np.float32)
         joints[order] = self.ds.motion[clips[order]]
         h, m = self.cache.lookup(clips, JOINED, levels)
-        # Trim the text to the batch's longest caption, rounded up to a multiple of 16 tokens: concise
-        # levels then cost a fraction of Lmax, and at most Lmax/16 step shapes are ever compiled.
-        Lb = min(m.shape[1], -(-int(m.sum(1).max()) // 16) * 16)
+        # Trim the text to the batch's longest caption, rounded up to a multiple of ``text_bucket`` tokens:
+        # concise levels then cost a fraction of Lmax, and at most Lmax/bucket step shapes are compiled.
+        # Masking makes the loss independent of the padding; on an accelerator, where each new shape
+        # is a compile of the whole step, pass a bucket ≥ Lmax (one shape).
+        b = max(self.text_bucket, 1)
+        Lb = min(m.shape[1], -(-int(m.sum(1).max()) // b) * b)
         return {"motion": motion_features(joints, self.stats), "text": np.asarray(h[:, :Lb], np.float32),
                 "text_mask": np.asarray(m[:, :Lb], bool)}
 
@@ -178,6 +186,19 @@ class TrainedEvaluator:
             return model.apply(p, h, mask.astype(bool), method=Evaluator.encode_text)[0]
 
         return jax.jit(f)
+
+    @cached_property
+    def fingerprint(self) -> str:
+        """Hash of what the embeddings depend on besides the encoder: config, parameters, motion statistics.
+        Keys the reference-embedding cache (a retrained evaluator never reuses old embeddings); computed
+        once, so replace the evaluator object rather than its ``params`` after first use."""
+        from flax import serialization
+
+        h = hashlib.sha256(json.dumps(dataclasses.asdict(self.cfg), sort_keys=True).encode())
+        h.update(serialization.to_bytes(jax.device_get(self.params)))
+        for a in (self.stats.mean, self.stats.std, np.float32(self.stats.eps)):
+            h.update(np.ascontiguousarray(a, np.float32).tobytes())
+        return h.hexdigest()[:16]
 
     @property
     def dataset_fingerprint(self) -> str | None:
@@ -347,7 +368,8 @@ def train_evaluator(data: str | os.PathLike, encoder: str | os.PathLike, out: st
                     warmup: int = 200, weight_decay: float = 5e-6, schedule: str = "cosine",
                     policy: TextPolicy = TextPolicy(), overrides: Mapping[str, Any] | None = None, seed: int = 0,
                     log_every: int = 50, ckpt_every: int = 500, keep_checkpoints: int = 2,
-                    wandb: str = "offline", force: bool = False, final_eval: bool = True,
+                    wandb: str = "offline", force: bool = False, final_eval: bool = True, text_bucket: int = 16,
+                    prefetch: int = 2,
                     metric_cfg: MetricConfig = MetricConfig(), log: Callable[[str], None] = print) -> Path:
     """Train an evaluator on the train split of ``data`` and write the checkpoint folder ``out``.
 
@@ -381,7 +403,7 @@ def train_evaluator(data: str | os.PathLike, encoder: str | os.PathLike, out: st
     clips = ds.split("train")
     if len(clips) < 2:
         raise DataError(f"train split has {len(clips)} clips; the contrastive loss needs at least 2", path=ds.root)
-    tdata = TrainingData(ds, cache, stats, clips, train_levels, seed)
+    tdata = TrainingData(ds, cache, stats, clips, train_levels, seed, text_bucket)
     cfg = model_config(preset, enc.cfg.d_model, overrides)
     model = Evaluator(cfg)
     Lmax = int(cache.meta["Lmax"])
@@ -389,7 +411,7 @@ def train_evaluator(data: str | os.PathLike, encoder: str | os.PathLike, out: st
     n_params = count_params(jax.eval_shape(init, jax.random.PRNGKey(0)))
     truncated = _truncation(cache, clips, train_levels)
     tcfg = TrainConfig(steps=steps, batch_size=batch_size, seed=seed, log_every=log_every, ckpt_every=ckpt_every,
-                       keep_checkpoints=keep_checkpoints, wandb=wandb,
+                       keep_checkpoints=keep_checkpoints, wandb=wandb, prefetch=prefetch,
                        optim=OptimConfig(lr=lr, warmup_steps=warmup, weight_decay=weight_decay, schedule=schedule))
     config = {"family": "evaluator", "run_id": out.name, "preset": preset, "model": dataclasses.asdict(cfg),
               "layers": cfg.layers, "dim": cfg.latent, "heads": cfg.heads, "ff": cfg.ff, "params": n_params,
@@ -455,6 +477,138 @@ def _truncation(cache, clips: np.ndarray, levels: Sequence[int]) -> float:
 
 
 # ------------------------------------------------------------------------------------------------
+# Reference embeddings, cached in the evaluator folder
+#
+# Every evaluation of a sweep scores against the same reference: the captions of the reference clips at
+# the evaluation level and their GT motion. Embedding them (the captions through the frozen T5 on the
+# fly) costs far more than embedding the generated motion and computing the metrics, so the first
+# evaluation stores them in ``E/reference_cache/<key hash>.npz`` and later ones read them back. The key
+# holds everything the embeddings depend on (evaluator and encoder fingerprints, text policy, batch
+# size, hashes of the exact captions and GT motion, clip indices, dataset fingerprint, evaluation level,
+# JAX backend), so a cached file is bitwise what the uncached computation gives on the machine that
+# wrote it, and anything else (another dataset, level, subset, retrained evaluator) misses. The key
+# leaves out the host and JAX version on purpose: the CPU nodes of a sweep then share one fixed
+# reference instead of each recomputing it up to float rounding.
+
+REFERENCE_CACHE_DIR = "reference_cache"
+REFERENCE_CACHE_VERSION = 1
+
+
+@dataclass
+class ReferenceEmbeddings:
+    """μ-embeddings ``(N, latent)`` of the reference captions and GT motion of one evaluation.
+
+    ``status``: "hit" (read from the cache), "miss" (computed, then written), "off" (computed, no cache
+    folder), "unwritable" (computed; the cache folder could not be written, e.g. a read-only evaluator).
+    ``seconds``: {"text", "motion"}; a hit books its key hashing and read time under "text".
+    """
+
+    text_NxD: np.ndarray
+    motion_NxD: np.ndarray
+    status: str
+    seconds: dict
+    path: Path | None = None
+
+
+def _digest(*chunks: bytes) -> str:
+    h = hashlib.sha256()
+    for c in chunks:
+        h.update(c)
+    return h.hexdigest()[:16]
+
+
+def reference_key(ev: TrainedEvaluator, texts: Sequence[str], gt_NxTx2x21x3: np.ndarray,
+                  provenance: Mapping[str, Any] | None = None) -> dict:
+    """The cache key of the reference embeddings of joined captions ``texts`` and GT motion.
+
+    The batch size is part of it because the text side pads each chunk to its own length bucket, which
+    moves embeddings by float rounding; ``provenance`` (dataset fingerprint, evaluation level, clips) is
+    redundant with the content hashes but makes a file's origin readable and keeps datasets apart.
+    """
+    return {
+        "version": REFERENCE_CACHE_VERSION,
+        "evaluator": ev.fingerprint,
+        "encoder": ev.encoder.fingerprint,
+        "tokenizer": ev.encoder.tokenizer.fingerprint,
+        "text_policy": {"max_len": ev.policy.max_len, "cache_dtype": ev.policy.cache_dtype},
+        "batch_size": int(ev.batch_size),
+        "n": len(texts),
+        "captions": _digest(json.dumps(list(texts)).encode()),
+        "motion": _digest(np.ascontiguousarray(gt_NxTx2x21x3, np.float32).tobytes()),
+        "provenance": dict(provenance or {}),
+        "backend": jax.default_backend(),
+    }
+
+
+def _key_json(key: Mapping) -> str:
+    return json.dumps(key, sort_keys=True)
+
+
+def read_reference_cache(path: Path, key: Mapping, latent: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(text, motion) from ``path`` if it holds exactly ``key``; None when absent, unreadable or stale."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if str(z["key"]) != _key_json(key):
+                return None
+            text, motion = z["text_NxD"], z["motion_NxD"]
+    except Exception:  # noqa: BLE001  (missing, truncated, not a zip, missing arrays: all just a miss)
+        return None
+    want = (int(key["n"]), latent)
+    if text.shape != want or motion.shape != want or text.dtype != np.float32 or motion.dtype != np.float32:
+        return None
+    return text, motion
+
+
+def write_reference_cache(path: Path, key: Mapping, text_NxD: np.ndarray, motion_NxD: np.ndarray) -> bool:
+    """Atomically write the cache file (concurrent evaluations race harmlessly); False if it cannot be."""
+    buf = io.BytesIO()
+    np.savez(buf, key=np.asarray(_key_json(key)), text_NxD=np.asarray(text_NxD, np.float32),
+             motion_NxD=np.asarray(motion_NxD, np.float32))
+    try:
+        atomic_write_bytes(path, buf.getvalue())
+    except OSError:
+        return False
+    return True
+
+
+def _cache_folder(ev: TrainedEvaluator, cache: bool | str | os.PathLike) -> Path | None:
+    if cache is False or cache is None:
+        return None
+    if cache is True:
+        return None if ev.root is None else Path(ev.root) / REFERENCE_CACHE_DIR
+    return Path(cache)
+
+
+def reference_embeddings(ev: TrainedEvaluator, prompts: tuple[Sequence[str], Sequence[str], Sequence[str]],
+                         gt_NxTx2x21x3: np.ndarray, *, provenance: Mapping[str, Any] | None = None,
+                         cache: bool | str | os.PathLike = True) -> ReferenceEmbeddings:
+    """Text μ of the (left, right, interaction) ``prompts`` and motion μ of their GT clips, cached.
+
+    ``cache``: True = the evaluator folder's ``reference_cache/`` (no cache for an evaluator without a
+    folder), False = compute without reading or writing any cache, a path = that folder.
+    """
+    gt = np.asarray(gt_NxTx2x21x3, np.float32)
+    folder = _cache_folder(ev, cache)
+    t0 = time.perf_counter()
+    key = path = None
+    if folder is not None:
+        key = reference_key(ev, [joined_caption(*p) for p in zip(*prompts)], gt, provenance)
+        path = folder / f"{_digest(_key_json(key).encode())}.npz"
+        hit = read_reference_cache(path, key, ev.cfg.latent)
+        if hit is not None:
+            return ReferenceEmbeddings(hit[0], hit[1], "hit", {"text": time.perf_counter() - t0, "motion": 0.0},
+                                       path)
+    text = ev.embed_text(*prompts)
+    t1 = time.perf_counter()
+    motion = ev.embed_motion(gt)
+    t2 = time.perf_counter()
+    status = "off"
+    if path is not None:
+        status = "miss" if write_reference_cache(path, key, text, motion) else "unwritable"
+    return ReferenceEmbeddings(text, motion, status, {"text": t1 - t0, "motion": t2 - t1}, path)
+
+
+# ------------------------------------------------------------------------------------------------
 # Evaluation
 
 
@@ -486,12 +640,16 @@ def _schema_names(motion: dict) -> dict:
 
 def evaluate_embeddings_and_motion(ev: TrainedEvaluator, text_NxD: np.ndarray, gen_GxNxTx2x21x3: np.ndarray,
                                    gt_NxTx2x21x3: np.ndarray, cfg: MetricConfig, *,
-                                   gt_NxD: np.ndarray | None = None, meta: dict | None = None) -> EvalResult:
+                                   gt_NxD: np.ndarray | None = None, gen_GxNxD: np.ndarray | None = None,
+                                   meta: dict | None = None) -> EvalResult:
+    """All metrics of G generation groups against the GT; motion embeddings given are not recomputed
+    (the reference cache's GT embeddings; the GT row's generation, which is the GT)."""
     t0 = time.perf_counter()
     G, N = gen_GxNxTx2x21x3.shape[:2]
     gt_emb = ev.embed_motion(gt_NxTx2x21x3) if gt_NxD is None else gt_NxD
-    gen_emb = np.stack([ev.embed_motion(gen_GxNxTx2x21x3[g]) for g in range(G)])
-    jax.block_until_ready(gen_emb)
+    if gen_GxNxD is None:
+        gen_GxNxD = np.stack([ev.embed_motion(gen_GxNxTx2x21x3[g]) for g in range(G)])
+    gen_emb = np.asarray(gen_GxNxD, np.float32)
     t1 = time.perf_counter()
     emb = replicate_embedding_metrics(text_NxD, gen_emb, gt_emb, cfg)
     mot = _schema_names(replicate_motion_metrics(gen_GxNxTx2x21x3, gt_NxTx2x21x3, cfg))
@@ -508,21 +666,37 @@ def evaluate_embeddings_and_motion(ev: TrainedEvaluator, text_NxD: np.ndarray, g
     return EvalResult(metrics, m)
 
 
-def evaluate_ground_truth(ev: TrainedEvaluator, ds, cfg: MetricConfig = MetricConfig(),
-                          split: str = "test") -> EvalResult:
-    """The "Ground Truth" row: the split's GT motion scored as if it were the generation (G = 1)."""
+def _dataset_reference(ev: TrainedEvaluator, ds, clips: np.ndarray, cache: bool | str | os.PathLike):
+    """GT motion and (cached) reference embeddings of ``clips`` of ``ds`` at the evaluator's caption level."""
+    gt = np.asarray(ds.motion[clips], np.float32)
+    provenance = {"dataset": ds.fingerprint, "eval_level": ev.policy.eval_level,
+                  "clips": _digest(np.asarray(clips, np.int64).tobytes())}
+    return gt, reference_embeddings(ev, ev.captions(ds, clips), gt, provenance=provenance, cache=cache)
+
+
+def _note_reference(res: EvalResult, ref: ReferenceEmbeddings) -> EvalResult:
+    """Booked in meta: text seconds (the cache read on a hit), GT motion seconds, the cache status."""
+    res.meta["seconds"]["text_embedding"] = ref.seconds["text"]
+    res.meta["seconds"]["motion_embedding"] += ref.seconds["motion"]
+    res.meta["reference_cache"] = ref.status
+    return res
+
+
+def evaluate_ground_truth(ev: TrainedEvaluator, ds, cfg: MetricConfig = MetricConfig(), split: str = "test", *,
+                          cache: bool | str | os.PathLike = True) -> EvalResult:
+    """The "Ground Truth" row: the split's GT motion scored as if it were the generation (G = 1).
+
+    ``cache``: where the reference embeddings are cached (:func:`reference_embeddings`); False bypasses it.
+    """
     ev.check_dataset(ds)
     clips = np.sort(ds.split(split))
     if len(clips) < 2:
         raise DataError(f"split {split!r} has {len(clips)} clips; need at least 2", path=ds.root)
-    t0 = time.perf_counter()
-    text = ev.embed_text(*ev.captions(ds, clips))
-    t_text = time.perf_counter() - t0
-    gt = np.asarray(ds.motion[clips], np.float32)
-    res = evaluate_embeddings_and_motion(ev, text, gt[None], gt, cfg, meta={"split": split, "ground_truth": True,
-                                                                          "reference": str(ds.root)})
-    res.meta["seconds"]["text_embedding"] = t_text
-    return res
+    gt, ref = _dataset_reference(ev, ds, clips, cache)
+    res = evaluate_embeddings_and_motion(ev, ref.text_NxD, gt[None], gt, cfg, gt_NxD=ref.motion_NxD,
+                                         gen_GxNxD=ref.motion_NxD[None],
+                                         meta={"split": split, "ground_truth": True, "reference": str(ds.root)})
+    return _note_reference(res, ref)
 
 
 @dataclass
@@ -604,18 +778,17 @@ def _check_captions(entry, ref: dict) -> None:
 
 
 def evaluate_generated(ev: TrainedEvaluator, entries: Sequence, ds, cfg: MetricConfig = MetricConfig(),
-                       split: str = "test") -> EvalResult:
-    """Table 2 metrics of generated clips against the reference dataset's GT and captions."""
+                       split: str = "test", *, cache: bool | str | os.PathLike = True) -> EvalResult:
+    """Table 2 metrics of generated clips against the reference dataset's GT and captions.
+
+    ``cache``: where the reference embeddings are cached (:func:`reference_embeddings`); False bypasses it.
+    """
     ev.check_dataset(ds)
     gen = align_generated(entries, ds, split)
-    t0 = time.perf_counter()
-    text = ev.embed_text(*ev.captions(ds, gen.clips))
-    t_text = time.perf_counter() - t0
-    gt = np.asarray(ds.motion[gen.clips], np.float32)
-    res = evaluate_embeddings_and_motion(ev, text, gen.motion, gt, cfg,
+    gt, ref = _dataset_reference(ev, ds, gen.clips, cache)
+    res = evaluate_embeddings_and_motion(ev, ref.text_NxD, gen.motion, gt, cfg, gt_NxD=ref.motion_NxD,
                                          meta={"ground_truth": False, "reference": str(ds.root)})
-    res.meta["seconds"]["text_embedding"] = t_text
-    return res
+    return _note_reference(res, ref)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -21,6 +21,7 @@ plus a ``get_batch(indices) -> pytree of arrays``; everything else lives here:
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import math
 import os
@@ -63,6 +64,10 @@ class TrainConfig:
     ema_warmup: bool = False
     bf16: bool = False
     wandb: str = "offline"  # offline | online | disabled
+    # Batches assembled ahead of the step that consumes them, in background threads (0 = inline). On an
+    # accelerator the host-side batch (memory-map reads, feature maths) otherwise serialises with the
+    # step; batches depend only on (seed, step), so prefetching changes no number.
+    prefetch: int = 2
     optim: OptimConfig = OptimConfig()
 
 
@@ -112,15 +117,51 @@ def initialize_distributed() -> bool:
     return False
 
 
-def _global_batch(get_batch: Callable[[np.ndarray], Any], idx: np.ndarray, sharding) -> Any:
-    """The step's batch as a global array sharded over ("data",); each process loads only its rows."""
+def _local_batch(get_batch: Callable[[np.ndarray], Any], idx: np.ndarray) -> Any:
+    """This process's rows of the step's batch (host arrays): all of them for a single process."""
     n = jax.process_count()
     if n == 1:
-        return jax.device_put(get_batch(idx), sharding)
+        return get_batch(idx)
     per = len(idx) // n
-    local = get_batch(idx[jax.process_index() * per:(jax.process_index() + 1) * per])
+    return get_batch(idx[jax.process_index() * per:(jax.process_index() + 1) * per])
+
+
+def _global_batch(local: Any, global_size: int, sharding) -> Any:
+    """The step's batch as a global array sharded over ("data",) from each process's rows."""
+    if jax.process_count() == 1:
+        return jax.device_put(local, sharding)
     return jax.tree_util.tree_map(
-        lambda x: jax.make_array_from_process_local_data(sharding, x, (len(idx),) + x.shape[1:]), local)
+        lambda x: jax.make_array_from_process_local_data(sharding, x, (global_size,) + x.shape[1:]), local)
+
+
+def _host_batches(get_batch: Callable[[np.ndarray], Any], steps: range, num_examples: int, batch_size: int,
+                  seed: int, depth: int):
+    """Yield (step, local host batch) in step order, up to ``depth`` batches built ahead in threads.
+
+    ``get_batch`` must be safe to call from several threads (read-only memory maps and numpy are; numpy
+    releases the GIL in copies and maths, so the threads really overlap with the device step).
+    """
+    make = lambda s: _local_batch(get_batch, batch_indices(num_examples, batch_size, seed, s))  # noqa: E731
+    if depth <= 0:
+        for s in steps:
+            yield s, make(s)
+        return
+    import collections
+    from concurrent.futures import ThreadPoolExecutor
+
+    it = iter(steps)
+    with ThreadPoolExecutor(max_workers=depth, thread_name_prefix="batch") as pool:
+        pending = collections.deque((s, pool.submit(make, s)) for s in itertools.islice(it, depth))
+        try:
+            while pending:
+                s, fut = pending.popleft()
+                nxt = next(it, None)
+                if nxt is not None:
+                    pending.append((nxt, pool.submit(make, nxt)))
+                yield s, fut.result()
+        finally:
+            for _, fut in pending:
+                fut.cancel()
 
 
 class RunLogger:
@@ -251,9 +292,9 @@ def train(
     jstep = jax.jit(step_fn, donate_argnums=(0,))
     end = min(cfg.steps, stop_at) if stop_at is not None else cfg.steps
     t_last, n_since = time.perf_counter(), 0
-    for step in range(start, end):
-        idx = batch_indices(num_examples, cfg.batch_size, cfg.seed, step)
-        batch = _global_batch(get_batch, idx, data_sharding)
+    for step, local in _host_batches(get_batch, range(start, end), num_examples, cfg.batch_size, cfg.seed,
+                                     cfg.prefetch):
+        batch = _global_batch(local, cfg.batch_size, data_sharding)
         state, metrics = jstep(state, batch, jax.random.fold_in(jax.random.fold_in(rng, 1), step))
         n_since += cfg.batch_size
         done = step + 1

@@ -28,6 +28,21 @@ def test_build_is_deterministic_across_worker_counts(corpus, tmp_path):
     np.testing.assert_array_equal(a.motion, b.motion)
 
 
+def test_build_is_deterministic_across_processes(corpus, tmp_path):
+    """Same seed → same bytes in a fresh interpreter with another string-hash seed (set order, dict
+    iteration over strings and the like must never reach the data or the captions)."""
+    import os
+
+    code = ("import sys; from handx_jax.data.build import BuildConfig, build_corpus; "
+            "build_corpus(sys.argv[1], BuildConfig(clips=160, seed=3, workers=1, val_fraction=0.2, "
+            "test_fraction=0.2), progress=False)")
+    for hash_seed in ("1", "2"):
+        out = tmp_path / f"ds{hash_seed}"
+        subprocess.run([sys.executable, "-c", code, str(out)], check=True,
+                       env={**os.environ, "PYTHONHASHSEED": hash_seed, "JAX_PLATFORMS": "cpu"})
+        assert Dataset.open(out).fingerprint == Dataset.open(corpus).fingerprint, f"PYTHONHASHSEED={hash_seed}"
+
+
 def test_corpus_content(corpus):
     ds = Dataset.open(corpus)
     assert len(ds) == 160 and ds.motion.dtype == np.float32

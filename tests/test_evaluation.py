@@ -1,6 +1,7 @@
 """Evaluator pipeline: checkpoint round trip, fingerprint refusals, generated-file layout, CLI JSON keys,
 the Ground Truth row, and a few training steps lowering InfoNCE. Tiny fixtures, seconds on CPU."""
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -11,8 +12,9 @@ import pytest
 from analysis.schema import METRICS
 from handx_jax.data.dataset import Dataset
 from handx_jax.data.handx_npz import HandXClip, read_handx_npz, write_handx_npz
-from handx_jax.evaluation import (JOINED, TextPolicy, TrainingData, align_generated, evaluate_generated,
-                                  evaluate_ground_truth, evaluator_stats, load_evaluator, train_evaluator)
+from handx_jax.evaluation import (JOINED, REFERENCE_CACHE_DIR, TextPolicy, TrainingData, align_generated,
+                                  evaluate_generated, evaluate_ground_truth, evaluator_stats, load_evaluator,
+                                  reference_embeddings, train_evaluator, write_reference_cache)
 from handx_jax.io import DataError
 from handx_jax.metrics import MetricConfig
 
@@ -139,6 +141,96 @@ def test_ground_truth_row_and_self_evaluation(setup):
     assert by_order.metrics["rprec_top1"] == same.metrics["rprec_top1"]
     noisy = evaluate_generated(ev, _generated(ds, noise=0.02), ds, CFG)
     assert noisy.metrics["fid"][0] > 0 and noisy.metrics["mpjpe"][0] > 0
+
+
+def _evaluator_copy(E, dst):
+    """The evaluator folder without its training run and caches: each test sees its own reference cache."""
+    return shutil.copytree(E, dst, ignore=shutil.ignore_patterns("checkpoints", "wandb", REFERENCE_CACHE_DIR))
+
+
+def test_reference_cache_is_reused_and_changes_no_value(setup, tmp_path):
+    root, data, E = setup
+    ds = Dataset.open(data)
+    ev = load_evaluator(_evaluator_copy(E, tmp_path / "E"))
+    folder = ev.root / REFERENCE_CACHE_DIR
+    off = evaluate_ground_truth(ev, ds, CFG, cache=False)
+    assert off.meta["reference_cache"] == "off" and not folder.exists()
+    first = evaluate_ground_truth(ev, ds, CFG)
+    assert first.meta["reference_cache"] == "miss" and len(list(folder.glob("*.npz"))) == 1
+    again = evaluate_ground_truth(load_evaluator(ev.root), ds, CFG)  # as a later `handx eval run` would
+    assert again.meta["reference_cache"] == "hit"
+    assert off.flat() == first.flat() == again.flat()
+    # generations of the same prompts reuse the GT row's file, with the same numbers as without it
+    gen = _generated(ds, noise=0.01)
+    cached, uncached = evaluate_generated(ev, gen, ds, CFG), evaluate_generated(ev, gen, ds, CFG, cache=False)
+    assert cached.meta["reference_cache"] == "hit" and cached.flat() == uncached.flat()
+    assert len(list(folder.glob("*.npz"))) == 1
+
+
+def test_reference_cache_key_separates_dataset_level_params_and_clips(setup, tmp_path):
+    import jax
+
+    root, data, E = setup
+    ds = Dataset.open(data)
+    clips = np.sort(ds.split("test"))
+    gt = np.asarray(ds.motion[clips], np.float32)
+    prov = {"dataset": ds.fingerprint, "eval_level": 0}
+
+    def ref(ev, sel=slice(None), **provenance):
+        prompts = tuple(p[sel] for p in ev.captions(ds, clips))
+        return reference_embeddings(ev, prompts, gt[sel], provenance={**prov, **provenance}, cache=tmp_path)
+
+    ev = load_evaluator(E)
+    base = ref(ev)
+    hit = ref(load_evaluator(E))
+    assert (base.status, hit.status) == ("miss", "hit") and hit.path == base.path
+    np.testing.assert_array_equal(hit.text_NxD, base.text_NxD)
+    np.testing.assert_array_equal(hit.motion_NxD, base.motion_NxD)
+    stored = json.loads(str(np.load(base.path)["key"]))
+    assert stored["provenance"] == prov and stored["evaluator"] == ev.fingerprint
+
+    assert ref(ev, dataset="another-dataset").status == "miss"
+    assert ref(ev, sel=slice(1, None)).status == "miss"  # a subset of the clips
+    level = load_evaluator(E)
+    level.policy = dataclasses.replace(level.policy, eval_level=2)
+    by_level = ref(level, eval_level=2)
+    assert by_level.status == "miss" and not np.array_equal(by_level.text_NxD, base.text_NxD)
+    tuned = dataclasses.replace(ev, params=jax.tree_util.tree_map(lambda p: p * 1.01, ev.params))
+    by_params = ref(tuned)
+    assert by_params.status == "miss" and not np.array_equal(by_params.motion_NxD, base.motion_NxD)
+    assert ref(dataclasses.replace(ev, batch_size=8)).status == "miss"  # chunking moves float rounding
+    assert len(list(tmp_path.glob("*.npz"))) == 6
+
+
+def test_reference_cache_corrupt_stale_or_unwritable_files(setup, tmp_path):
+    root, data, E = setup
+    ds = Dataset.open(data)
+    ev = load_evaluator(E)
+    clips = np.sort(ds.split("test"))
+    gt = np.asarray(ds.motion[clips], np.float32)
+
+    def ref(cache=tmp_path):
+        return reference_embeddings(ev, ev.captions(ds, clips), gt, provenance={"dataset": ds.fingerprint},
+                                    cache=cache)
+
+    base = ref()
+    good = base.path.read_bytes()
+    for bad in (b"not an npz", good[: len(good) // 2]):  # garbage, a truncated write
+        base.path.write_bytes(bad)
+        again = ref()
+        assert again.status == "miss" and again.path.read_bytes() == good and ref().status == "hit"
+        np.testing.assert_array_equal(again.text_NxD, base.text_NxD)
+    # stale: a readable file under this name whose key is another one (e.g. another code version)
+    key = json.loads(str(np.load(base.path)["key"]))
+    write_reference_cache(base.path, {**key, "version": -1}, base.text_NxD + 1, base.motion_NxD)
+    again = ref()
+    assert again.status == "miss" and ref().status == "hit"
+    np.testing.assert_array_equal(again.text_NxD, base.text_NxD)
+    # a folder that cannot be written (read-only evaluator): computed, reported, not an error
+    (tmp_path / "file").write_text("x")
+    blocked = ref(cache=tmp_path / "file" / "cache")
+    assert blocked.status == "unwritable"
+    np.testing.assert_array_equal(blocked.motion_NxD, base.motion_NxD)
 
 
 def test_misaligned_generations_are_refused(setup):

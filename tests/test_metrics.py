@@ -94,6 +94,35 @@ def test_contact_prf_exact_on_built_sequences():
     assert prf["f1"] == pytest.approx(2 / 3, abs=1e-6)
 
 
+def test_contact_scan_matches_direct_norm_form():
+    """The chunked, coordinate-major tip-to-palm scan gives the distances of the direct ``linalg.norm`` form
+    (bitwise on XLA CPU; 1 ulp allowed) and the same labels, for N not a multiple of the chunk."""
+    import jax
+
+    rng = np.random.default_rng(3)
+    n, T = 2 * M.CONTACT_CHUNK + 23, 12
+    x = np.repeat(_hand_pair()[None, None], n, axis=0).repeat(T, axis=1)  # (N, T, 2, 21, 3)
+    # slide the right hand over the left palm by a random offset per clip: tip–palm gaps straddle 2.5 cm
+    x[:, :, 1] -= np.array([0.2, 0.1, 0.0], np.float32) + rng.normal(scale=0.02, size=(n, 1, 1, 3))
+    x = (x + rng.normal(scale=0.003, size=x.shape)).astype(np.float32)
+    W = jnp.asarray(M.palm_barycentric(100, 0))
+
+    @jax.jit
+    def direct(x_, W_):
+        tips = x_[:, :, :, jnp.asarray(sk.TIPS)]
+        palm = jnp.einsum("pj,nthjc->nthpc", W_, x_)
+        d = [jnp.linalg.norm(tips[:, :, h, :, None] - palm[:, :, 1 - h, None], axis=-1).min(-1) for h in (0, 1)]
+        return jnp.stack(d, axis=2)
+
+    want = np.asarray(direct(jnp.asarray(x), W))
+    got = np.asarray(jax.jit(M._chunked_tip_palm_min_dist)(jnp.asarray(x), W))
+    np.testing.assert_array_max_ulp(got, want, maxulp=1)
+    _, inter = M.contact_labels(jnp.asarray(x), W)
+    labels = np.any(want < 0.025, axis=1).reshape(n, 10)
+    assert 0.1 < labels.mean() < 0.9
+    np.testing.assert_array_equal(np.asarray(inter), labels)
+
+
 def test_palm_samples_lie_in_palm_triangles():
     W = M.palm_barycentric(100, 3)
     assert W.shape == (100, 21) and np.allclose(W.sum(1), 1) and (W >= 0).all()

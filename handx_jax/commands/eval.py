@@ -16,7 +16,7 @@ import json
 import sys
 
 TRAIN_KEYS = ("lr", "warmup", "weight_decay", "schedule", "seed", "log_every", "ckpt_every", "keep_checkpoints",
-              "max_len", "train_levels", "eval_level", "wandb")
+              "max_len", "train_levels", "eval_level", "wandb", "text_bucket", "prefetch")
 
 
 def _parse_sets(items: list[str]) -> tuple[dict, dict]:
@@ -80,13 +80,16 @@ def _run(args: argparse.Namespace) -> int:
     cfg = MetricConfig(rprec_block=args.block, replications=args.replications, seed=args.seed,
                        mpjpe_root=args.mpjpe_root)
     ev = load_evaluator(args.evaluator, encoder=args.encoder)
+    if args.level is not None:
+        ev.policy = dataclasses.replace(ev.policy, eval_level=args.level)
     ds = Dataset.open(args.reference)
+    cache = not args.no_reference_cache
     if args.ground_truth:
-        res, name = evaluate_ground_truth(ev, ds, cfg, split=args.split), "Ground Truth"
+        res, name = evaluate_ground_truth(ev, ds, cfg, split=args.split, cache=cache), "Ground Truth"
     else:
         from handx_jax.data.handx_npz import read_handx_npz
 
-        res = evaluate_generated(ev, read_handx_npz(args.generated), ds, cfg, split=args.split)
+        res = evaluate_generated(ev, read_handx_npz(args.generated), ds, cfg, split=args.split, cache=cache)
         res.meta["generated"] = str(Path(args.generated).absolute())
         name = args.label or Path(args.generated).stem
     if args.out:
@@ -136,6 +139,10 @@ def add_parser(subparsers) -> None:
     r.add_argument("--reference", required=True, help="the dataset the evaluator was trained on")
     r.add_argument("--split", default="test", help="reference split (GT row; generated files without source_clip)")
     r.add_argument("--encoder", help="encoder folder, if moved since training (fingerprint-checked)")
+    r.add_argument("--level", type=int, help="caption level to score against (default: the evaluator's eval_level; "
+                                             "−1 = most detailed)")
+    r.add_argument("--no-reference-cache", action="store_true",
+                   help="neither read nor write E/reference_cache/ (the reference captions' and GT embeddings)")
     r.add_argument("--replications", type=int, default=20)
     r.add_argument("--block", type=int, default=32, help="R-Precision block size (32: Table 2; 16: Fig. 4)")
     r.add_argument("--seed", type=int, default=0)

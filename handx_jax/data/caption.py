@@ -482,7 +482,9 @@ class _HandFacts:
                 verb = _verb(_pick(rng, _REPEAT_VERBS[kind][ms[0]["dir"] < 0]), plural)
                 txt = f"{who} {verb} {_count(n)}"
                 if d >= 3:
-                    shapes = set().union(*(m["shapes"] for m in ms))
+                    # Sorted first: shapes of equal flexion order tie, and a set's order follows the
+                    # per-process string hash seed, which would make the wording differ between runs.
+                    shapes = sorted(set().union(*(m["shapes"] for m in ms)))
                     lo = min(shapes, key=_FLEX_ORDER_SHAPE.get)
                     hi = max(shapes, key=_FLEX_ORDER_SHAPE.get)
                     if lo != hi:
