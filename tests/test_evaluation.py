@@ -271,6 +271,18 @@ def test_cli_run_json_keys_and_eval_json(setup, tmp_path, capsys):
     assert rc == 0 and "Ground Truth" in text and "Top-1" in text and "FID" in text
     rc = main(["eval", "run", "--evaluator", str(E), "--ground-truth", "--reference", str(tmp_path / "nope")])
     assert rc == 2
+    # --level scores against another caption level (same numbers as the API at that level);
+    # --no-reference-cache neither reads nor writes the cache and changes no value.
+    ev = load_evaluator(E)
+    ev.policy = dataclasses.replace(ev.policy, eval_level=-1)
+    want = evaluate_ground_truth(ev, ds, MetricConfig(rprec_block=4, replications=3), cache=False).flat()
+    default = evaluate_ground_truth(load_evaluator(E), ds, MetricConfig(rprec_block=4, replications=3)).flat()
+    assert abs(want["mm_dist"] - default["mm_dist"]) > 1e-4  # the level really changes the captions
+    for extra in ([], ["--no-reference-cache"]):
+        rc = main(["eval", "run", "--evaluator", str(E), "--ground-truth", "--reference", str(data), "--json",
+                   "--replications", "3", "--block", "4", "--level", "-1", *extra])
+        assert rc == 0
+        assert json.loads(capsys.readouterr().out) == pytest.approx(want, abs=1e-6)
 
 
 def test_training_lowers_infonce_and_refuses_overwrite(setup):
