@@ -65,6 +65,10 @@ def test_float16_and_determinism(setup):
     b = TextCache.open(build_cache(data, enc_dir, dtype="float16", batch_size=32, log=lambda s: None))
     assert b.hidden.dtype == np.float16 and a.fingerprint != b.fingerprint
     assert np.abs(np.asarray(b.hidden, np.float32) - a.hidden).max() < 1e-2
+    # the cast is round-to-nearest of the float32 value (at most half a float16 step away), padding exact zeros
+    step = np.spacing(np.abs(a.hidden).astype(np.float16)).astype(np.float32)
+    assert (np.abs(np.asarray(b.hidden, np.float32) - a.hidden) <= 0.5 * step + 1e-6).mean() > 0.999
+    assert not np.asarray(b.hidden)[~np.asarray(b.mask)].any() and not np.asarray(a.hidden)[~np.asarray(a.mask)].any()
     before = np.array(a.hidden)
     again = TextCache.open(build_cache(data, enc_dir, dtype="float32", batch_size=32, overwrite=True,
                                        log=lambda s: None))
