@@ -11,7 +11,6 @@ Arrays are in normalised diffusion space ``(B, F, 42, 4)``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import partial
 from typing import Callable
 
 import jax

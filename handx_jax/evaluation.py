@@ -50,7 +50,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from handx_jax import representation as rep
-from handx_jax.io import DataError, atomic_write_bytes, atomic_write_json
+from handx_jax.io import DataError, atomic_write_bytes, atomic_write_json, read_format_meta
 from handx_jax.metrics import MetricConfig, replicate_embedding_metrics, replicate_motion_metrics
 from handx_jax.models.evaluator import PRESETS, Evaluator, EvaluatorConfig, evaluator_loss
 
@@ -276,21 +276,11 @@ def _policy_from_json(d: Mapping) -> TextPolicy:
 
 def read_meta(root: str | os.PathLike) -> dict:
     root = Path(root)
-    p = root / META_FILE
-    if not p.is_file():
-        hint = (" (training has not finished: rerun the same `handx eval train-evaluator` command to resume)"
-                if (root / "checkpoints").is_dir() else "")
-        raise DataError(f"not an evaluator checkpoint: missing {META_FILE}{hint}", path=root)
-    try:
-        meta = json.loads(p.read_text())
-    except json.JSONDecodeError as e:
-        raise DataError(f"corrupt JSON ({e.msg})", path=p) from None
-    if meta.get("format") != FORMAT:
-        raise DataError(f"not a {FORMAT} (format={meta.get('format')!r})", path=p)
-    if meta.get("format_version") != FORMAT_VERSION:
-        raise DataError(f"evaluator format_version {meta.get('format_version')} is not supported (this code "
-                        f"reads {FORMAT_VERSION}); retrain it with `handx eval train-evaluator`", path=p)
-    return meta
+    hint = (" (training has not finished: rerun the same `handx eval train-evaluator` command to resume)"
+            if (root / "checkpoints").is_dir() else "")
+    return read_format_meta(root / META_FILE, FORMAT, FORMAT_VERSION,
+                            missing=f"not an evaluator checkpoint: missing {META_FILE}{hint}",
+                            upgrade="; retrain it with `handx eval train-evaluator`")
 
 
 def load_evaluator(root: str | os.PathLike, *, encoder: str | os.PathLike | None = None,

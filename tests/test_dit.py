@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from handx_jax import diffusion as D
-from handx_jax.models.dit import NUM_BRANCHES, PRESETS, DiTConfig, TrebleDenoiser, forward_flops, init_denoiser, param_count
+from handx_jax.models.dit import NUM_BRANCHES, PRESETS, DiTConfig, forward_flops, init_denoiser, param_count
 
 
 @pytest.mark.parametrize("name,expected", [("paper-4L", 4.63e6), ("paper-8L", 26.33e6), ("paper-12L", 38.95e6)])

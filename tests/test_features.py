@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from handx_jax import skeleton as sk
 from handx_jax.data import features as ft
 from handx_jax.data.events import FLEXING, _labels
 from handmade_hands import clip, mirror, pair, right_hand, still

@@ -67,3 +67,23 @@ def test_atomic_dir_gets_normal_permissions(tmp_path):
     ref = tmp_path / "ref"
     ref.mkdir()
     assert ((tmp_path / "d").stat().st_mode & 0o777) == (ref.stat().st_mode & 0o777)
+
+
+def test_read_format_meta_names_the_file_and_the_problem(tmp_path):
+    from handx_jax.io import DataError, read_format_meta
+
+    p = tmp_path / "meta.json"
+    with pytest.raises(DataError, match="build one first") as e:
+        read_format_meta(p, "fmt-x", 2, missing="build one first")
+    assert str(tmp_path) in str(e.value)
+    p.write_text("{not json")
+    with pytest.raises(DataError, match="corrupt JSON"):
+        read_format_meta(p, "fmt-x", 2)
+    p.write_text('{"format": "other", "format_version": 2}')
+    with pytest.raises(DataError, match="not a fmt-x .format='other'"):
+        read_format_meta(p, "fmt-x", 2)
+    p.write_text('{"format": "fmt-x", "format_version": 1}')
+    with pytest.raises(DataError, match="format_version 1 is not supported .this code reads 2.; redo"):
+        read_format_meta(p, "fmt-x", 2, upgrade="; redo")
+    p.write_text('{"format": "fmt-x", "format_version": 2, "k": 3}')
+    assert read_format_meta(p, "fmt-x", 2) == {"format": "fmt-x", "format_version": 2, "k": 3}

@@ -428,7 +428,6 @@ class _HandFacts:
         return _pick(self.rng, (_THUMB_SHAPE_WORDS if thumb else _SHAPE_WORDS)[shape])
 
     def _finger_facts(self) -> None:
-        tm, rng = self.tm, self.rng
         for fingers in self.groups:
             ms = [dict(m) for m in self.moves[fingers[0]]]
             for m in ms:

@@ -27,7 +27,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from handx_jax import skeleton as sk
-from handx_jax.io import DataError, atomic_dir, atomic_save_npy, atomic_write_json, read_jsonl
+from handx_jax.io import DataError, atomic_dir, atomic_write_json, read_format_meta, read_jsonl
 
 FORMAT = "handx-jax-dataset"
 FORMAT_VERSION = 1
@@ -204,18 +204,8 @@ class Dataset:
         root = Path(root)
         if not root.is_dir():
             raise DataError("dataset directory does not exist", path=root)
-        meta_path = root / "meta.json"
-        try:
-            meta = json.loads(meta_path.read_text())
-        except FileNotFoundError:
-            raise DataError("missing meta.json: not a handx-jax dataset", path=root) from None
-        except json.JSONDecodeError as e:
-            raise DataError(f"corrupt JSON ({e.msg})", path=meta_path) from None
-        if meta.get("format") != FORMAT:
-            raise DataError(f"not a {FORMAT} (format={meta.get('format')!r})", path=meta_path)
-        if meta.get("format_version") != FORMAT_VERSION:
-            raise DataError(f"format_version {meta.get('format_version')} is not supported "
-                            f"(this code reads {FORMAT_VERSION})", path=meta_path)
+        meta = read_format_meta(root / "meta.json", FORMAT, FORMAT_VERSION,
+                                missing="missing meta.json: not a handx-jax dataset")
         try:
             motion = np.load(root / "motion.npy", mmap_mode="r")
         except FileNotFoundError:

@@ -27,7 +27,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from handx_jax.io import DataError, atomic_dir, atomic_write_json
+from handx_jax.io import DataError, atomic_dir, atomic_write_json, read_format_meta
 
 FORMAT, FORMAT_VERSION = "handx-jax-text-cache", 1
 CACHE_DIRNAME = "text_cache"
@@ -175,13 +175,9 @@ class TextCache:
              encoder_fingerprint: str | None = None, tokenizer_fingerprint: str | None = None) -> "TextCache":
         """Open a cache folder; refuse it if it was built for another dataset, encoder or tokenizer."""
         root = Path(root)
-        try:
-            meta = json.loads((root / "meta.json").read_text())
-        except FileNotFoundError:
-            raise DataError("not a text cache (missing meta.json); build one with `handx text cache`",
-                            path=root) from None
-        if meta.get("format") != FORMAT or meta.get("format_version") != FORMAT_VERSION:
-            raise DataError(f"not a {FORMAT} v{FORMAT_VERSION}", path=root / "meta.json")
+        meta = read_format_meta(root / "meta.json", FORMAT, FORMAT_VERSION,
+                                missing="not a text cache (missing meta.json); build one with `handx text cache`",
+                                upgrade="; rebuild it with `handx text cache`")
         for what, want in (("dataset", dataset_fingerprint), ("encoder", encoder_fingerprint),
                            ("tokenizer", tokenizer_fingerprint)):
             have = meta.get(f"{what}_fingerprint")

@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handx_jax.io import DataError, atomic_dir, atomic_write_json
+from handx_jax.io import DataError, atomic_dir, atomic_write_json, read_json
 from handx_jax.text.tokenizer import MODEL_FILENAME, Encoded, Tokenizer
 
 Params = Any
@@ -467,15 +467,6 @@ class FrozenEncoder:
         return encoder_flops(self.cfg, length)
 
 
-def _read_json(path: Path) -> dict:
-    if not path.is_file():
-        raise DataError(f"missing {path.name}", path=path.parent)
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise DataError(f"corrupt JSON ({e.msg})", path=path) from None
-
-
 def load_hf_t5_encoder(folder: str | os.PathLike) -> FrozenEncoder:
     """Load a Hugging Face-format T5 folder, encoder only, with no network access.
 
@@ -493,7 +484,7 @@ def load_hf_t5_encoder(folder: str | os.PathLike) -> FrozenEncoder:
         hint = f"; found {other}: convert them to safetensors" if other else ""
         raise DataError(f"missing {', '.join(missing)}; an encoder folder needs {CONFIG_FILE}, {WEIGHTS_FILE} "
                         f"and {MODEL_FILENAME}{hint}", path=folder)
-    cfg = T5Config.from_hf(_read_json(folder / CONFIG_FILE), folder / CONFIG_FILE)
+    cfg = T5Config.from_hf(read_json(folder / CONFIG_FILE), folder / CONFIG_FILE)
     tok = Tokenizer.load(folder / MODEL_FILENAME)
     tensors = _open_weights(folder)
     # Tied checkpoints may keep the embedding only under the encoder's alias.
