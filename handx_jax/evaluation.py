@@ -177,12 +177,11 @@ class TrainedEvaluator:
 
     @cached_property
     def _text_fn(self) -> Callable:
-        model, enc_forward, dtype = self._model, self.encoder._forward, jnp.dtype(self.policy.cache_dtype)
+        # Training read the cache (cache_dtype, padding zeroed): encode exactly as the cache build does.
+        model, stored = self._model, self.encoder.stored_forward(self.policy.cache_dtype)
 
         def f(p, enc_params, ids, mask):
-            h = enc_forward(enc_params, ids, mask)
-            # Training read the cache, stored in cache_dtype with padding zeroed: do the same here.
-            h = (h.astype(dtype).astype(jnp.float32)) * mask[..., None]
+            h = stored(enc_params, ids, mask).astype(jnp.float32)
             return model.apply(p, h, mask.astype(bool), method=Evaluator.encode_text)[0]
 
         return jax.jit(f)

@@ -114,8 +114,7 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
         import jax
         import jax.numpy as jnp
 
-        forward, store = enc._forward, jnp.dtype(dtype)
-        encode = jax.jit(lambda p, i, mk: (forward(p, i, mk) * mk[..., None]).astype(store))
+        encode = jax.jit(enc.stored_forward(dtype))
         # Longest first, padded to a multiple of 16 tokens: few distinct shapes (few compiles), little padding.
         order = np.argsort(-kept, kind="stable")
         for s in range(0, len(order), batch_size):

@@ -459,6 +459,14 @@ class FrozenEncoder:
     def __call__(self, ids_BxL: np.ndarray, mask_BxL: np.ndarray) -> jax.Array:
         return self._forward(self.params, jnp.asarray(ids_BxL, jnp.int32), jnp.asarray(mask_BxL, jnp.int32))
 
+    def stored_forward(self, dtype) -> Callable:
+        """``f(params, ids, mask)`` → hidden states as the text cache stores them: padding zeroed, cast to
+        ``dtype``. Not jitted, so callers fuse it into their own jit; the cache build and every consumer
+        that re-encodes text on the fly (the evaluator) use this one function, so both see the same
+        numbers."""
+        forward, store = self._forward, jnp.dtype(dtype)
+        return lambda params, ids, mask: (forward(params, ids, mask) * mask[..., None]).astype(store)
+
     def encode(self, texts: Sequence[str], max_len: int | None = None) -> tuple[Encoded, np.ndarray]:
         enc = self.tokenizer.encode(texts, max_len)
         return enc, np.asarray(self(enc.ids_BxL, enc.mask_BxL))
