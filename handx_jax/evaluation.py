@@ -53,6 +53,7 @@ from handx_jax import representation as rep
 from handx_jax.io import DataError, atomic_write_bytes, atomic_write_json, read_format_meta
 from handx_jax.metrics import MetricConfig, replicate_embedding_metrics, replicate_motion_metrics
 from handx_jax.models.evaluator import PRESETS, Evaluator, EvaluatorConfig, evaluator_loss
+from handx_jax.text.cache import bucket_length
 
 FORMAT, FORMAT_VERSION = "handx-jax-evaluator", 1
 META_FILE, PARAMS_FILE, STATS_FILE, EVAL_FILE = "evaluator.json", "params.msgpack", "norm_stats.npz", "eval.json"
@@ -131,8 +132,7 @@ class TrainingData:
         # concise levels then cost a fraction of Lmax, and at most Lmax/bucket step shapes are compiled.
         # Masking makes the loss independent of the padding; on an accelerator, where each new shape
         # is a compile of the whole step, pass a bucket ≥ Lmax (one shape).
-        b = max(self.text_bucket, 1)
-        Lb = min(m.shape[1], -(-int(m.sum(1).max()) // b) * b)
+        Lb = bucket_length(int(m.sum(1).max()), max(self.text_bucket, 1), m.shape[1])
         return {"motion": motion_features(joints, self.stats), "text": np.asarray(h[:, :Lb], np.float32),
                 "text_mask": np.asarray(m[:, :Lb], bool)}
 
@@ -238,7 +238,7 @@ class TrainedEvaluator:
         order = np.argsort(-lengths, kind="stable")  # longest first: each chunk padded to its own bucket
         for s in range(0, n, B):
             sel = order[s:s + B]
-            Lb = int(min(L, -(-int(lengths[sel].max()) // 32) * 32))
+            Lb = bucket_length(int(lengths[sel].max()), 32, L)
             ids = np.zeros((B, Lb), np.int32)
             mask = np.zeros((B, Lb), np.int32)
             ids[len(sel):, 0], mask[len(sel):, 0] = 1, 1  # filler rows: a lone eos

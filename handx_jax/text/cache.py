@@ -60,8 +60,10 @@ def caption_table(texts: Sequence[dict], fields: Sequence[str]) -> tuple[list[st
     return list(uniq), rows
 
 
-def _bucket(n: int, step: int, cap: int) -> int:
-    return min(cap, -(-n // step) * step)
+def bucket_length(n: int, step: int, cap: int) -> int:
+    """``n`` tokens rounded up to a multiple of ``step``, at most ``cap``: the padded length of a batch
+    whose longest sequence has n tokens (few distinct shapes → few compiles, little padding)."""
+    return int(min(cap, -(-n // step) * step))
 
 
 def joined_texts(texts: Sequence[dict]) -> list[dict]:
@@ -119,7 +121,7 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
         order = np.argsort(-kept, kind="stable")
         for s in range(0, len(order), batch_size):
             sel = order[s:s + batch_size]
-            Lb = _bucket(int(kept[sel].max()), 16, L)
+            Lb = bucket_length(int(kept[sel].max()), 16, L)
             ids = np.zeros((batch_size, Lb), np.int32)
             m = np.zeros((batch_size, Lb), np.int32)
             ids[len(sel):, 0] = 1  # filler rows: a lone eos, so no row is fully masked
