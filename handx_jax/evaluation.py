@@ -79,14 +79,32 @@ class TextPolicy:
 # Features
 
 
-def motion_features(joints_NxTx2x21x3: np.ndarray, stats: rep.NormStats) -> np.ndarray:
-    """Evaluator input ``(N, T, 126)`` float32: per-frame right-wrist centring, then z-scoring (§5.3)."""
-    x = rep.to_evaluator(np.asarray(joints_NxTx2x21x3, np.float32))
+def motion_features(joints_NxTx2x21x3: np.ndarray, stats: rep.NormStats, kind: str = "positions") -> np.ndarray:
+    """Evaluator input ``(N, T, F)`` float32, then z-scored. ``kind`` "positions": per-frame right-wrist
+    centring (§5.3, F = 126); "hand_frames": those plus derived features (F = 307)."""
+    fn, _ = rep.EVALUATOR_INPUTS[kind]
+    x = fn(np.asarray(joints_NxTx2x21x3, np.float32))
     return np.asarray(stats.normalize(x), np.float32)
 
 
-def evaluator_stats(ds) -> rep.NormStats:
-    return rep.NormStats.from_npz_dict(ds.stats, "evaluator")
+STATS_CLIPS = 4096  # clips (evenly spaced over the train split) behind the "hand_frames" statistics
+
+
+def evaluator_stats(ds, kind: str = "positions", clips: np.ndarray | None = None) -> rep.NormStats:
+    """Normalisation of the evaluator input. "positions": the dataset's ``evaluator_mean/std`` (train
+    split, written at build time). Other inputs: mean/std over frames of up to :data:`STATS_CLIPS`
+    evenly spaced ``clips`` (default the train split); constant features (e.g. the middle MCP's
+    local y, z, zero by construction) get std 1. Stored with the evaluator, so evaluation reuses them."""
+    if kind == "positions":
+        return rep.NormStats.from_npz_dict(ds.stats, "evaluator")
+    clips = np.sort(np.asarray(ds.split("train") if clips is None else clips, np.int64))
+    if len(clips) == 0:
+        raise DataError("no clips to compute evaluator input statistics from", path=ds.root)
+    pick = clips[np.unique(np.linspace(0, len(clips) - 1, min(len(clips), STATS_CLIPS)).round().astype(np.int64))]
+    fn, dim = rep.EVALUATOR_INPUTS[kind]
+    x = fn(np.asarray(ds.motion[pick], np.float32)).reshape(-1, dim).astype(np.float64)
+    std = x.std(0)
+    return rep.NormStats(mean=x.mean(0), std=np.where(std < 1e-4, 1.0, std))
 
 
 def joined_caption(left: str, right: str, interaction: str) -> str:
@@ -106,8 +124,9 @@ class TrainingData:
     """(clip, level) items of one split: motion from the dataset memmap, text from the joined cache."""
 
     def __init__(self, ds, cache, stats: rep.NormStats, clips: np.ndarray, levels: Sequence[int], seed: int,
-                 text_bucket: int = 16):
+                 text_bucket: int = 16, motion_input: str = "positions"):
         self.ds, self.cache, self.stats = ds, cache, stats
+        self.motion_input = motion_input
         self.clips = np.asarray(clips, np.int64)
         self.levels = np.asarray(levels, np.int64)
         self.seed = int(seed)
@@ -133,7 +152,7 @@ class TrainingData:
         # Masking makes the loss independent of the padding; on an accelerator, where each new shape
         # is a compile of the whole step, pass a bucket ≥ Lmax (one shape).
         Lb = bucket_length(int(m.sum(1).max()), max(self.text_bucket, 1), m.shape[1])
-        return {"motion": motion_features(joints, self.stats), "text": np.asarray(h[:, :Lb], np.float32),
+        return {"motion": motion_features(joints, self.stats, self.motion_input), "text": np.asarray(h[:, :Lb], np.float32),
                 "text_mask": np.asarray(m[:, :Lb], bool)}
 
 
@@ -220,7 +239,7 @@ class TrainedEvaluator:
         out = np.zeros((n, self.cfg.latent), np.float32)
         B = _chunk_size(n, self.batch_size)
         for s in range(0, n, B):
-            x = motion_features(joints[s:s + B], self.stats)
+            x = motion_features(joints[s:s + B], self.stats, self.cfg.motion_input)
             k = x.shape[0]
             out[s:s + k] = np.asarray(self._motion_fn(self.params, jnp.asarray(_pad_rows(x, B))))[:k]
         return out
@@ -292,7 +311,12 @@ def load_evaluator(root: str | os.PathLike, *, encoder: str | os.PathLike | None
 
     root = Path(root)
     meta = read_meta(root)
-    cfg = EvaluatorConfig(**meta["evaluator_config"])
+    cfg_d = dict(meta["evaluator_config"])
+    stored_dim = cfg_d.pop("motion_dim", None)  # written by earlier versions; now derived from motion_input
+    cfg = EvaluatorConfig(**cfg_d)
+    if stored_dim is not None and stored_dim != cfg.motion_dim:
+        raise DataError(f"evaluator_config.motion_dim is {stored_dim}, but motion_input {cfg.motion_input!r} has "
+                        f"{cfg.motion_dim} features", path=root / META_FILE)
     policy = _policy_from_json(meta["text"])
     enc_path = Path(encoder) if encoder is not None else Path(meta["encoder"]["path"])
     enc = load_hf_t5_encoder(enc_path)
@@ -388,12 +412,12 @@ def train_evaluator(data: str | os.PathLike, encoder: str | os.PathLike, out: st
     _level_index(policy.eval_level, levels)
     build_cache(data, encoder, joined=True, max_len=policy.max_len, dtype=policy.cache_dtype, log=log)
     cache = open_cache(data, encoder, joined=True, max_len=policy.max_len, dtype=policy.cache_dtype)
-    stats = evaluator_stats(ds)
+    cfg = model_config(preset, enc.cfg.d_model, overrides)
     clips = ds.split("train")
     if len(clips) < 2:
         raise DataError(f"train split has {len(clips)} clips; the contrastive loss needs at least 2", path=ds.root)
-    tdata = TrainingData(ds, cache, stats, clips, train_levels, seed, text_bucket)
-    cfg = model_config(preset, enc.cfg.d_model, overrides)
+    stats = evaluator_stats(ds, cfg.motion_input, clips)
+    tdata = TrainingData(ds, cache, stats, clips, train_levels, seed, text_bucket, cfg.motion_input)
     model = Evaluator(cfg)
     Lmax = int(cache.meta["Lmax"])
     init = lambda rng: _init_params(cfg, Lmax, rng)  # noqa: E731
@@ -438,7 +462,8 @@ def train_evaluator(data: str | os.PathLike, encoder: str | os.PathLike, out: st
         "encoder": {"path": str(Path(encoder).absolute()), "fingerprint": enc.fingerprint,
                     "tokenizer_fingerprint": enc.tokenizer.fingerprint, "d_model": enc.cfg.d_model},
         "text_cache": {"fingerprint": cache.fingerprint, "dtype": policy.cache_dtype},
-        "normalisation": "to_evaluator (per-frame right-wrist centring) then (x - evaluator_mean) / std",
+        "normalisation": (f"motion_input {cfg.motion_input!r} (representation.EVALUATOR_INPUTS; both start with "
+                          f"the per-frame right-wrist centring) then (x - mean) / std of {STATS_FILE}"),
         "training": {"steps": int(res["step"]), "batch_size": batch_size, "lr": lr, "warmup": warmup,
                      "schedule": schedule, "weight_decay": weight_decay, "seed": seed,
                      "wall_seconds_this_process": wall,

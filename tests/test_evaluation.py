@@ -321,3 +321,62 @@ def test_item_levels_are_a_function_of_the_batch(setup):
     batch = td.batch(idx)
     assert batch["motion"].shape == (8, 60, 126) and batch["text"].shape[:2] == batch["text_mask"].shape
     assert batch["text"].shape[1] % 16 == 0 or batch["text"].shape[1] == cache.meta["Lmax"]
+
+
+def test_hand_frames_input_with_patches_trains_saves_and_reloads(setup, tmp_path):
+    """The derived-feature input (307 per frame) and 2-frame tokens: own statistics, stored and reused."""
+    import jax
+
+    from handx_jax import representation as rep
+    from handx_jax.evaluation import _init_params
+    from handx_jax.models.evaluator import Evaluator, evaluator_loss
+    from handx_jax.text.cache import open_cache
+
+    root, data, _ = setup
+    ds = Dataset.open(data)
+    over = {"motion_input": "hand_frames", "motion_patch": 2}
+    E = train_evaluator(data, ENCODER, tmp_path / "E", steps=40, final_eval=False, overrides=over, **TINY)
+    ev = load_evaluator(E)
+    assert ev.cfg.motion_input == "hand_frames" and ev.cfg.motion_patch == 2 and ev.cfg.motion_dim == 307
+    # statistics are the train split's, per feature; constant features (middle MCP local y, z) get std 1
+    train = np.sort(ds.split("train"))
+    x = rep.to_evaluator_hand_frames(np.asarray(ds.motion[train], np.float32)).reshape(-1, 307).astype(np.float64)
+    np.testing.assert_allclose(ev.stats.mean, x.mean(0), rtol=1e-5, atol=1e-6)
+    mid = 126 + 3 * 3  # left hand, joint 4 (middle MCP) in the local block: x, y, z
+    assert ev.stats.std[mid + 1] == 1.0 and ev.stats.std[mid + 2] == 1.0 and ev.stats.std[mid] < 1.0
+    clips = ds.split("test")
+    m1 = ev.embed_motion(ds.motion[clips])
+    np.testing.assert_array_equal(load_evaluator(E).embed_motion(ds.motion[clips]), m1)
+    # training lowered the contrastive loss on a fixed batch of the same input
+    cache = open_cache(data, ENCODER, joined=True, max_len=64)
+    td = TrainingData(ds, cache, ev.stats, ds.split("train"), [0], 0, motion_input="hand_frames")
+    batch = td.batch(np.arange(len(td)), np.zeros(len(td), int))
+    assert batch["motion"].shape == (len(td), 60, 307)
+    loss = lambda p: float(evaluator_loss(Evaluator(ev.cfg), p, batch, jax.random.PRNGKey(0), False)[1]["infonce"])  # noqa: E731
+    assert loss(ev.params) < loss(_init_params(ev.cfg, 64, jax.random.fold_in(jax.random.PRNGKey(42), 0))) - 0.5
+    res = evaluate_ground_truth(ev, ds, CFG, cache=False)
+    assert res.metrics["fid"][0] == pytest.approx(0.0, abs=1e-4) and 0.0 <= res.metrics["rprec_top1"][0] <= 1.0
+
+
+def test_evaluator_config_checks_and_legacy_meta(setup, tmp_path):
+    from handx_jax.models.evaluator import EvaluatorConfig
+
+    with pytest.raises(ValueError, match="unknown evaluator motion_input 'joints'"):
+        EvaluatorConfig(motion_input="joints")
+    with pytest.raises(ValueError, match="motion_patch 7 must be"):
+        EvaluatorConfig(motion_patch=7)
+    root, data, E = setup
+    # folders written before motion_input existed stored motion_dim: 126 loads, anything else is refused
+    old = shutil.copytree(E, tmp_path / "old", ignore=shutil.ignore_patterns(REFERENCE_CACHE_DIR))
+    meta = json.loads((old / "evaluator.json").read_text())
+    del meta["evaluator_config"]["motion_input"], meta["evaluator_config"]["motion_patch"]
+    meta["evaluator_config"]["motion_dim"] = 126
+    (old / "evaluator.json").write_text(json.dumps(meta))
+    ds = Dataset.open(data)
+    clips = ds.split("test")
+    np.testing.assert_array_equal(load_evaluator(old).embed_motion(ds.motion[clips]),
+                                  load_evaluator(E).embed_motion(ds.motion[clips]))
+    meta["evaluator_config"]["motion_dim"] = 130
+    (old / "evaluator.json").write_text(json.dumps(meta))
+    with pytest.raises(DataError, match="motion_dim is 130"):
+        load_evaluator(old)

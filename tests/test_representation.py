@@ -279,6 +279,32 @@ def test_evaluator_features():
     np.testing.assert_allclose(e[..., 3 * 5:3 * 6], (j[:, :, 0, 5] - j[:, :, 1, 0]), atol=1e-7)
 
 
+def test_evaluator_hand_frames_features():
+    j = np.stack([smooth_clip(12), smooth_clip(13)]).astype(np.float64)
+    f = rep.to_evaluator_hand_frames(j)
+    assert f.shape == (2, sk.CLIP_LEN, rep.EVALUATOR_HAND_FRAMES_DIM) == (2, sk.CLIP_LEN, 307)
+    np.testing.assert_array_equal(f[..., :126], rep.to_evaluator(j))  # the reference's 126 come first
+    # the local block is exactly §2.1's local positions of joints 1..20
+    np.testing.assert_allclose(f[..., 126:246].reshape(2, sk.CLIP_LEN, 2, 20, 3),
+                               rep.local_positions(j)[..., 1:, :], atol=1e-12)
+    # known distances: thumb tip to index tip (left hand), left thumb tip to right pinky tip
+    tips = j[..., list(sk.TIPS), :]
+    np.testing.assert_allclose(f[..., 264], np.linalg.norm(tips[..., 0, 1, :] - tips[..., 0, 0, :], axis=-1))
+    np.testing.assert_allclose(f[..., 272 + 4], np.linalg.norm(tips[..., 0, 0, :] - tips[..., 1, 4, :], axis=-1))
+    # everything after the 126 is invariant to a rigid motion of the whole scene
+    R, t = _rodrigues(np.array([0.3, -1.1, 0.7])), np.array([0.4, -0.2, 1.0])
+    g = rep.to_evaluator_hand_frames(j @ R.T + t)
+    np.testing.assert_allclose(g[..., 126:246], f[..., 126:246], atol=1e-10)
+    np.testing.assert_allclose(g[..., 264:], f[..., 264:], atol=1e-10)
+    # a collapsed hand (generated motion can do this) gives finite features, not an error
+    bad = j.copy()
+    bad[0, 5, sk.LEFT] = bad[0, 5, sk.LEFT, :1]
+    with pytest.raises(ValueError, match="degenerate"):
+        rep.wrist_frames(bad)
+    assert np.isfinite(rep.to_evaluator_hand_frames(bad)).all()
+    assert rep.to_evaluator_hand_frames(j.astype(np.float32)).dtype == np.float32
+
+
 # ----------------------------------------------------------------------------------------------
 # normalisation statistics
 
