@@ -76,6 +76,9 @@ def joined_texts(texts: Sequence[dict]) -> list[dict]:
             for t in texts]
 
 
+CHUNK_BYTES = 256 << 20  # RAM staging of the cache build: rows per chunk = this / (Lmax · d_model · itemsize)
+
+
 def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, max_len: int = 128,
                 dtype: str = "float16", batch_size: int = 128, overwrite: bool = False, joined: bool = False,
                 log: Callable[[str], None] = print) -> Path:
@@ -117,22 +120,33 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
         import jax.numpy as jnp
 
         encode = jax.jit(enc.stored_forward(dtype))
-        # Longest first, padded to a multiple of 16 tokens: few distinct shapes (few compiles), little padding.
-        order = np.argsort(-kept, kind="stable")
-        for s in range(0, len(order), batch_size):
-            sel = order[s:s + batch_size]
-            Lb = bucket_length(int(kept[sel].max()), 16, L)
-            ids = np.zeros((batch_size, Lb), np.int32)
-            m = np.zeros((batch_size, Lb), np.int32)
-            ids[len(sel):, 0] = 1  # filler rows: a lone eos, so no row is fully masked
-            m[len(sel):, 0] = 1
-            for r, k in enumerate(sel):
-                seq = seqs[k] if len(seqs[k]) <= L else seqs[k][:L - 1] + [1]
-                ids[r, :len(seq)] = seq
-                m[r, :len(seq)] = 1
-            # Padded positions are stored as exact zeros.
-            hidden[sel, :Lb] = np.asarray(encode(enc.params, jnp.asarray(ids), jnp.asarray(m)))[:len(sel)]
-            mask[sel, :Lb] = m[:len(sel)].astype(bool)
+        # Rows are encoded in consecutive chunks that are staged in RAM and written to the memmaps in
+        # order: scattering each batch's rows over the whole file made the kernel write the same pages
+        # back again and again (a 60k-clip joined cache, 9.8 GB, had written 180 GB after 19 minutes).
+        # Within a chunk, longest first, padded to a multiple of 16 tokens: few distinct shapes (few
+        # compiles), little padding.
+        chunk = max(batch_size, CHUNK_BYTES // max(L * D * np.dtype(dtype).itemsize, 1))
+        for c0 in range(0, len(texts), chunk):
+            c1 = min(c0 + chunk, len(texts))
+            h_buf = np.zeros((c1 - c0, L, D), dtype)
+            m_buf = np.zeros((c1 - c0, L), np.bool_)
+            order = c0 + np.argsort(-kept[c0:c1], kind="stable")
+            for s in range(0, len(order), batch_size):
+                sel = order[s:s + batch_size]
+                Lb = bucket_length(int(kept[sel].max()), 16, L)
+                ids = np.zeros((batch_size, Lb), np.int32)
+                m = np.zeros((batch_size, Lb), np.int32)
+                ids[len(sel):, 0] = 1  # filler rows: a lone eos, so no row is fully masked
+                m[len(sel):, 0] = 1
+                for r, k in enumerate(sel):
+                    seq = seqs[k] if len(seqs[k]) <= L else seqs[k][:L - 1] + [1]
+                    ids[r, :len(seq)] = seq
+                    m[r, :len(seq)] = 1
+                # Padded positions are stored as exact zeros.
+                h_buf[sel - c0, :Lb] = np.asarray(encode(enc.params, jnp.asarray(ids), jnp.asarray(m)))[:len(sel)]
+                m_buf[sel - c0, :Lb] = m[:len(sel)].astype(bool)
+            hidden[c0:c1] = h_buf
+            mask[c0:c1] = m_buf
         hidden.flush()
         mask.flush()
         del hidden, mask
