@@ -82,16 +82,23 @@ def wrist_frames(joints_x2x21x3: np.ndarray, *, eps: float = DEGENERATE_EPS) -> 
     p = np.asarray(joints_x2x21x3)
     _check_trailing(p, (2, sk.NUM_JOINTS, 3), "wrist_frames")
     dt = _out_dtype(p)
-    p = p.astype(np.float64, copy=False)
-    w = p[..., _WRIST, :]
-    ex, nx = _normalize(p[..., _MIDDLE_MCP, :] - w)
-    ey0, ny0 = _normalize(p[..., _INDEX_MCP, :] - w)
+    R, (nx, ny0, nz) = _frame_axes(p.astype(np.float64, copy=False))
     _raise_degenerate(nx <= eps, "wrist and middle MCP coincide")
     _raise_degenerate(ny0 <= eps, "wrist and index MCP coincide")
-    ez, nz = _normalize(np.cross(ex, ey0))
     _raise_degenerate(nz <= eps, "wrist→middle-MCP and wrist→index-MCP are parallel")
-    ey, _ = _normalize(np.cross(ez, ex))
-    return np.stack([ex, ey, ez], axis=-1).astype(dt, copy=False)
+    return R.astype(dt, copy=False)
+
+
+def _frame_axes(p: np.ndarray, floor: float = 0.0) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+    """§2.1 frames ``(..., 2, 3, 3)`` (columns x̂, ŷ, ẑ) in ``p``'s precision, and the norms of
+    (middle MCP − wrist, index MCP − wrist, x̂ × ŷ₀) for the degeneracy checks. ``floor`` > 0 clamps
+    the divisors, so degenerate hands give zero axes instead of NaN."""
+    w = p[..., _WRIST, :]
+    ex, nx = _normalize(p[..., _MIDDLE_MCP, :] - w, floor)
+    ey0, ny0 = _normalize(p[..., _INDEX_MCP, :] - w, floor)
+    ez, nz = _normalize(_cross(ex, ey0), floor)
+    ey, _ = _normalize(_cross(ez, ex), floor)
+    return np.stack([ex, ey, ez], axis=-1), (nx, ny0, nz)
 
 
 def local_positions(joints_x2x21x3: np.ndarray, rotations_x2x3x3: np.ndarray | None = None) -> np.ndarray:
@@ -359,11 +366,7 @@ def to_evaluator_hand_frames(joints_xTx2x21x3: np.ndarray) -> np.ndarray:
     p = p.astype(dt, copy=False)
     lead = p.shape[:-3]
     w = p[..., _WRIST, :]
-    ex, _ = _normalize(p[..., _MIDDLE_MCP, :] - w, 1e-9)
-    ey0, _ = _normalize(p[..., _INDEX_MCP, :] - w, 1e-9)
-    ez, _ = _normalize(_cross(ex, ey0), 1e-9)
-    ey, _ = _normalize(_cross(ez, ex), 1e-9)
-    R = np.stack([ex, ey, ez], axis=-1)                                    # (..., 2, 3, 3), columns = axes
+    R, _ = _frame_axes(p, 1e-9)                                            # (..., 2, 3, 3), columns = axes
     local = (p[..., 1:, :] - w[..., None, :]) @ R                          # (..., 2, 20, 3): dᵀR = (Rᵀd)ᵀ
     tips = p[..., list(sk.TIPS), :]                                        # (..., 2, 5, 3)
     intra = np.linalg.norm(tips[..., 1:, :] - tips[..., :1, :], axis=-1)   # (..., 2, 4)
