@@ -9,6 +9,8 @@
 # count it picked is in the log and in OUT/evaluator/config.json. Extra settings go in EVAL_SET
 # (space-separated key=value pairs for --set), e.g. EVAL_SET="eval_level=-1". Text is padded to one shape
 # (text_bucket = MAX_LEN): on an accelerator every new text length would recompile the whole step.
+# TRAIN_LEVELS (default all) and WARMUP (default 300) pass through; MAX_STEPS caps the probe's step count
+# (more epochs than the corpus supports only overfits it).
 # PACK=DIR also writes the evaluator's files (no checkpoints) as DIR/evaluator.tar.NN pieces of 15 MB.
 set -euo pipefail
 OUT=${1:?usage: $0 OUT ENCODER [TRAIN_SECONDS]}
@@ -21,6 +23,8 @@ BATCH=${BATCH:-256}
 LR=${LR:-2e-4}
 MAX_LEN=${MAX_LEN:-384}
 PY=${PYTHON:-python3}
+TRAIN_LEVELS=${TRAIN_LEVELS:-all}
+WARMUP=${WARMUP:-300}
 SETS=(--set "max_len=$MAX_LEN" --set "text_bucket=$MAX_LEN")
 for kv in ${EVAL_SET:-}; do SETS+=(--set "$kv"); done
 mkdir -p "$OUT"
@@ -35,15 +39,15 @@ if [ -n "${STEPS:-}" ]; then
 else
 rm -rf /tmp/handx-probe
 $PY -m handx_jax eval train-evaluator --data "$DATA" --encoder "$ENC" --out /tmp/handx-probe --preset "$PRESET" \
-  --steps 40 --batch-size "$BATCH" --lr "$LR" --train-levels all --no-final-eval "${SETS[@]}" \
+  --steps 40 --batch-size "$BATCH" --lr "$LR" --train-levels "$TRAIN_LEVELS" --no-final-eval "${SETS[@]}" \
   --set log_every=20 --set ckpt_every=100000 --set wandb=disabled
 RATE=$($PY -c "import json;r=[json.loads(l) for l in open('/tmp/handx-probe/metrics.jsonl')];print(r[-1]['samples_per_s'])")
-STEPS=$($PY -c "print(max(200, int($RATE * $BUDGET / $BATCH)))")
+STEPS=$($PY -c "print(min(${MAX_STEPS:-10**9}, max(200, int($RATE * $BUDGET / $BATCH))))")
 echo "probe: $RATE samples/s -> $STEPS steps of batch $BATCH for ${BUDGET} s (setup so far $(( $(date +%s) - t0 )) s)"
 fi
 
 $PY -m handx_jax eval train-evaluator --data "$DATA" --encoder "$ENC" --out "$OUT/evaluator" --preset "$PRESET" \
-  --steps "$STEPS" --batch-size "$BATCH" --lr "$LR" --warmup 300 --train-levels all "${SETS[@]}" \
+  --steps "$STEPS" --batch-size "$BATCH" --lr "$LR" --warmup "$WARMUP" --train-levels "$TRAIN_LEVELS" "${SETS[@]}" \
   --set log_every=200 --set ckpt_every=100000 --set wandb=disabled
 echo "trained: $(( $(date +%s) - t0 )) s"
 if [ -n "${PACK:-}" ]; then
