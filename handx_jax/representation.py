@@ -500,10 +500,18 @@ def compute_norm_stats(x: np.ndarray | Iterable[np.ndarray], *, axis: int | tupl
             raise ValueError(f"compute_norm_stats: chunk shape {c.shape} does not match the first chunk")
         if c.shape[0] == 0:
             continue
-        c64 = c.astype(np.float64, copy=False)
-        cs, css = c64.sum(axis=axes), np.square(c64).sum(axis=axes)
+        cs, css, cn = _moments(c, axes)
         s, ss = (cs, css) if s is None else (s + cs, ss + css)
-        n += int(np.prod([c.shape[a] for a in axes]))
+        n += cn
+    return _stats_from_sums(s, ss, n, min_std=min_std, eps=eps)
+
+
+def _moments(c: np.ndarray, axes: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray, int]:
+    c64 = c.astype(np.float64, copy=False)
+    return c64.sum(axis=axes), np.square(c64).sum(axis=axes), int(np.prod([c.shape[a] for a in axes]))
+
+
+def _stats_from_sums(s, ss, n: int, *, min_std: float, eps: float) -> NormStats:
     if n == 0:
         raise ValueError("compute_norm_stats: no data")
     if not (np.all(np.isfinite(s)) and np.all(np.isfinite(ss))):
@@ -521,15 +529,28 @@ def compute_preset_stats(kind: str, features: np.ndarray | Iterable[np.ndarray],
     Every axis before the preset's feature shape is reduced (e.g. clips and frames).
     """
     pr = _preset(kind)
-    k = len(pr.feature_shape)
+    flat = (_flat_features(kind, c) for c in _iter_chunks(features, chunk_size))
+    return compute_norm_stats(flat, axis=0, min_std=pr.min_std, eps=pr.eps, chunk_size=chunk_size)
 
-    def flat() -> Iterator[np.ndarray]:
-        for c in _iter_chunks(features, chunk_size):
-            if c.ndim <= k or tuple(c.shape[-k:]) != pr.feature_shape:
-                raise ValueError(f"{kind} stats: features must end in {pr.feature_shape}, got {c.shape}")
-            yield c.reshape(-1, *pr.feature_shape)
 
-    return compute_norm_stats(flat(), axis=0, min_std=pr.min_std, eps=pr.eps, chunk_size=chunk_size)
+def _flat_features(kind: str, c: np.ndarray) -> np.ndarray:
+    fs = _preset(kind).feature_shape
+    if c.ndim <= len(fs) or tuple(c.shape[-len(fs):]) != fs:
+        raise ValueError(f"{kind} stats: features must end in {fs}, got {c.shape}")
+    return c.reshape(-1, *fs)
+
+
+def preset_moments(kind: str, features: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Float64 sum, sum of squares and count of one chunk of preset ``kind``'s features, reduced over
+    every axis before the feature shape: what :func:`compute_preset_stats` adds up per chunk, for
+    summing chunks computed elsewhere (another process) and finishing with :func:`stats_from_moments`."""
+    return _moments(_flat_features(kind, np.asarray(features)), (0,))
+
+
+def stats_from_moments(kind: str, s: np.ndarray, ss: np.ndarray, n: int) -> NormStats:
+    """Mean/std under preset ``kind`` from summed :func:`preset_moments`."""
+    pr = _preset(kind)
+    return _stats_from_sums(s, ss, n, min_std=pr.min_std, eps=pr.eps)
 
 
 def compute_norm_stats_streaming(chunks: Iterable[np.ndarray], *, preset: str) -> NormStats:

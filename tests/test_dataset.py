@@ -113,3 +113,25 @@ def test_existing_dataset_is_not_overwritten(tmp_path):
     with pytest.raises(FileExistsError):
         write_dataset(tmp_path / "d", _motion(3, seed=1), _texts(3), stats=False)
     assert Dataset.open(tmp_path / "d").fingerprint == fp
+
+
+def test_stats_npz_same_bits_for_any_worker_count(tmp_path, monkeypatch):
+    """stats.npz is summed from fixed clip chunks in chunk order: 1 or 3 processes give the same bytes,
+    and the values are the train split's mean/std computed in one piece."""
+    from handx_jax import representation as rep
+    from handx_jax.data import dataset as dataset_mod
+    from handx_jax.data.stats import dataset_stats
+
+    monkeypatch.setattr(dataset_mod, "STATS_CHUNK", 4)  # 11 train clips → chunks of 4, 4, 3
+    m = _motion(14, seed=4)
+    splits = {"train": list(range(11)), "val": [11], "test": [12, 13]}
+    for w in (1, 3):
+        write_dataset(tmp_path / f"w{w}", m, _texts(14), splits=splits, workers=w)
+    assert (tmp_path / "w1/stats.npz").read_bytes() == (tmp_path / "w3/stats.npz").read_bytes()
+    ds = Dataset.open(tmp_path / "w3")
+    with np.load(tmp_path / "w3/stats.npz") as z:
+        for kind, fn in (("diffusion", rep.to_diffusion), ("ar", rep.to_ar), ("evaluator", rep.to_evaluator)):
+            whole = rep.compute_preset_stats(kind, fn(m[:11].astype(np.float64)), chunk_size=10 ** 6)
+            np.testing.assert_allclose(z[f"{kind}_mean"], whole.mean, rtol=1e-10, atol=1e-12)
+            np.testing.assert_allclose(z[f"{kind}_std"], whole.std, rtol=1e-10, atol=1e-12)
+    assert dataset_stats(ds, chunk=5, workers=1) == dataset_stats(ds, chunk=5, workers=3) == dataset_stats(ds)

@@ -9,21 +9,22 @@ is exercised for real. Work is split into chunks of sequences; chunk ``k`` depen
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
+import itertools
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
-import multiprocessing as mp
 import numpy as np
 
 from handx_jax import skeleton as sk
 from handx_jax.data.clips import ClipConfig, ClipReport, extract_clips
 from handx_jax.data.dataset import DEFAULT_FRACTIONS, write_dataset
 from handx_jax.data.events import AnnotationConfig, annotate
+from handx_jax.data.parallel import map_ordered
 from handx_jax.data.caption import TemplateCaptioner
 from handx_jax.data.synth import SynthConfig, synth_chunk
 
@@ -115,23 +116,7 @@ def _caption_seed(seed: int, clip_id: str) -> int:
 
 def _chunks(cfg: BuildConfig, workers: int) -> Iterator[ChunkResult]:
     """Chunk results in chunk order, computed ``workers`` at a time."""
-    if workers <= 1:
-        k = 0
-        while True:
-            yield process_chunk(cfg, k)
-            k += 1
-    ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
-        pending, k = [], 0
-        try:
-            while True:
-                while len(pending) < 2 * workers:
-                    pending.append(ex.submit(process_chunk, cfg, k))
-                    k += 1
-                yield pending.pop(0).result()
-        finally:
-            for f in pending:
-                f.cancel()
+    return map_ordered(functools.partial(process_chunk, cfg), itertools.count(), workers)
 
 
 def build_corpus(out: str | os.PathLike, cfg: BuildConfig = BuildConfig(), *, overwrite: bool = False,
@@ -190,7 +175,8 @@ def build_corpus(out: str | os.PathLike, cfg: BuildConfig = BuildConfig(), *, ov
     }
     source = {"kind": "synth", "seed": cfg.seed, "config": _jsonable(dataclasses.asdict(cfg))}
     return write_dataset(out, motion, texts, splits=splits, events=events, source=source,
-                         report=build_report, fractions=cfg.fractions, seed=cfg.seed, overwrite=overwrite)
+                         report=build_report, fractions=cfg.fractions, seed=cfg.seed, overwrite=overwrite,
+                         workers=workers)
 
 
 def _truncate(r: ChunkResult, k: int) -> ChunkResult:

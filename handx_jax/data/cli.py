@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -92,7 +93,7 @@ def _synth(a: argparse.Namespace) -> int:
     c = rep.get("clips", {})
     print(f"cut: {c.get('windows', 0)} windows from {c.get('sequences', 0)} sequences; "
           f"defective frames {c.get('defective_frames', {})}; rejected by intensity {c.get('rejected_intensity', {})}")
-    print(format_stats(dataset_stats(ds)))
+    print(format_stats(dataset_stats(ds, workers=a.workers or os.cpu_count() or 1)))
     return 0
 
 

@@ -16,6 +16,7 @@ is always complete. Readers validate on open and raise ``DataError`` naming the 
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -27,6 +28,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from handx_jax import skeleton as sk
+from handx_jax.data.parallel import map_ordered
 from handx_jax.io import DataError, atomic_dir, atomic_write_json, read_format_meta, read_jsonl
 
 FORMAT = "handx-jax-dataset"
@@ -107,10 +109,12 @@ def write_dataset(
     seed: int = 0,
     overwrite: bool = False,
     stats: bool = True,
+    workers: int = 1,
 ) -> Path:
     """Write a complete dataset atomically. ``motion`` may be a memory-mapped array.
 
-    Without ``splits`` every clip goes to train. Fractions are nested subsets of train.
+    Without ``splits`` every clip goes to train. Fractions are nested subsets of train. ``workers``
+    processes compute the normalisation statistics (the numbers do not depend on it).
     """
     motion = np.asarray(motion) if not isinstance(motion, np.memmap) else motion
     n = motion.shape[0]
@@ -149,7 +153,7 @@ def write_dataset(
         if report is not None:
             atomic_write_json(tmp / "report.json", report)
         if stats and split_doc["train"]:
-            _write_stats(tmp, split_doc["train"])
+            _write_stats(tmp, split_doc["train"], workers)
         meta = {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
@@ -174,18 +178,35 @@ def _write_lines(path: Path, rows: Sequence[Any]) -> None:
             f.write(json.dumps(r, separators=(",", ":"), ensure_ascii=False) + "\n")
 
 
-def _write_stats(root: Path, train_idx: Sequence[int]) -> None:
+STATS_CHUNK = 2048  # clips per statistics task; fixed, so the float64 sums are added in one order
+
+
+def _write_stats(root: Path, train_idx: Sequence[int], workers: int = 1) -> None:
+    """stats.npz: mean/std of each representation over the train split (§1.8), in clip chunks whose
+    float64 moments are summed in chunk order, so ``workers`` changes the time but not one bit."""
     from handx_jax import representation as rep
 
-    motion = np.load(root / "motion.npy", mmap_mode="r")
     idx = np.asarray(sorted(train_idx))
+    tasks = (idx[s:s + STATS_CHUNK] for s in range(0, len(idx), STATS_CHUNK))
+    totals: dict[str, list] = {}
+    for moments in map_ordered(functools.partial(_chunk_moments, str(root / "motion.npy")), tasks, workers):
+        for name, (s, ss, n) in moments.items():
+            t = totals.setdefault(name, [0.0, 0.0, 0])  # 0.0 + s is exactly s
+            t[0], t[1], t[2] = t[0] + s, t[1] + ss, t[2] + n
     arrays = {}
-    for name, fn in (("diffusion", rep.to_diffusion), ("ar", rep.to_ar), ("evaluator", rep.to_evaluator)):
-        chunks = (fn(np.asarray(motion[idx[s:s + 2048]], dtype=np.float64)) for s in range(0, len(idx), 2048))
-        st = rep.compute_norm_stats_streaming(chunks, preset=name)
+    for name, (s, ss, n) in totals.items():
+        st = rep.stats_from_moments(name, s, ss, n)
         arrays[f"{name}_mean"] = st.mean
         arrays[f"{name}_std"] = st.std
     np.savez(root / "stats.npz", **arrays)
+
+
+def _chunk_moments(motion_path: str, idx: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray, int]]:
+    from handx_jax import representation as rep
+
+    m = np.asarray(np.load(motion_path, mmap_mode="r")[idx], dtype=np.float64)
+    return {name: rep.preset_moments(name, fn(m))
+            for name, fn in (("diffusion", rep.to_diffusion), ("ar", rep.to_ar), ("evaluator", rep.to_evaluator))}
 
 
 @dataclass

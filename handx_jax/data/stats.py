@@ -7,25 +7,27 @@ intensity is the bimanual intensity ω̄ of paper Eq. F (deg/s).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from handx_jax import skeleton as sk
 from handx_jax.data.clips import ClipConfig, hand_intensity
 from handx_jax.data.dataset import Dataset
 from handx_jax.data.features import contact_frames, contact_segments_stats
+from handx_jax.data.parallel import map_ordered
 
 
-def dataset_stats(ds: Dataset, *, chunk: int = 2048) -> dict:
+def dataset_stats(ds: Dataset, *, chunk: int = 2048, workers: int = 1) -> dict:
+    """Corpus summary; per-clip contact and intensity are computed by ``workers`` processes."""
     n = len(ds)
     fps = ds.meta.get("fps", sk.FPS)
     frames = n * ds.meta["clip_len"]
-    contact, inten = [], []
-    for s in range(0, n, chunk):
-        j = np.asarray(ds.motion[s:s + chunk], dtype=np.float32)
-        contact.append(contact_frames(j))
-        inten.append(hand_intensity(j, ClipConfig(fps=fps)))
-    contact_NxT = np.concatenate(contact) if n else np.zeros((0, ds.meta["clip_len"]), bool)
-    intensity = np.concatenate(inten) if n else np.zeros((0, 2))
+    per_chunk = list(map_ordered(functools.partial(_clip_quantities, str(ds.root / "motion.npy"), fps),
+                                 ((s, min(s + chunk, n)) for s in range(0, n, chunk)), workers))
+    contact_NxT = (np.concatenate([c for c, _ in per_chunk]) if n
+                   else np.zeros((0, ds.meta["clip_len"]), bool))
+    intensity = np.concatenate([i for _, i in per_chunk]) if n else np.zeros((0, 2))
     cs = contact_segments_stats(contact_NxT, fps=fps)
     levels = ds.meta.get("levels") or (len(ds.texts[0]["left"]) if n else 0)
     unique = {}
@@ -45,6 +47,11 @@ def dataset_stats(ds: Dataset, *, chunk: int = 2048) -> dict:
         "motion_intensity_per_hand": intensity.mean(0).round(2).tolist() if n else [0.0, 0.0],
         "unique_caption_fraction": unique,
     }
+
+
+def _clip_quantities(motion_path: str, fps: float, span: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    j = np.asarray(np.load(motion_path, mmap_mode="r")[span[0]:span[1]], dtype=np.float32)
+    return contact_frames(j), hand_intensity(j, ClipConfig(fps=fps))
 
 
 def format_stats(st: dict) -> str:
