@@ -33,3 +33,15 @@ def test_map_ordered_endless_input_and_early_close():
 def test_map_ordered_raises_the_workers_error(workers):
     with pytest.raises(ValueError, match="bad item 3"):
         list(map_ordered(_fail_on_three, range(6), workers))
+
+
+def test_map_ordered_avoids_fork_once_jax_runs():
+    """After JAX has started its runtime (threads), workers must come from a fresh interpreter: a forked
+    child of a threaded process can deadlock. The results are the same either way."""
+    import jax.numpy as jnp
+
+    from handx_jax.data import parallel
+
+    jnp.zeros(1).block_until_ready()
+    assert parallel._context().get_start_method() in ("forkserver", "spawn")
+    assert list(map_ordered(_square_slowly_first, range(5), 2)) == [0, 1, 4, 9, 16]

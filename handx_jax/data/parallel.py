@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import collections
 import multiprocessing as mp
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from typing import TypeVar
@@ -30,8 +31,7 @@ def map_ordered(fn: Callable[[T], R], items: Iterable[T], workers: int, *, windo
         return
     window = window or 2 * workers
     source = iter(items)
-    ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=_context()) as ex:
         pending: collections.deque = collections.deque()
         try:
             while True:
@@ -49,3 +49,22 @@ def map_ordered(fn: Callable[[T], R], items: Iterable[T], workers: int, *, windo
 
 
 _END = object()
+
+
+def _context():
+    """fork (cheap: workers inherit the loaded modules) unless this process has started the JAX runtime,
+    whose threads can leave a forked child deadlocked (JAX warns so); then a fresh-interpreter start."""
+    methods = mp.get_all_start_methods()
+    if "fork" in methods and not _jax_runtime_started():
+        return mp.get_context("fork")
+    return mp.get_context("forkserver" if "forkserver" in methods else "spawn")
+
+
+def _jax_runtime_started() -> bool:
+    if "jax" not in sys.modules:  # never imported: nothing to ask, and no reason to import it here
+        return False
+    try:
+        from jax._src import xla_bridge
+        return bool(xla_bridge.backends_are_initialized())
+    except (ImportError, AttributeError):  # another JAX layout: assume the worst
+        return True
