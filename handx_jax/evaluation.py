@@ -101,10 +101,11 @@ def evaluator_stats(ds, kind: str = "positions", clips: np.ndarray | None = None
     if len(clips) == 0:
         raise DataError("no clips to compute evaluator input statistics from", path=ds.root)
     pick = clips[np.unique(np.linspace(0, len(clips) - 1, min(len(clips), STATS_CLIPS)).round().astype(np.int64))]
-    fn, dim = rep.EVALUATOR_INPUTS[kind]
-    x = fn(np.asarray(ds.motion[pick], np.float32)).reshape(-1, dim).astype(np.float64)
-    std = x.std(0)
-    return rep.NormStats(mean=x.mean(0), std=np.where(std < 1e-4, 1.0, std))
+    fn, _ = rep.EVALUATOR_INPUTS[kind]
+    # Streamed 256 clips at a time (4,096 clips of 307 float64 features would be 600 MB at once), with
+    # the positions preset's std floor.
+    chunks = (fn(np.asarray(ds.motion[pick[s:s + 256]], np.float32)) for s in range(0, len(pick), 256))
+    return rep.compute_norm_stats(chunks, axis=(0, 1), min_std=rep.NORM_PRESETS["evaluator"].min_std)
 
 
 def joined_caption(left: str, right: str, interaction: str) -> str:

@@ -553,14 +553,6 @@ def stats_from_moments(kind: str, s: np.ndarray, ss: np.ndarray, n: int) -> Norm
     return _stats_from_sums(s, ss, n, min_std=pr.min_std, eps=pr.eps)
 
 
-def compute_norm_stats_streaming(chunks: Iterable[np.ndarray], *, preset: str) -> NormStats:
-    """Stats of a stream of feature chunks ``(..., *feature_shape)`` under a named preset.
-
-    Same as :func:`compute_preset_stats` with the arguments named as the dataset builder uses them.
-    """
-    return compute_preset_stats(preset, chunks)
-
-
 def _preset(kind: str) -> NormPreset:
     try:
         return NORM_PRESETS[kind]

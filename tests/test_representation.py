@@ -345,8 +345,10 @@ def test_norm_stats_chunked_stream_equals_in_memory(tmp_path):
         streamed = rep.motion_norm_stats(kind, mm, chunk_size=2)  # memory-mapped, 2 clips at a time
         chunked = rep.compute_norm_stats((feats[i:i + 3] for i in range(0, 7, 3)), axis=axes,
                                          min_std=pr.min_std, eps=pr.eps)
-        builder = rep.compute_norm_stats_streaming((fn(mm[i:i + 4]) for i in range(0, 7, 4)), preset=kind)
-        for st in (streamed, chunked, builder):
+        preset = rep.compute_preset_stats(kind, (fn(mm[i:i + 4]) for i in range(0, 7, 4)))
+        parts = [rep.preset_moments(kind, fn(mm[i:i + 4])) for i in range(0, 7, 4)]  # the builder's path
+        builder = rep.stats_from_moments(kind, *(sum(p[k] for p in parts) for k in range(3)))
+        for st in (streamed, chunked, preset, builder):
             assert st.mean.shape == pr.feature_shape and st.eps == pr.eps
             np.testing.assert_allclose(st.mean, full.mean, rtol=1e-6, atol=1e-9)
             np.testing.assert_allclose(st.std, full.std, rtol=1e-6, atol=1e-9)

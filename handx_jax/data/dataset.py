@@ -188,11 +188,10 @@ def _write_stats(root: Path, train_idx: Sequence[int], workers: int = 1) -> None
 
     idx = np.asarray(sorted(train_idx))
     tasks = (idx[s:s + STATS_CHUNK] for s in range(0, len(idx), STATS_CHUNK))
-    totals: dict[str, list] = {}
+    totals: dict[str, tuple] = {}
     for moments in map_ordered(functools.partial(_chunk_moments, str(root / "motion.npy")), tasks, workers):
-        for name, (s, ss, n) in moments.items():
-            t = totals.setdefault(name, [0.0, 0.0, 0])  # 0.0 + s is exactly s
-            t[0], t[1], t[2] = t[0] + s, t[1] + ss, t[2] + n
+        for name, m in moments.items():
+            totals[name] = m if name not in totals else tuple(a + b for a, b in zip(totals[name], m))
     arrays = {}
     for name, (s, ss, n) in totals.items():
         st = rep.stats_from_moments(name, s, ss, n)
