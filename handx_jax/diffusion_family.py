@@ -134,10 +134,6 @@ def validate(cfg: DiffusionRunConfig) -> None:
     m, d = cfg.model, cfg.diffusion
     if m.dim % m.heads:
         raise ValueError(f"model.dim {m.dim} is not divisible by model.heads {m.heads}")
-    if d.blend not in ("x0", "xt"):
-        raise ValueError(f"diffusion.blend must be 'x0' or 'xt', got {d.blend!r}")
-    if not 0 <= d.cond_drop < 1:
-        raise ValueError(f"diffusion.cond_drop must be in [0, 1), got {d.cond_drop}")
     if not 0 < cfg.data.fraction <= 1:
         raise ValueError(f"data.fraction must be in (0, 1], got {cfg.data.fraction}")
     if not 0 <= d.p_soft <= d.p_hard <= 1:
@@ -229,8 +225,8 @@ def make_loss(model: TrebleDenoiser, dcfg: D.DiffusionConfig):
         B = x0.shape[0]
         t = jax.random.randint(k_t, (B,), 0, sched.T)  # uniform t (reference §3.4)
         x_t = D.q_sample(sched, x0, t, jax.random.normal(k_n, x0.shape))
-        # Independent per-branch conditioning dropout (reference §3.2).
-        drop = jax.random.bernoulli(k_drop, dcfg.cond_drop, (B, 3)) if train else jnp.zeros((B, 3), bool)
+        # Per-branch (reference §3.2) and joint (all three, for guidance) conditioning dropout.
+        drop = D.cond_drop_mask(k_drop, B, dcfg) if train else jnp.zeros((B, 3), bool)
         x0_hat = model.apply(params, x_t, t, jnp.swapaxes(batch["text"], 0, 1), jnp.swapaxes(batch["mask"], 0, 1),
                              drop, deterministic=not train, rngs={"dropout": k_do})
         return D.diffusion_loss(x0, x0_hat, dcfg)
