@@ -603,17 +603,21 @@ def _slurm(specs: Sequence[RunSpec], cfg: SweepConfig, out: Path) -> dict[str, s
             _collect_quietly(out)
         if waiting:
             time.sleep(cfg.poll_s)
-    final = sacct_states(sorted(ids.values()))
+    unfinished = [s for s in todo if not is_complete(cfg, s)]
+    final = sacct_states([ids[s.name] for s in unfinished])
+    end = time.time() + 15  # accounting records the final state a few seconds after the job ends
+    while unfinished and time.time() < end and any(final.get(ids[s.name], "PENDING") in ACTIVE_SLURM
+                                                   for s in unfinished) and shutil.which("sacct"):
+        time.sleep(1.0)
+        final = sacct_states([ids[s.name] for s in unfinished])
     failed = {}
-    for s in todo:
-        if is_complete(cfg, s):
-            continue
+    for s in unfinished:
         st = _read_json(run_dir(cfg, s) / "status.json")
         state = final.get(ids[s.name], "unknown (no accounting)")
         err = st.get("error") if st.get("status") == "failed" else None
-        failed[s.name] = err or f"SLURM job {ids[s.name]} ended in state {state} before the run finished"
-        if st.get("status") != "failed" or not st.get("error"):
-            _update_json(run_dir(cfg, s) / "status.json", status="failed", error=failed[s.name])
+        failed[s.name] = (f"SLURM job {ids[s.name]} ended in state {state} before the run finished"
+                          + (f": {err}" if err else ""))
+        _update_json(run_dir(cfg, s) / "status.json", status="failed", error=failed[s.name])
     return failed
 
 
