@@ -17,7 +17,6 @@ decide. Re-entrant within one process (a launcher that holds the lock may run th
 
 from __future__ import annotations
 
-import errno
 import json
 import os
 import shutil
@@ -211,20 +210,26 @@ def is_locked(run_dir: str | os.PathLike) -> dict | None:
     return h if h and holder_alive(h) else None
 
 
-def set_pdeathsig(sig: int = 15, parent_pid: int | None = None) -> None:
-    """Ask Linux to send ``sig`` to this process when its parent dies (a ``preexec_fn`` for children).
+def pdeathsig_preexec(sig: int = 15, parent_pid: int | None = None):
+    """A ``preexec_fn`` that asks Linux to send ``sig`` to the child when its parent dies.
 
     A launcher killed with -9 cannot clean up; with this, its training child gets SIGTERM at once
-    instead of running on beside the relaunch (issue 14.8). No-op where prctl is unavailable.
+    instead of running on beside the relaunch (issue 14.8). libc is loaded here, in the parent, so
+    the forked child only calls prctl (no imports or loader locks between fork and exec). Returns
+    None where prctl is unavailable (non-Linux).
     """
     try:
         import ctypes
 
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        PR_SET_PDEATHSIG = 1
-        libc.prctl(PR_SET_PDEATHSIG, sig, 0, 0, 0)
-        if parent_pid is not None and os.getppid() != parent_pid:  # the parent died before prctl took effect
+        prctl = ctypes.CDLL("libc.so.6", use_errno=True).prctl
+    except OSError:  # pragma: no cover - non-Linux
+        return None
+    parent = os.getpid() if parent_pid is None else parent_pid
+    PR_SET_PDEATHSIG = 1
+
+    def preexec() -> None:
+        prctl(PR_SET_PDEATHSIG, sig, 0, 0, 0)
+        if os.getppid() != parent:  # the parent died before prctl took effect
             os.kill(os.getpid(), sig)
-    except OSError as e:  # pragma: no cover - non-Linux
-        if e.errno not in (errno.ENOENT, errno.ENOSYS):
-            raise
+
+    return preexec

@@ -56,7 +56,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from handx_jax.io import DataError, atomic_write_json
-from handx_jax.runlock import RunLock, RunLocked, is_locked, set_pdeathsig
+from handx_jax.runlock import RunLock, RunLocked, is_locked, pdeathsig_preexec
 
 REPO = Path(__file__).resolve().parent.parent
 # A run or step name is one path component: no separators, no "..", nothing hidden.
@@ -278,7 +278,7 @@ def run_command(argv: Sequence[str], log: Path, env: dict) -> float:
         f.write(f"\n$ {' '.join(argv)}\n".encode())
         f.flush()
         r = subprocess.run(list(argv), env={**os.environ, **env}, stdout=f, stderr=subprocess.STDOUT,
-                           preexec_fn=functools.partial(set_pdeathsig, signal.SIGTERM, os.getpid()))
+                           preexec_fn=pdeathsig_preexec(signal.SIGTERM))
     if r.returncode != 0:
         raise RuntimeError(f"exit {r.returncode}: {' '.join(argv)}\n--- {log} (last lines) ---\n{_tail(log)}")
     return time.perf_counter() - t0
