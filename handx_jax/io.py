@@ -213,6 +213,36 @@ def verify_checksum(path: str | os.PathLike, *, required: bool = False) -> bool:
     return True
 
 
+def write_params_msgpack(path: str | os.PathLike, params: Any) -> Path:
+    """Flax-serialise a parameter pytree to ``path`` atomically, with its sha256 sidecar."""
+    import jax
+    from flax import serialization
+
+    out = atomic_write_bytes(path, serialization.to_bytes(jax.device_get(params)))
+    write_checksum(out)
+    return out
+
+
+def read_params_msgpack(path: str | os.PathLike, template: Any) -> Any:
+    """Read parameters written by :func:`write_params_msgpack` (or plain ``serialization.to_bytes``) into
+    the structure of ``template``. The checksum sidecar, when present, is verified; a missing, truncated
+    or garbage file, or one of another structure, is a ``DataError`` naming it (flax says only
+    "Unpack failed" or raises a ValueError/KeyError that does not)."""
+    from flax import serialization
+
+    p = Path(path)
+    verify_checksum(p)
+    try:
+        data = p.read_bytes()
+    except FileNotFoundError:
+        raise DataError(f"missing {p.name}", path=p.parent) from None
+    try:
+        return serialization.from_bytes(template, data)
+    except Exception as e:  # msgpack's ExtraData/UnpackValueError/FormatError, flax's ValueError/KeyError, ...
+        raise DataError(f"corrupt, truncated or incompatible parameter file ({type(e).__name__}: "
+                        f"{str(e).splitlines()[0][:200] if str(e) else 'no detail'})", path=p) from None
+
+
 def _fsync_dir(path: Path) -> None:
     with contextlib.suppress(OSError):
         fd = os.open(path, os.O_RDONLY)
