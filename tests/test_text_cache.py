@@ -134,3 +134,27 @@ def test_cli_cache_and_encode(setup, capsys):
         n = int(e.lengths_B[i])
         assert doc["ids"][i] == enc.tokenizer.encode_one(t) == e.ids_BxL[i, :n].tolist()
         np.testing.assert_allclose(np.array(doc["hidden"][i]), h[i, :n], atol=1e-6)
+
+
+def test_full_disk_is_a_clean_error_and_leaves_nothing(setup, monkeypatch):
+    """Issue 14.8: the cache was written through memory maps, so a full disk killed `text cache` by
+    SIGBUS and left a hidden temporary folder. Now: a DiskFullError naming the file, nothing left."""
+    import errno
+
+    from handx_jax import io as hio
+
+    data, enc_dir, _ = setup
+    root = data / "text_cache"
+    monkeypatch.setattr(hio, "free_bytes", lambda path: 100)
+    with pytest.raises(hio.DiskFullError, match=r"writing .*text_cache/[0-9a-f]{16}; it needs .* 100 B free"):
+        build_cache(data, enc_dir, dtype="float32", max_len=40, overwrite=True, log=lambda s: None)
+    monkeypatch.setattr(hio, "free_bytes", lambda path: None)
+
+    def append(self, rows):  # the disk fills up during the build
+        with hio.disk_full_as_error(self.path, self.nbytes):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(hio.NpyWriter, "append", append)
+    with pytest.raises(hio.DiskFullError, match=r"writing .*text_cache/[0-9a-f]{16}/hidden\.npy; it needs"):
+        build_cache(data, enc_dir, dtype="float32", max_len=40, overwrite=True, log=lambda s: None)
+    assert not [p for p in root.iterdir() if p.name.startswith(".")]
