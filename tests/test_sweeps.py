@@ -74,14 +74,16 @@ def test_sweep_files_define_the_grids(tmp_path):
 
     ar = load_sweep("sweeps/ar_size_codebook.py", preset="paper")
     assert len(ar) == 12 and all(s.family == "ar" for s in ar)
-    # One tokenizer step per codebook, shared by the three LM sizes.
+    # One tokenizer step per codebook, shared by the three LM sizes; one joined text cache for all.
     keys = {}
     for s in ar:
-        (st,) = s.needs
-        keys.setdefault(s.axes["codebook"], set()).add(st.key)
+        text, tok = s.needs
+        assert text.name == "text-joined" and tok.name == f"tokenizer-K{s.axes['codebook']}"
+        keys.setdefault(s.axes["codebook"], set()).add(tok.key)
+        assert s.args == ("--tokenizer", f"{{step:{tok.name}}}")
     assert sorted(keys) == [512, 1024, 2048, 4096] and all(len(v) == 1 for v in keys.values())
     assert len({k for v in keys.values() for k in v}) == 4
-    assert all(any(o.startswith("tokenizer={step:tokenizer-K") for o in s.overrides) for s in ar)
+    assert {s.preset for s in ar} == {"8L-512", "12L-768", "16L-1024"}
 
     bad = tmp_path / "bad.py"
     bad.write_text("from sweeps.launcher import RunSpec\ndef runs():\n    return [RunSpec('a'), RunSpec('a')]\n")
