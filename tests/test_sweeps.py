@@ -282,3 +282,18 @@ def test_launch_resume_and_results(tmp_path):
     # Both FLOPs conventions on every row.
     assert rows[0]["flops_per_sample"] > 0 and rows[0]["flops_per_sample_paper"] > rows[0]["flops_per_sample"] / 2
     assert [s["status"] for s in status(tmp_path / "sweep")] == ["done", "done"]
+
+
+def test_dry_run_and_slurm_time_limit(tmp_path, capsys):
+    from handx_jax.cli import main
+
+    for f, n in (("diffusion_depth_data", 12), ("diffusion_flops_ladder", 7), ("diffusion_width", 4),
+                 ("ar_size_codebook", 12)):
+        assert main(["sweep", "run", f"sweeps/{f}.py", "--preset", "paper", "--executor", "slurm", "--dry-run",
+                     "--out", str(tmp_path / f)]) == 0
+        lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+        assert len(lines) == n + 1 and lines[-1]["slurm"]["timeout_min"] == 48 * 60  # the preset's time limit
+        assert not (tmp_path / f).exists()
+    # Without a time limit, SLURM is refused rather than left to submitit's 5-minute default.
+    with pytest.raises(ValueError, match="time limit"):
+        launch([fake("a")], cfg_for(tmp_path, executor="slurm"))
