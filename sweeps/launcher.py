@@ -246,8 +246,12 @@ def device_kind() -> str:
 def _env(cfg: SweepConfig) -> dict:
     out = Path(cfg.out).absolute()
     return {"WANDB_RUN_GROUP": cfg.name or out.name,
-            # One persistent compilation cache for every run of the sweep: the same shapes compile once.
+            # One persistent compilation cache for every run of the sweep: the same shapes (a resumed run,
+            # the evaluator in every run's eval stage) compile once. JAX caches only compilations over
+            # 1 s by default; tiny CPU runs compile faster than that.
             "JAX_COMPILATION_CACHE_DIR": str(out / "jax_cache"),
+            "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": os.environ.get("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS",
+                                                                         "0.2"),
             "PYTHONPATH": os.pathsep.join(p for p in (str(REPO), os.environ.get("PYTHONPATH")) if p)}
 
 

@@ -282,6 +282,7 @@ def test_launch_resume_and_results(tmp_path):
     # Both FLOPs conventions on every row.
     assert rows[0]["flops_per_sample"] > 0 and rows[0]["flops_per_sample_paper"] > rows[0]["flops_per_sample"] / 2
     assert [s["status"] for s in status(tmp_path / "sweep")] == ["done", "done"]
+    assert any((tmp_path / "sweep/jax_cache").iterdir())  # the runs' shared persistent compilation cache
 
 
 def test_dry_run_and_slurm_time_limit(tmp_path, capsys):
