@@ -283,6 +283,20 @@ def test_launch_resume_and_results(tmp_path):
     assert rows[0]["flops_per_sample"] > 0 and rows[0]["flops_per_sample_paper"] > rows[0]["flops_per_sample"] / 2
     assert [s["status"] for s in status(tmp_path / "sweep")] == ["done", "done"]
     assert any((tmp_path / "sweep/jax_cache").iterdir())  # the runs' shared persistent compilation cache
+    # data.sampling=pairs draws (clip, level) items as the reference does: RandomState(42).choice without
+    # replacement over all train items, nested across fractions; "clips" keeps every level of each clip.
+    import numpy as np
+
+    from handx_jax.diffusion_family import config_from_dict, load_train_data
+
+    td = load_train_data(config_from_dict(json.loads((tmp_path / "sweep/runs/b/config.json").read_text())))
+    n = len(td.clips) * td.levels
+    k = round(0.5 * n)
+    assert np.array_equal(td.items, np.sort(np.random.RandomState(42).choice(n, k, replace=False)))
+    small = np.sort(np.random.RandomState(42).permutation(n)[:round(0.05 * n)])
+    assert set(small) <= set(td.items) and td.num_items == k
+    b = td.batch(np.arange(3))
+    assert np.array_equal(b["x0"], td.x_NxFx42x4[td.items[:3] // td.levels])
 
 
 def test_dry_run_and_slurm_time_limit(tmp_path, capsys):
