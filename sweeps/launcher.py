@@ -98,8 +98,9 @@ class RunSpec:
 
     ``axes`` holds the point's axis values (schema columns, e.g. ``{"layers": 4, "data_fraction": 0.05}``)
     for the results row; ``needs`` the shared steps it depends on (``{step:NAME}`` in an override is
-    replaced by that step's folder); ``command``, if given, replaces the train stage's argv
-    (placeholders ``{run}``, ``{data}``, ``{encoder}``, ``{step:NAME}``).
+    replaced by that step's folder); ``args`` are extra arguments of ``handx train FAMILY`` (e.g.
+    ``("--tokenizer", "{step:tokenizer-K512}")``); ``command``, if given, replaces the train stage's
+    argv (placeholders ``{run}``, ``{data}``, ``{encoder}``, ``{step:NAME}``).
     """
 
     name: str
@@ -108,6 +109,7 @@ class RunSpec:
     overrides: tuple[str, ...] = ()
     axes: dict = field(default_factory=dict)
     needs: tuple[Step, ...] = ()
+    args: tuple[str, ...] = ()
     command: tuple[str, ...] = ()
 
 
@@ -244,8 +246,12 @@ def device_kind() -> str:
 def _env(cfg: SweepConfig) -> dict:
     out = Path(cfg.out).absolute()
     return {"WANDB_RUN_GROUP": cfg.name or out.name,
-            # One persistent compilation cache for every run of the sweep: the same shapes compile once.
+            # One persistent compilation cache for every run of the sweep: the same shapes (a resumed run,
+            # the evaluator in every run's eval stage) compile once. JAX caches only compilations over
+            # 1 s by default; tiny CPU runs compile faster than that.
             "JAX_COMPILATION_CACHE_DIR": str(out / "jax_cache"),
+            "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": os.environ.get("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS",
+                                                                         "0.2"),
             "PYTHONPATH": os.pathsep.join(p for p in (str(REPO), os.environ.get("PYTHONPATH")) if p)}
 
 
@@ -361,7 +367,7 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
                 sets = [a for o in spec.overrides for a in ("--set", _subst([o], mapping)[0])]
                 enc = ["--encoder", cfg.encoder] if spec.family == "diffusion" or cfg.encoder else []
                 argv = _subst(["handx", "train", spec.family, "--data", cfg.data, *enc, "--preset", spec.preset,
-                               *sets, "--out", str(d), "--quiet"], {})
+                               *_subst(spec.args, mapping), *sets, "--out", str(d), "--quiet"], {})
             stage("train", argv)
             atomic_write_json(d / "train_done.json", {"spec": dataclasses.asdict(spec)})
         if cfg.evaluator:
@@ -394,7 +400,7 @@ def _spec_of(doc: dict) -> RunSpec:
     return RunSpec(**{**doc, "overrides": tuple(doc.get("overrides", ())),
                       "needs": tuple(Step(s["name"], tuple(tuple(c) for c in s["commands"]), s.get("version", "1"))
                                      for s in doc.get("needs", ())),
-                      "command": tuple(doc.get("command", ()))})
+                      "args": tuple(doc.get("args", ())), "command": tuple(doc.get("command", ()))})
 
 
 def run_status(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: set | None = None) -> tuple[str, str | None]:

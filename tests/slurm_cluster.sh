@@ -64,9 +64,18 @@ command -v mariadbd >/dev/null || need+=(mariadb-server)
 if [ ${#need[@]} -gt 0 ]; then
   command -v apt-get >/dev/null || die "APT-UNAVAILABLE: ${need[*]} missing and there is no apt-get"
   export DEBIAN_FRONTEND=noninteractive
+  # Keep the packages' init scripts from starting system-wide daemons (we start our own below).
+  policy=""
+  if [ ! -e /usr/sbin/policy-rc.d ]; then
+    policy=/usr/sbin/policy-rc.d
+    printf '#!/bin/sh\nexit 101\n' >"$policy" && chmod +x "$policy"
+  fi
+  ok=0
   apt-get install -y -q "${need[@]}" >"$DIR/apt.log" 2>&1 \
     || { apt-get update -q >>"$DIR/apt.log" 2>&1 && apt-get install -y -q "${need[@]}" >>"$DIR/apt.log" 2>&1; } \
-    || { tail -n 20 "$DIR/apt.log" >&2; die "apt-get install ${need[*]} failed"; }
+    || ok=1
+  [ -n "$policy" ] && rm -f "$policy"
+  [ $ok = 0 ] || { tail -n 20 "$DIR/apt.log" >&2; die "apt-get install ${need[*]} failed"; }
 fi
 
 mkdir -p "$DIR"/{etc,log,run,state,spool,mysql}
@@ -85,7 +94,12 @@ if ! munge -n 2>/dev/null | unmunge >/dev/null 2>&1; then
     || runuser -u munge -- /usr/sbin/munged >"$DIR/log/munged.log" 2>&1 || die "munged did not start"
   wait_for 10 munge bash -c 'munge -n | unmunge'
   rm -f "$DIR/run/munged.pid.tmp"
-  pgrep -n -u munge -x munged >"$DIR/run/munged.pid" || true  # the one just started, stopped by `stop`
+  # The one just started (newest munged of the munge user), stopped by `stop`.
+  if command -v pgrep >/dev/null; then
+    pgrep -n -u munge -x munged >"$DIR/run/munged.pid" || true
+  else
+    for p in /proc/[0-9]*; do [ "$(cat "$p/comm" 2>/dev/null)" = munged ] && echo "${p#/proc/}"; done | sort -n | tail -n 1 >"$DIR/run/munged.pid"
+  fi
 fi
 
 # MariaDB, a private instance on 127.0.0.1:$DB_PORT with its data under DIR/mysql.

@@ -168,3 +168,23 @@ def test_relaunch_while_a_job_of_the_first_launch_still_runs(slurm, tmp_path):
     assert json.loads((out2 / "slurm_jobs.json").read_text())["w"] != old
     assert [r["status"] for r in _rows(out2)] == ["done"]
     print(f"relaunch case: {time.time() - t0:.1f} s")
+
+
+def test_two_task_job_initialises_from_slurm(slurm, tmp_path):
+    """`srun -n 2`: handx_jax.train.initialize_distributed sees SLURM_NTASKS=2 and jax.distributed takes
+    the coordinator, process count and ids from SLURM's environment; the loss curve matches one process."""
+    t0 = time.time()
+    worker = str(HERE / "distributed_worker.py")
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_COORDINATOR", "JAX_NUM_PROC", "JAX_PROCESS"))}
+    env.update(PYTHONPATH=str(REPO), JAX_PLATFORMS="cpu", WANDB_MODE="disabled")
+    one = subprocess.run([sys.executable, worker, str(tmp_path / "one")], env=env, capture_output=True, text=True,
+                         timeout=120)
+    assert one.returncode == 0, one.stderr[-2000:]
+    r = subprocess.run(["srun", "-n", "2", "-c", "1", "-t", "5", "--chdir", str(tmp_path), sys.executable, worker,
+                        str(tmp_path / "two")], env=env, capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, (r.stdout + r.stderr)[-3000:]
+    assert "process 0/2 devices 2 step 12" in r.stdout and "process 1/2 devices 2 step 12" in r.stdout, r.stdout
+    losses = [[json.loads(x)["loss"] for x in (tmp_path / d / "metrics.jsonl").read_text().splitlines()]
+              for d in ("one", "two")]
+    assert len(losses[0]) == 12 and all(abs(a - b) <= 1e-5 * abs(a) for a, b in zip(*losses)), losses
+    print(f"srun -n 2 case: {time.time() - t0:.1f} s")

@@ -74,14 +74,16 @@ def test_sweep_files_define_the_grids(tmp_path):
 
     ar = load_sweep("sweeps/ar_size_codebook.py", preset="paper")
     assert len(ar) == 12 and all(s.family == "ar" for s in ar)
-    # One tokenizer step per codebook, shared by the three LM sizes.
+    # One tokenizer step per codebook, shared by the three LM sizes; one joined text cache for all.
     keys = {}
     for s in ar:
-        (st,) = s.needs
-        keys.setdefault(s.axes["codebook"], set()).add(st.key)
+        text, tok = s.needs
+        assert text.name == "text-joined" and tok.name == f"tokenizer-K{s.axes['codebook']}"
+        keys.setdefault(s.axes["codebook"], set()).add(tok.key)
+        assert s.args == ("--tokenizer", f"{{step:{tok.name}}}")
     assert sorted(keys) == [512, 1024, 2048, 4096] and all(len(v) == 1 for v in keys.values())
     assert len({k for v in keys.values() for k in v}) == 4
-    assert all(any(o.startswith("tokenizer={step:tokenizer-K") for o in s.overrides) for s in ar)
+    assert {s.preset for s in ar} == {"8L-512", "12L-768", "16L-1024"}
 
     bad = tmp_path / "bad.py"
     bad.write_text("from sweeps.launcher import RunSpec\ndef runs():\n    return [RunSpec('a'), RunSpec('a')]\n")
@@ -280,3 +282,33 @@ def test_launch_resume_and_results(tmp_path):
     # Both FLOPs conventions on every row.
     assert rows[0]["flops_per_sample"] > 0 and rows[0]["flops_per_sample_paper"] > rows[0]["flops_per_sample"] / 2
     assert [s["status"] for s in status(tmp_path / "sweep")] == ["done", "done"]
+    assert any((tmp_path / "sweep/jax_cache").iterdir())  # the runs' shared persistent compilation cache
+    # data.sampling=pairs draws (clip, level) items as the reference does: RandomState(42).choice without
+    # replacement over all train items, nested across fractions; "clips" keeps every level of each clip.
+    import numpy as np
+
+    from handx_jax.diffusion_family import config_from_dict, load_train_data
+
+    td = load_train_data(config_from_dict(json.loads((tmp_path / "sweep/runs/b/config.json").read_text())))
+    n = len(td.clips) * td.levels
+    k = round(0.5 * n)
+    assert np.array_equal(td.items, np.sort(np.random.RandomState(42).choice(n, k, replace=False)))
+    small = np.sort(np.random.RandomState(42).permutation(n)[:round(0.05 * n)])
+    assert set(small) <= set(td.items) and td.num_items == k
+    b = td.batch(np.arange(3))
+    assert np.array_equal(b["x0"], td.x_NxFx42x4[td.items[:3] // td.levels])
+
+
+def test_dry_run_and_slurm_time_limit(tmp_path, capsys):
+    from handx_jax.cli import main
+
+    for f, n in (("diffusion_depth_data", 12), ("diffusion_flops_ladder", 7), ("diffusion_width", 4),
+                 ("ar_size_codebook", 12)):
+        assert main(["sweep", "run", f"sweeps/{f}.py", "--preset", "paper", "--executor", "slurm", "--dry-run",
+                     "--out", str(tmp_path / f)]) == 0
+        lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+        assert len(lines) == n + 1 and lines[-1]["slurm"]["timeout_min"] == 48 * 60  # the preset's time limit
+        assert not (tmp_path / f).exists()
+    # Without a time limit, SLURM is refused rather than left to submitit's 5-minute default.
+    with pytest.raises(ValueError, match="time limit"):
+        launch([fake("a")], cfg_for(tmp_path, executor="slurm"))
