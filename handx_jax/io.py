@@ -213,6 +213,41 @@ def verify_checksum(path: str | os.PathLike, *, required: bool = False) -> bool:
     return True
 
 
+TREE_CHECKSUMS = "SHA256SUMS"
+
+
+def write_tree_checksum(folder: str | os.PathLike) -> Path:
+    """Checksum every file under ``folder`` into ``folder/SHA256SUMS`` (``sha256sum -c`` format, sorted
+    relative paths). For checkpoint folders written by a library (e.g. an Orbax step directory): call
+    it once the folder is complete; :func:`verify_tree_checksum` before restoring."""
+    root = Path(folder)
+    files = sorted(p for p in root.rglob("*") if p.is_file() and p.name != TREE_CHECKSUMS)
+    lines = "".join(f"{sha256_file(p)}  {p.relative_to(root).as_posix()}\n" for p in files)
+    return atomic_write_text(root / TREE_CHECKSUMS, lines)
+
+
+def verify_tree_checksum(folder: str | os.PathLike, *, required: bool = False) -> bool:
+    """Check the files listed in ``folder/SHA256SUMS``: True if all match, False if there is no list
+    (unless ``required``); a changed or missing file is a ``DataError`` naming it."""
+    root = Path(folder)
+    listing = root / TREE_CHECKSUMS
+    if not listing.exists():
+        if required:
+            raise DataError(f"missing {TREE_CHECKSUMS}", path=root)
+        return False
+    for line in listing.read_text(encoding="utf-8").splitlines():
+        if not line.strip():
+            continue
+        want, _, rel = line.partition("  ")
+        p = root / rel
+        if not p.is_file():
+            raise DataError(f"listed in {TREE_CHECKSUMS} but missing", path=p)
+        if sha256_file(p) != want.lower():
+            raise DataError(f"checksum mismatch against {TREE_CHECKSUMS}: the file is corrupt or was changed "
+                            "after it was written", path=p)
+    return True
+
+
 def write_params_msgpack(path: str | os.PathLike, params: Any) -> Path:
     """Flax-serialise a parameter pytree to ``path`` atomically, with its sha256 sidecar."""
     import jax
