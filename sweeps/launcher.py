@@ -499,6 +499,21 @@ def _collect_quietly(out: Path) -> None:
 # Executors
 
 
+def _submitit():
+    """Import submitit without its import-time ``logging.config.dictConfig``: that call closes every
+    existing logging handler (e.g. absl's, which JAX installs on sys.stderr), so importing submitit
+    in a process that already ran JAX breaks that process's stderr. Its records go to the root logger."""
+    if "submitit" not in sys.modules:
+        had = "SUBMITIT_LOG_LEVEL" in os.environ
+        os.environ.setdefault("SUBMITIT_LOG_LEVEL", "NOCONFIG")
+        try:
+            import submitit  # noqa: F401
+        finally:
+            if not had:
+                del os.environ["SUBMITIT_LOG_LEVEL"]
+    return sys.modules["submitit"]
+
+
 class _Job:
     """A picklable callable for submitit; requeued jobs simply call run_one again (it resumes)."""
 
@@ -509,9 +524,7 @@ class _Job:
         return run_one(self.spec, self.cfg)
 
     def checkpoint(self, *args, **kwargs):  # submitit's preemption/timeout hook
-        import submitit
-
-        return submitit.helpers.DelayedSubmission(_Job(self.spec, self.cfg))
+        return _submitit().helpers.DelayedSubmission(_Job(self.spec, self.cfg))
 
 
 @dataclass
@@ -572,8 +585,7 @@ def sacct_states(job_ids: Sequence[str]) -> dict[str, str]:
 
 
 def _slurm(specs: Sequence[RunSpec], cfg: SweepConfig, out: Path) -> dict[str, str]:
-    import submitit
-
+    submitit = _submitit()
     params = dict(cfg.slurm)
     if "timeout_min" not in params:
         raise ValueError("SLURM needs a time limit: give timeout_min in the sweep's RESOURCES for this preset or "
@@ -650,9 +662,7 @@ def launch(specs: Sequence[RunSpec], cfg: SweepConfig) -> LaunchResult:
     elif cfg.executor == "slurm":
         failed = _slurm(specs, cfg, out)
     elif cfg.executor == "debug":
-        import submitit
-
-        ex = submitit.AutoExecutor(folder=str(out / "submitit"), cluster="debug")
+        ex = _submitit().AutoExecutor(folder=str(out / "submitit"), cluster="debug")
         failed = {}
         for s in specs:
             try:
