@@ -587,9 +587,6 @@ def sacct_states(job_ids: Sequence[str]) -> dict[str, str]:
 def _slurm(specs: Sequence[RunSpec], cfg: SweepConfig, out: Path) -> dict[str, str]:
     submitit = _submitit()
     params = dict(cfg.slurm)
-    if "timeout_min" not in params:
-        raise ValueError("SLURM needs a time limit: give timeout_min in the sweep's RESOURCES for this preset or "
-                         "--slurm timeout_min=N (submitit's silent default would end every run after 5 minutes)")
     jobs_path = out / "slurm_jobs.json"
     old = _read_json(jobs_path)
     todo = [s for s in specs if not is_complete(cfg, s)]
@@ -651,6 +648,9 @@ def launch(specs: Sequence[RunSpec], cfg: SweepConfig) -> LaunchResult:
     out = Path(cfg.out).absolute()
     for s in specs:
         run_dir(cfg, s)  # refuses names that would leave OUT
+    if cfg.executor == "slurm" and "timeout_min" not in cfg.slurm:
+        raise ValueError("SLURM needs a time limit: give timeout_min in the sweep's RESOURCES for this preset or "
+                         "--slurm timeout_min=N (submitit's silent default would end every run after 5 minutes)")
     out.mkdir(parents=True, exist_ok=True)
     prev = _read_json(out / "sweep.json").get("runs", [])
     names = {s.name for s in specs}

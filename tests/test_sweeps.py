@@ -312,3 +312,4 @@ def test_dry_run_and_slurm_time_limit(tmp_path, capsys):
     # Without a time limit, SLURM is refused rather than left to submitit's 5-minute default.
     with pytest.raises(ValueError, match="time limit"):
         launch([fake("a")], cfg_for(tmp_path, executor="slurm"))
+    assert not (tmp_path / "sweep").exists()
