@@ -238,6 +238,7 @@ def test_kill9_of_the_launcher_ends_its_child_and_the_relaunch_finishes(tmp_path
     assert pid_file.exists(), "run b never started"
     child = int(pid_file.read_text())
     assert pid_alive(child)
+    assert {r["name"]: r["status"] for r in status(out)} == {"a": "done", "b": "running", "c": "pending"}
     launcher.send_signal(signal.SIGKILL)
     launcher.wait()
     deadline = time.time() + 10
