@@ -25,7 +25,16 @@ Columns (see :data:`COLUMNS` for the full list and units):
   ``steps``, ``samples_seen``;
 * metrics: each name in :data:`METRICS` as ``<name>`` (the point value) and ``<name>_ci`` (its
   half-width: whatever the evaluator reports as the ± value; the paper's ± values are kept as
-  printed).
+  printed); ``rprec_block`` (R-Precision block size, so chance top-k = k/block);
+* the paper's FLOPs convention: ``flops_per_sample_paper`` (multiply-adds of the Linear layers plus the
+  frozen text encoder, which reproduces Table B; ``handx_jax/flops.py``) and its text-encoder part
+  ``text_flops_per_sample_paper``, beside the analytic ``flops_per_sample``;
+* launcher provenance (``sweeps/launcher.py``): ``sweep``, ``status`` (done | failed | running |
+  pending), ``error``, ``data_sampling`` (clips | pairs), ``wall_time_s``, ``device_kind``,
+  ``git_commit``.
+
+``load_results(..., strict=False)`` (what ``handx analyze fit/plot/extrapolate`` use) accepts any
+table with the columns an analysis names: unknown columns are kept, only schema columns are checked.
 
 Run-folder contract
 -------------------

@@ -403,13 +403,18 @@ def _spec_of(doc: dict) -> RunSpec:
                       "args": tuple(doc.get("args", ())), "command": tuple(doc.get("command", ()))})
 
 
-def run_status(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: set | None = None) -> tuple[str, str | None]:
-    """done | running | failed | pending (and the error of a failed run)."""
+def run_status(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | None = None) -> tuple[str, str | None]:
+    """done | running | failed | pending (and the error of a failed run).
+
+    ``slurm_active`` ({job id: state} from squeue) tells a queued job (pending) from a running one.
+    """
     d = run_dir(cfg, spec)
     if is_complete(cfg, spec):
         return "done", None
     st = _read_json(d / "status.json")
     job = _read_json(out / "slurm_jobs.json").get(spec.name)
+    if slurm_active is not None and job in slurm_active and slurm_active[job] == "PENDING" and not is_locked(d):
+        return "pending", f"queued as SLURM job {job}"
     if is_locked(d) or (slurm_active is not None and job in slurm_active):
         return "running", None
     if st.get("status") in ("failed", "running"):  # "running" with no live holder: it died
@@ -428,7 +433,7 @@ def _paper_flops(cfg_doc: dict) -> dict:
     return flops.both_conventions(DiTConfig(**m), float(cfg_doc["text_len_mean"]))
 
 
-def result_row(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: set | None = None) -> dict:
+def result_row(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | None = None) -> dict:
     from analysis.schema import COLUMN_BY_NAME, row_from_run_dir, validate_row
 
     d = run_dir(cfg, spec)
@@ -448,6 +453,8 @@ def result_row(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: set | N
             row.setdefault(k, v)
     prov = _read_json(d / "provenance.json")
     secs = sum(s.get("seconds", 0.0) for s in prov.get("stages", {}).values())
+    if status != "failed":
+        error = None  # e.g. "queued as SLURM job ..." is a note for `handx sweep status`, not a failure
     if error:  # one line in the table (the full text stays in RUN/status.json and RUN/logs/)
         lines = [ln.strip() for ln in error.splitlines() if ln.strip()]
         error = " | ".join(lines[:1] + lines[-3:] if len(lines) > 4 else lines)[:600]
@@ -464,7 +471,7 @@ def _load_state(out: Path) -> tuple[SweepConfig, list[RunSpec]]:
     return SweepConfig(**doc["config"]), [_spec_of(s) for s in doc["runs"]]
 
 
-def collect_results(out: str | os.PathLike, slurm_active: set | None = None) -> Path:
+def collect_results(out: str | os.PathLike, slurm_active: dict | None = None) -> Path:
     """Rebuild OUT/results.jsonl and OUT/results.csv (atomically), one row per run of the sweep."""
     from analysis.schema import save_results
 
@@ -492,6 +499,21 @@ def _collect_quietly(out: Path) -> None:
 # Executors
 
 
+def _submitit():
+    """Import submitit without its import-time ``logging.config.dictConfig``: that call closes every
+    existing logging handler (e.g. absl's, which JAX installs on sys.stderr), so importing submitit
+    in a process that already ran JAX breaks that process's stderr. Its records go to the root logger."""
+    if "submitit" not in sys.modules:
+        had = "SUBMITIT_LOG_LEVEL" in os.environ
+        os.environ.setdefault("SUBMITIT_LOG_LEVEL", "NOCONFIG")
+        try:
+            import submitit  # noqa: F401
+        finally:
+            if not had:
+                del os.environ["SUBMITIT_LOG_LEVEL"]
+    return sys.modules["submitit"]
+
+
 class _Job:
     """A picklable callable for submitit; requeued jobs simply call run_one again (it resumes)."""
 
@@ -502,9 +524,7 @@ class _Job:
         return run_one(self.spec, self.cfg)
 
     def checkpoint(self, *args, **kwargs):  # submitit's preemption/timeout hook
-        import submitit
-
-        return submitit.helpers.DelayedSubmission(_Job(self.spec, self.cfg))
+        return _submitit().helpers.DelayedSubmission(_Job(self.spec, self.cfg))
 
 
 @dataclass
@@ -565,12 +585,8 @@ def sacct_states(job_ids: Sequence[str]) -> dict[str, str]:
 
 
 def _slurm(specs: Sequence[RunSpec], cfg: SweepConfig, out: Path) -> dict[str, str]:
-    import submitit
-
+    submitit = _submitit()
     params = dict(cfg.slurm)
-    if "timeout_min" not in params:
-        raise ValueError("SLURM needs a time limit: give timeout_min in the sweep's RESOURCES for this preset or "
-                         "--slurm timeout_min=N (submitit's silent default would end every run after 5 minutes)")
     jobs_path = out / "slurm_jobs.json"
     old = _read_json(jobs_path)
     todo = [s for s in specs if not is_complete(cfg, s)]
@@ -632,6 +648,9 @@ def launch(specs: Sequence[RunSpec], cfg: SweepConfig) -> LaunchResult:
     out = Path(cfg.out).absolute()
     for s in specs:
         run_dir(cfg, s)  # refuses names that would leave OUT
+    if cfg.executor == "slurm" and "timeout_min" not in cfg.slurm:
+        raise ValueError("SLURM needs a time limit: give timeout_min in the sweep's RESOURCES for this preset or "
+                         "--slurm timeout_min=N (submitit's silent default would end every run after 5 minutes)")
     out.mkdir(parents=True, exist_ok=True)
     prev = _read_json(out / "sweep.json").get("runs", [])
     names = {s.name for s in specs}
@@ -643,9 +662,7 @@ def launch(specs: Sequence[RunSpec], cfg: SweepConfig) -> LaunchResult:
     elif cfg.executor == "slurm":
         failed = _slurm(specs, cfg, out)
     elif cfg.executor == "debug":
-        import submitit
-
-        ex = submitit.AutoExecutor(folder=str(out / "submitit"), cluster="debug")
+        ex = _submitit().AutoExecutor(folder=str(out / "submitit"), cluster="debug")
         failed = {}
         for s in specs:
             try:
@@ -666,7 +683,7 @@ def status(out: str | os.PathLike) -> list[dict]:
     active = None
     if (out / "slurm_jobs.json").exists() and shutil.which("squeue"):
         try:
-            active = set(squeue_states())
+            active = squeue_states()
         except RuntimeError:
             active = None
     rows = []

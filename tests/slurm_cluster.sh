@@ -57,10 +57,11 @@ fi
 
 [ "$(id -u)" = 0 ] || die "needs root (to install packages and run slurmd/munged); running as $(id -un)"
 need=()
-command -v slurmctld >/dev/null || need+=(slurm-wlm)
-command -v munged >/dev/null || need+=(munge)
-command -v slurmdbd >/dev/null || need+=(slurmdbd)
-command -v mariadbd >/dev/null || need+=(mariadb-server)
+have() { for b in "$@"; do command -v "$b" >/dev/null || return 1; done; }
+have slurmctld slurmd sbatch squeue scancel sacct sacctmgr sinfo srun || need+=(slurm-wlm)
+have munged munge unmunge || need+=(munge)
+have slurmdbd || need+=(slurmdbd)
+have mariadbd mariadb-install-db mariadb || need+=(mariadb-server)
 if [ ${#need[@]} -gt 0 ]; then
   command -v apt-get >/dev/null || die "APT-UNAVAILABLE: ${need[*]} missing and there is no apt-get"
   export DEBIAN_FRONTEND=noninteractive

@@ -238,6 +238,7 @@ def test_kill9_of_the_launcher_ends_its_child_and_the_relaunch_finishes(tmp_path
     assert pid_file.exists(), "run b never started"
     child = int(pid_file.read_text())
     assert pid_alive(child)
+    assert {r["name"]: r["status"] for r in status(out)} == {"a": "done", "b": "running", "c": "pending"}
     launcher.send_signal(signal.SIGKILL)
     launcher.wait()
     deadline = time.time() + 10
@@ -312,3 +313,27 @@ def test_dry_run_and_slurm_time_limit(tmp_path, capsys):
     # Without a time limit, SLURM is refused rather than left to submitit's 5-minute default.
     with pytest.raises(ValueError, match="time limit"):
         launch([fake("a")], cfg_for(tmp_path, executor="slurm"))
+    assert not (tmp_path / "sweep").exists()
+
+
+def test_diffusion_sweep_overrides_are_valid_configs():
+    """Every run of the diffusion sweep files, both presets, is a valid diffusion config of its axes."""
+    try:  # after the family restructuring (issue 12): handx_jax/families/diffusion.py
+        from handx_jax.families.diffusion import make_config as mk
+
+        def build(s):
+            return mk(s.preset, list(s.overrides), data="", encoder="")
+    except ImportError:
+        from handx_jax.diffusion_family import make_config as mk
+
+        def build(s):
+            return mk(s.preset, "", "", s.overrides)
+
+    for f in ("diffusion_depth_data", "diffusion_flops_ladder", "diffusion_width"):
+        for preset in ("tiny", "paper"):
+            for s in load_sweep(f"sweeps/{f}.py", preset=preset, sampling="pairs"):
+                c = build(s)
+                assert (c.model.layers, c.model.dim) == (s.axes["layers"], s.axes["dim"])
+                assert c.data.fraction == s.axes["data_fraction"] and c.data.sampling == "pairs"
+                assert c.model.dim % c.model.heads == 0
+                assert c.train.bf16 == (preset == "paper")
