@@ -52,7 +52,7 @@ import numpy as np
 from handx_jax import representation as rep
 from handx_jax.io import (DataError, atomic_write_bytes, atomic_write_json, read_format_meta, read_params_msgpack,
                           write_params_msgpack)
-from handx_jax.metrics import MetricConfig, replicate_embedding_metrics, replicate_motion_metrics
+from handx_jax.metrics import MetricConfig, ci_method, replicate_embedding_metrics, replicate_motion_metrics
 from handx_jax.models.evaluator import PRESETS, Evaluator, EvaluatorConfig, evaluator_loss
 from handx_jax.text.cache import bucket_length
 
@@ -678,6 +678,7 @@ def evaluate_embeddings_and_motion(ev: TrainedEvaluator, text_NxD: np.ndarray, g
     m = {"prompts": int(N), "groups": int(G), "replications": cfg.replications, "rprec_block": cfg.rprec_block,
          "seed": cfg.seed, "mpjpe_root": cfg.mpjpe_root, "evaluator": str(ev.root) if ev.root else None,
          "eval_level": ev.policy.eval_level, "seconds": {"motion_embedding": t1 - t0, "metrics": t2 - t1},
+         "ci_method": {k: ci_method(k, G) for k in metrics}, "bootstrap": cfg.bootstrap,
          **(meta or {})}
     return EvalResult(metrics, m)
 

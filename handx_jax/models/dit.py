@@ -8,8 +8,13 @@
     x̂0   = Out(z + o_L + o_R + o_I)      the model predicts x0
 
 The three passes share weights, so they run as one decoder call on a 3B batch. Classifier-free
-guidance uses a learned null text embedding per branch (reference: one (1,1,D) null embedding);
-``drop_BxK`` selects, per sample and branch, whether the text is replaced by it.
+guidance uses one learned null text embedding (D,) shared by the three branches, as the reference's
+single (1,1,D) null (§3.1); ``drop_BxK`` selects, per sample and branch, whether that branch's text
+tokens are all replaced by it (the branch's CLS token still tells the branches apart).
+
+Initialisation follows reference §3.1: every Linear N(0, 0.02) with zero bias (decoder layers
+included; q/k/v keep PyTorch's packed in_proj xavier init, see ``layers.REFERENCE_LINEAR_INIT``);
+CLS tokens and the null embedding N(0, 1).
 
 Parameter counts with 768-wide text features reproduce paper Table C (tests/test_dit.py).
 """
@@ -22,7 +27,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from handx_jax.models.layers import DecoderLayer, attention_mask, sinusoidal_table
+from handx_jax.models.layers import (REFERENCE_LINEAR_INIT, DecoderLayer, attention_mask, packed_in_proj_init,
+                                     sinusoidal_table)
 
 NUM_BRANCHES = 3  # left, right, interaction
 
@@ -64,7 +70,7 @@ class TrebleDenoiser(nn.Module):
         c = self.cfg
         B, F = x_BxFxJxC.shape[:2]
         pe = jnp.asarray(sinusoidal_table(c.max_len, c.dim))
-        dense = lambda n, name: nn.Dense(n, dtype=self.dtype, kernel_init=nn.initializers.normal(0.02),  # noqa: E731
+        dense = lambda n, name: nn.Dense(n, dtype=self.dtype, kernel_init=REFERENCE_LINEAR_INIT,  # noqa: E731
                                          name=name)
         z_BxFxD = dense(c.dim, "input_proj")(x_BxFxJxC.reshape(B, F, c.motion_features))
         t_tok = dense(c.dim, "time_mlp_1")(pe[t_B])
@@ -91,7 +97,8 @@ class TrebleDenoiser(nn.Module):
         self_valid = jnp.ones((NUM_BRANCHES * B, F + 2), bool)
         cross = attention_mask(self_valid, mem_valid)
         for i in range(c.layers):
-            seq = DecoderLayer(c.dim, c.heads, c.ff, c.dropout, self.dtype, name=f"layer{i}")(
+            seq = DecoderLayer(c.dim, c.heads, c.ff, c.dropout, self.dtype, kernel_init=REFERENCE_LINEAR_INIT,
+                               qkv_init=packed_in_proj_init, name=f"layer{i}")(
                 seq, mem, None, cross, deterministic=deterministic)
         out_KxBxFxD = seq.reshape(NUM_BRANCHES, B, F + 2, c.dim)[:, :, 2:]
         h = z_BxFxD + out_KxBxFxD.sum(0)  # treble residual
