@@ -335,7 +335,7 @@ def test_hand_frames_input_with_patches_trains_saves_and_reloads(setup, tmp_path
     root, data, _ = setup
     ds = Dataset.open(data)
     over = {"motion_input": "hand_frames", "motion_patch": 2}
-    E = train_evaluator(data, ENCODER, tmp_path / "E", steps=40, final_eval=False, overrides=over, **TINY)
+    E = train_evaluator(data, ENCODER, tmp_path / "E", steps=60, final_eval=False, overrides=over, **TINY)
     ev = load_evaluator(E)
     assert ev.cfg.motion_input == "hand_frames" and ev.cfg.motion_patch == 2 and ev.cfg.motion_dim == 307
     # statistics are the train split's, per feature; constant features (middle MCP local y, z) get std 1
