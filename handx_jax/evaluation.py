@@ -231,7 +231,7 @@ class TrainedEvaluator:
 
         from handx_jax.data.dataset import check_compatible
 
-        c = check_compatible(self.meta.get("dataset"), ds, what="this evaluator",
+        c = check_compatible(self.meta.get("dataset"), ds, what="this evaluator", made="trained on",
                              fix=f"evaluate against the dataset the evaluator was trained on "
                                  f"({self.meta.get('dataset', {}).get('path')}), or train a new evaluator with "
                                  f"`handx eval train-evaluator --data {ds.root}`")

@@ -179,7 +179,7 @@ def _flat(d: Any, prefix: str = "") -> dict[str, Any]:
     return {prefix[:-1]: d}
 
 
-def check_compatible(trained: dict | None, ds: "Dataset", *, what: str = "this model",
+def check_compatible(trained: dict | None, ds: "Dataset", *, what: str = "this model", made: str = "made from",
                      parts: Sequence[str] = COMPAT_PARTS, fix: str = "") -> Compatibility:
     """Is ``ds`` the dataset that ``trained`` (a :func:`dataset_record`) was made from?
 
@@ -198,8 +198,8 @@ def check_compatible(trained: dict | None, ds: "Dataset", *, what: str = "this m
     hint = f"; {fix}" if fix else ""
 
     def refuse(reason: str) -> DataError:
-        return DataError(f"dataset mismatch: {what} was made from dataset {want}, but this dataset is {have}: "
-                         f"{reason}{hint}", path=ds.root)
+        return DataError(f"dataset fingerprint mismatch: {what} was {made} dataset {want}, but this dataset is "
+                         f"{have}: {reason}{hint}", path=ds.root)
 
     if not tid or not did or tid.get("version") != did.get("version"):
         raise refuse("the content differs and one of them records no comparable identity (built before "
@@ -236,7 +236,8 @@ def check_compatible(trained: dict | None, ds: "Dataset", *, what: str = "this m
         if not worst <= MOTION_ATOL:
             raise refuse(f"the motion differs beyond float rounding (per-split coordinate moments differ by up to "
                          f"{worst:.3g} m, tolerance {MOTION_ATOL:g} m)")
-    return Compatibility("rounding", f"note: dataset {have} differs from {what}'s dataset {want} only by float "
+    return Compatibility("rounding", f"note: dataset {have} differs from the dataset {what} was {made} ({want}) "
+                         f"only by float "
                          f"rounding (same recipe, clip ids, splits and captions; motion moments within "
                          f"{worst:.2g} m, tolerance {MOTION_ATOL:g} m): accepted", worst)
 
