@@ -85,7 +85,12 @@ def model_stages(out: Path, data: Path, steps: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    import textwrap
+
+    from handx_jax.data.clips import defect_reasons_help
+
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                                epilog=textwrap.fill("The corpus cut report (stage 1): " + defect_reasons_help(), 100))
     p.add_argument("--out", default="runs/demo", help="demo folder (rebuilt each time)")
     p.add_argument("--clips", type=int, default=600)
     p.add_argument("--seed", type=int, default=0)

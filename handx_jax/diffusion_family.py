@@ -6,8 +6,9 @@ error with a suggestion). Training items are (clip, level) pairs of the train sp
 fraction; item j of a clip uses annotation level j for all three texts, as the reference loader does
 (reference §1.2). The normalised diffusion representation of every training clip is computed once and
 held in memory; text comes from the frozen-encoder cache (the encoder never runs in the step). Each
-branch's text is dropped to the null embedding independently with p = ``cond_drop`` (§3.2); t is
-uniform; the loss is the x0 objective of §3.5.
+branch's text is dropped to the null embedding independently with p = ``cond_drop`` (§3.2), and all
+three at once with p = ``joint_drop`` (``diffusion.cond_drop_mask``); t is uniform; the loss is the x0
+objective of §3.5.
 
 The run folder follows ``analysis.schema``'s contract: ``config.json`` holds ``family``, the model
 axes (under ``model``), ``data_fraction``, ``params``, ``params_non_embedding``, ``flops_per_sample``

@@ -7,9 +7,50 @@ from handx_jax import diffusion as D
 from handx_jax.models.dit import NUM_BRANCHES, PRESETS, DiTConfig, forward_flops, init_denoiser, param_count
 
 
-@pytest.mark.parametrize("name,expected", [("paper-4L", 4.63e6), ("paper-8L", 26.33e6), ("paper-12L", 38.95e6)])
-def test_param_counts_match_table_c(name, expected):
-    assert abs(param_count(PRESETS[name]) - expected) / expected < 0.005
+def _count_by_hand(L, D, FF, text=768, motion=168):
+    """Trainable parameters of reference §3.1, term by term (Linear = weight + bias, LayerNorm = 2D)."""
+    io = (motion * D + D) + (D * motion + motion) + (text * D + D)  # input, output, text projections
+    time_mlp = 2 * (D * D + D)
+    tokens = 3 * D + D  # three CLS tokens and the null text embedding
+    layer = 2 * 4 * (D * D + D) + 3 * 2 * D + (D * FF + FF) + (FF * D + D)  # self/cross attn, 3 LN, FF
+    return io + time_mlp + tokens + L * layer
+
+
+@pytest.mark.parametrize("name,paper_millions,exact", [("paper-4L", 4.63, 4_629_672), ("paper-8L", 26.33, 26_329_256),
+                                                       ("paper-12L", 38.95, 38_946_984)])
+def test_param_counts_match_table_c(name, paper_millions, exact):
+    """Exact integers: the model's count, the count by hand, and Table C's value once rounded as printed."""
+    cfg = PRESETS[name]
+    assert param_count(cfg) == _count_by_hand(cfg.layers, cfg.dim, cfg.ff) == exact
+    assert round(exact / 1e6, 2) == paper_millions
+    # Table C's fourth row (16, 768, 3072) is 153,262,248 here, not the paper's 260.97M (reference §3.3)
+    big = DiTConfig(layers=16, dim=768, heads=12, ff=3072)
+    assert _count_by_hand(16, 768, 3072) == 153_262_248 and param_count(big) == 153_262_248
+
+
+def test_init_follows_the_reference():
+    """Reference §3.1: every Linear N(0, 0.02) with zero bias, decoder layers included; q/k/v as PyTorch's
+    packed in_proj_weight, xavier_uniform_ over (3D, D): U(±√(6/4D)); CLS and null tokens N(0, 1)."""
+    cfg = DiTConfig(layers=2, dim=256, heads=4, ff=512, text_dim=64)
+    _, params = init_denoiser(cfg, jax.random.PRNGKey(0))
+    flat = jax.tree_util.tree_flatten_with_path(params["params"])[0]
+    bound = np.sqrt(6 / (4 * cfg.dim))
+    n_kernels = 0
+    for path, w in flat:
+        name = "/".join(str(getattr(k, "key", k)) for k in path)
+        w = np.asarray(w)
+        if name.endswith("bias") and "norm" not in name:
+            np.testing.assert_array_equal(w, 0, err_msg=name)
+        elif name.endswith("kernel") and any(f"/{q}/" in f"/{name}" for q in ("query", "key", "value")):
+            assert np.abs(w).max() <= bound and abs(w.std() / (bound / np.sqrt(3)) - 1) < 0.05, name
+            n_kernels += 1
+        elif name.endswith("kernel"):
+            assert abs(w.std() / 0.02 - 1) < 0.05 and abs(w.mean()) < 0.002, (name, w.std())
+            n_kernels += 1
+        elif name.split("/")[-1] in ("cls", "null_text"):
+            assert 0.8 < w.std() < 1.2, name
+    # 5 top-level Linears + per layer 4 self-attn + 4 cross-attn + 2 FF kernels
+    assert n_kernels == 5 + cfg.layers * 10
 
 
 def _inputs(cfg, B=2, L=8, seed=0):

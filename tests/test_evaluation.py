@@ -32,8 +32,21 @@ def setup(tmp_path_factory):
     root = tmp_path_factory.mktemp("evaluation")
     data = build_corpus(root / "ds", BuildConfig(clips=32, seed=5, workers=1, val_fraction=0.2, test_fraction=0.25),
                         progress=False)
-    E = train_evaluator(data, ENCODER, root / "E", steps=40, final_eval=False, **TINY)
+    E = train_evaluator(data, ENCODER, root / "E", steps=TRAIN_STEPS, final_eval=False, **TINY)
     return root, data, E
+
+
+TRAIN_STEPS = 300  # enough for the tiny evaluator to match its training pairs well above chance (40 is not)
+
+
+def assert_beats_chance(res, block: int):
+    """R-Precision top-1 and top-3 above chance (k / block) by 3 binomial standard deviations of a hit
+    rate over the n prompts scored per replication: √(p(1−p)/n)."""
+    n = res.meta["prompts"] // min(block, res.meta["prompts"]) * min(block, res.meta["prompts"])
+    for k in (1, 3):
+        p = k / min(block, res.meta["prompts"])
+        got = res.metrics[f"rprec_top{k}"][0]
+        assert got > p + 3 * np.sqrt(p * (1 - p) / n), (k, got, p, n)
 
 
 def test_checkpoint_round_trip_and_versioned_meta(setup):
@@ -76,7 +89,7 @@ def test_refuses_other_dataset_and_changed_encoder(setup, tmp_path):
     other = write_dataset(tmp_path / "other", np.asarray(ds.motion[:8]) * 1.01, ds.texts[:8],
                           splits={"train": list(range(6)), "val": [], "test": [6, 7]})
     ev = load_evaluator(E)
-    with pytest.raises(DataError, match="dataset mismatch: this evaluator was made from dataset .* different recipe"):
+    with pytest.raises(DataError, match="dataset fingerprint mismatch: this evaluator was trained on dataset"):
         evaluate_ground_truth(ev, Dataset.open(other), CFG)
     # an encoder folder whose weights changed is refused at load time
     enc = shutil.copytree(ENCODER, tmp_path / "enc")
@@ -131,6 +144,9 @@ def test_ground_truth_row_and_self_evaluation(setup):
     for k in ("contact_f1_intra", "contact_f1_inter"):
         assert gt.metrics[k][0] in (0.0, pytest.approx(1.0, abs=1e-6))
     assert "multimodality" not in gt.metrics
+    # the trained evaluator matches its training pairs far above chance (one block of all 10 clips)
+    assert_beats_chance(evaluate_ground_truth(ev, ds, MetricConfig(replications=4, rprec_block=10), split="train",
+                                              cache=False), block=10)
     # the dataset evaluated against itself as a generation of 2 groups: FID 0, R-Precision equal to GT's
     same = evaluate_generated(ev, _generated(ds), ds, CFG)
     assert same.metrics["fid"][0] == pytest.approx(0.0, abs=1e-4)
@@ -140,7 +156,9 @@ def test_ground_truth_row_and_self_evaluation(setup):
     by_order = evaluate_generated(ev, _generated(ds, with_source=False), ds, CFG)
     assert by_order.metrics["rprec_top1"] == same.metrics["rprec_top1"]
     noisy = evaluate_generated(ev, _generated(ds, noise=0.02), ds, CFG)
-    assert noisy.metrics["fid"][0] > 0 and noisy.metrics["mpjpe"][0] > 0
+    # isotropic N(0, σ²) noise on every coordinate: E‖n‖ = σ·√(8/π) = 31.9 mm for σ = 2 cm
+    assert noisy.metrics["fid"][0] > 0 and noisy.metrics["mpjpe"][0] == pytest.approx(20 * np.sqrt(8 / np.pi), rel=0.02)
+    assert noisy.meta["ci_method"]["fid"] == "groups" and gt.meta["ci_method"]["fid"] == "bootstrap_prompts"
 
 
 def _evaluator_copy(E, dst):
@@ -262,6 +280,7 @@ def test_cli_run_json_keys_and_eval_json(setup, tmp_path, capsys):
     assert all(f"{k}_ci" in out for k in base)
     ev_json = json.loads((tmp_path / "run" / "eval.json").read_text())
     assert ev_json["_meta"]["groups"] == 2
+    assert ev_json["_meta"]["ci_method"] == {k: ("bootstrap_prompts" if k == "multimodality" else "groups") for k in base}
     from analysis.schema import _eval_values
 
     assert set(_eval_values(ev_json, tmp_path / "run" / "eval.json")) == set(out)
@@ -292,7 +311,7 @@ def test_training_lowers_infonce_and_refuses_overwrite(setup):
     from handx_jax.models.evaluator import Evaluator, evaluator_loss
     from handx_jax.text.cache import open_cache
 
-    root, data, E = setup  # trained for 40 steps from the init below (train seed 42, fold_in 0)
+    root, data, E = setup  # trained for TRAIN_STEPS steps from the init below (train seed 42, fold_in 0)
     ev = load_evaluator(E)
     ds = Dataset.open(data)
     cache = open_cache(data, ENCODER, joined=True, max_len=64)
@@ -335,7 +354,7 @@ def test_hand_frames_input_with_patches_trains_saves_and_reloads(setup, tmp_path
     root, data, _ = setup
     ds = Dataset.open(data)
     over = {"motion_input": "hand_frames", "motion_patch": 2}
-    E = train_evaluator(data, ENCODER, tmp_path / "E", steps=60, final_eval=False, overrides=over, **TINY)
+    E = train_evaluator(data, ENCODER, tmp_path / "E", steps=TRAIN_STEPS, final_eval=False, overrides=over, **TINY)
     ev = load_evaluator(E)
     assert ev.cfg.motion_input == "hand_frames" and ev.cfg.motion_patch == 2 and ev.cfg.motion_dim == 307
     # statistics are the train split's, per feature; constant features (middle MCP local y, z) get std 1
@@ -355,7 +374,9 @@ def test_hand_frames_input_with_patches_trains_saves_and_reloads(setup, tmp_path
     loss = lambda p: float(evaluator_loss(Evaluator(ev.cfg), p, batch, jax.random.PRNGKey(0), False)[1]["infonce"])  # noqa: E731
     assert loss(ev.params) < loss(_init_params(ev.cfg, 64, jax.random.fold_in(jax.random.PRNGKey(42), 0))) - 0.5
     res = evaluate_ground_truth(ev, ds, CFG, cache=False)
-    assert res.metrics["fid"][0] == pytest.approx(0.0, abs=1e-4) and 0.0 <= res.metrics["rprec_top1"][0] <= 1.0
+    assert res.metrics["fid"][0] == pytest.approx(0.0, abs=1e-4)
+    assert_beats_chance(evaluate_ground_truth(ev, ds, MetricConfig(replications=4, rprec_block=10), split="train",
+                                              cache=False), block=10)
 
 
 def test_evaluator_config_checks_and_legacy_meta(setup, tmp_path):

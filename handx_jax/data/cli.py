@@ -10,6 +10,8 @@ from pathlib import Path
 
 
 def add_parser(subparsers) -> None:
+    from handx_jax.data.clips import defect_reasons_help
+
     p = subparsers.add_parser("data", help="datasets: synthesise, import/export HandX .npz, stats, render",
                               description="Build, import, export, inspect and render datasets.")
     sub = p.add_subparsers(dest="data_command", metavar="SUBCOMMAND")
@@ -17,7 +19,8 @@ def add_parser(subparsers) -> None:
 
     s = sub.add_parser("synth", help="build the procedural bimanual corpus",
                        description="Synthesise two-hand motion with forward kinematics, cut and filter clips "
-                                   "(paper A.3-A.4), annotate them (App. B) and write a dataset.")
+                                   "(paper A.3-A.4), annotate them (App. B) and write a dataset.",
+                       epilog="Cut report: " + defect_reasons_help())
     s.add_argument("--clips", type=int, required=True, help="number of clips to keep")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--out", required=True, help="dataset directory to create")
@@ -48,7 +51,8 @@ def add_parser(subparsers) -> None:
 
     s = sub.add_parser("import-handx", help="import official HandX .npz files into a dataset",
                        description="Import {train,test}_can_pos_all_wotextfeat.npz. The split comes from the "
-                                   "file name unless --split is given.")
+                                   "file name unless --split is given.",
+                       epilog="Cut report: " + defect_reasons_help())
     s.add_argument("files", nargs="+", help="official .npz files")
     s.add_argument("--out", required=True, help="dataset directory to create")
     s.add_argument("--split", choices=("train", "val", "test"), help="split for all given files")

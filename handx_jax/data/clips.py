@@ -100,6 +100,16 @@ def defective_frames(seq_Tx2x21x3: np.ndarray, cfg: ClipConfig = ClipConfig()) -
     return {"nonfinite": nonfinite, "jump": jump & ~nonfinite, "broken_pose": broken, "hands_apart": apart}
 
 
+def defect_reasons_help(cfg: ClipConfig = ClipConfig()) -> str:
+    """What the cut report's ``defective_frames`` counts mean (for --help texts)."""
+    return ("defective_frames counts frames cut out before windowing, by reason (paper A.3): "
+            f"nonfinite = a NaN/inf coordinate; jump = a joint moves more than {cfg.max_joint_step_m} m between "
+            f"consecutive frames (both frames); broken_pose = a bone's length is more than "
+            f"{cfg.max_bone_deviation:.0%} off its median length over the sequence; hands_apart = the wrists are "
+            f"more than {cfg.max_wrist_distance_m} m apart. rejected_intensity counts windows below the "
+            f"intensity filter (paper A.4: each hand >= {cfg.tau_hand:g} deg/s and their mean >= {cfg.tau_avg:g}).")
+
+
 def valid_intervals(valid_T: np.ndarray) -> list[tuple[int, int]]:
     """Maximal runs of valid frames as half-open [a, b) intervals."""
     v = np.concatenate([[False], np.asarray(valid_T, bool), [False]])
