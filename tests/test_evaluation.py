@@ -316,11 +316,18 @@ def test_training_lowers_infonce_and_refuses_overwrite(setup):
         train_evaluator(E, tiny_evaluator(data), log=lambda s: None)
 
 
-def test_resuming_with_a_different_config_is_refused(setup, tmp_path):
-    """The evaluator trains through handx_jax.train, which refuses to resume a folder with another config."""
+def test_resuming_with_a_different_config_is_refused(setup, tmp_path, monkeypatch):
+    """The evaluator trains through handx_jax.train, which refuses to resume a folder with another config.
+    A training run loads (and hashes) the T5 encoder once, for the text cache and the checkpoint alike."""
+    from handx_jax.text import hf
+
+    loads = []
+    real = hf.load_hf_t5_encoder
+    monkeypatch.setattr(hf, "load_hf_t5_encoder", lambda folder: loads.append(folder) or real(folder))
     root, data, _ = setup
     E = tmp_path / "E"
     train_evaluator(E, tiny_evaluator(data), stop_at=10, log=lambda s: None)  # "killed" before the end
+    assert len(loads) == 1
     assert (E / "config.json").exists() and not (E / "evaluator.json").exists()
     with pytest.raises(DataError, match="different configuration"):
         train_evaluator(E, tiny_evaluator(data, "train.optim.lr=2e-3"), log=lambda s: None)
