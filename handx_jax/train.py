@@ -10,8 +10,13 @@ plus a ``get_batch(indices) -> pytree of arrays``; everything else lives here:
   position is therefore the step, and a resumed run sees exactly the batches it would have seen.
 - orbax checkpoints every ``ckpt_every`` steps and at the end, holding params, optimizer state, EMA,
   step and rng; a killed run resumes from the latest one and ends with the same parameters.
-- The run folder gets ``config.json`` (atomic) and ``metrics.jsonl`` (one fsynced line per log);
-  wandb mirrors them (offline by default; WANDB_MODE overrides).
+- The run folder gets ``config.json`` (atomic), ``metrics.jsonl`` (one fsynced line per log) and
+  ``checkpoints/``; wandb mirrors them (offline by default; WANDB_MODE overrides). Re-running on a
+  folder resumes it, only with the same configuration (:func:`check_resume`), and ``metrics.jsonl`` is
+  trimmed to the restored step (step 0 when no checkpoint was written yet), so a killed run never
+  logs a step twice.
+- ``evaluate(params, ema, step) -> dict`` runs every ``eval_every`` steps and at the end; its row
+  (``{"step", "eval/...": ...}``) goes to ``metrics.jsonl`` beside the training rows.
 - Data parallel across all devices through ``jax.sharding``: the batch is split along a ("data",)
   mesh axis and parameters are replicated. Multi-host: call :func:`initialize_distributed` before
   any other JAX call (the ``handx train`` command does); each process then loads only its slice of
@@ -28,14 +33,14 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
 
-from handx_jax.io import append_jsonl, atomic_write_json, read_jsonl
+from handx_jax.io import DataError, append_jsonl, atomic_write_json, read_jsonl
 
 
 @dataclass(frozen=True)
@@ -68,6 +73,8 @@ class TrainConfig:
     # accelerator the host-side batch (memory-map reads, feature maths) otherwise serialises with the
     # step; batches depend only on (seed, step), so prefetching changes no number.
     prefetch: int = 2
+    # Steps between calls of the family's evaluation hook (0: only at the end, if a hook is given).
+    eval_every: int = 0
     optim: OptimConfig = OptimConfig()
 
 
@@ -134,14 +141,26 @@ def _global_batch(local: Any, global_size: int, sharding) -> Any:
         lambda x: jax.make_array_from_process_local_data(sharding, x, (global_size,) + x.shape[1:]), local)
 
 
-def _host_batches(get_batch: Callable[[np.ndarray], Any], steps: range, num_examples: int, batch_size: int,
-                  seed: int, depth: int):
+def _local_rows(batch: Any) -> Any:
+    """This process's rows of a whole host batch (all of them for a single process)."""
+    n = jax.process_count()
+    if n == 1:
+        return batch
+    i = jax.process_index()
+    return jax.tree_util.tree_map(lambda x: x[i * (len(x) // n):(i + 1) * (len(x) // n)], batch)
+
+
+def _host_batches(get_batch: Callable[[np.ndarray], Any] | None, steps: range, num_examples: int, batch_size: int,
+                  seed: int, depth: int, get_step_batch: Callable[[int], Any] | None = None):
     """Yield (step, local host batch) in step order, up to ``depth`` batches built ahead in threads.
 
     ``get_batch`` must be safe to call from several threads (read-only memory maps and numpy are; numpy
     releases the GIL in copies and maths, so the threads really overlap with the device step).
     """
-    make = lambda s: _local_batch(get_batch, batch_indices(num_examples, batch_size, seed, s))  # noqa: E731
+    if get_step_batch is not None:
+        make = lambda s: _local_rows(get_step_batch(s))  # noqa: E731
+    else:
+        make = lambda s: _local_batch(get_batch, batch_indices(num_examples, batch_size, seed, s))  # noqa: E731
     if depth <= 0:
         for s in steps:
             yield s, make(s)
@@ -209,6 +228,25 @@ class RunLogger:
             self._wandb.finish()
 
 
+def check_resume(run_dir: str | os.PathLike, config: dict, keys: Sequence[str] | None = None) -> None:
+    """Re-running on an existing run folder resumes it, but only with the same configuration: the
+    ``keys`` of ``config`` (all of them by default) must equal those in the folder's config.json."""
+    from handx_jax.config import diff_keys
+
+    p = Path(run_dir) / "config.json"
+    if not p.exists():
+        return
+    try:
+        old = json.loads(p.read_text())
+    except json.JSONDecodeError as e:
+        raise DataError(f"config.json is not valid JSON ({e}); move the folder away or use a new --out",
+                        path=p) from None
+    diff = diff_keys(old, config, list(config) if keys is None else keys)
+    if diff:
+        raise DataError(f"run folder exists with a different configuration ({', '.join(diff)} differ); "
+                        "use a new --out to start another run", path=run_dir)
+
+
 def _mesh():
     from jax.sharding import Mesh
 
@@ -224,26 +262,46 @@ def train(
     *,
     init: Callable[[jax.Array], Any],
     loss: Callable[[Any, Any, jax.Array, bool], tuple[jax.Array, dict]],
-    get_batch: Callable[[np.ndarray], Any],
-    num_examples: int,
+    get_batch: Callable[[np.ndarray], Any] | None = None,
+    num_examples: int = 0,
     cfg: TrainConfig,
     config: dict,
     stop_at: int | None = None,
     on_log: Callable[[dict], None] | None = None,
     flops_per_sample: float | None = None,
+    evaluate: Callable[[Any, Any, int], dict] | None = None,
+    resume_keys: Sequence[str] | None = None,
+    get_step_batch: Callable[[int], Any] | None = None,
+    optimizer: tuple[optax.GradientTransformation, Callable] | None = None,
+    save_at_stop: bool = False,
 ) -> dict:
     """Train (or resume) a run; returns {"params", "ema", "step"}.
 
     ``stop_at`` ends the process early (as if killed) after that step's checkpoint logic — used by the
     kill-and-resume tests. ``flops_per_sample`` (forward FLOPs of the trainable model per sample) makes
     every log line carry the cumulative ``train_flops`` = 3 × forward × samples seen (fwd + bwd).
+    ``evaluate(params, ema, step)`` (``ema`` is ``{}`` without EMA) returns metrics logged as a row of
+    their own at step 0 of a fresh run, every ``cfg.eval_every`` steps and at the last step; it must
+    not change the training state. ``resume_keys``: the keys of ``config`` (+ ``train``) a resumed run
+    must share with the folder's config.json (default: all).
+
+    Batches come from ``get_batch(indices)`` over ``num_examples`` items in the order of
+    :func:`batch_indices`, or, for a family with its own data order, from ``get_step_batch(step)``
+    (a pure function of the step, so resumes stay exact). ``optimizer`` = (transformation, schedule)
+    replaces the one built from ``cfg.optim`` (a family with its own recipe, e.g. T5 pretraining).
+    ``save_at_stop`` checkpoints at ``stop_at`` (a pre-emptible job's time slice) instead of
+    behaving as killed there.
     """
     import orbax.checkpoint as ocp
     from jax.sharding import NamedSharding, PartitionSpec as P
 
     run_dir = Path(run_dir).absolute()
-    logger = RunLogger(run_dir, {**config, "train": dataclasses.asdict(cfg)}, cfg.wandb)
-    tx, sched = make_optimizer(cfg.optim, cfg.steps)
+    doc = {**config, "train": dataclasses.asdict(cfg)}
+    check_resume(run_dir, doc, resume_keys)
+    # RUN-FOLDER LOCK (issue 14.8): after the merge with wt-sweeps, take handx_jax.runlock.RunLock(run_dir)
+    # here, around everything below, so two trainers never write one folder.
+    logger = RunLogger(run_dir, doc, cfg.wandb)
+    tx, sched = optimizer if optimizer is not None else make_optimizer(cfg.optim, cfg.steps)
     mesh = _mesh()
     data_sharding = NamedSharding(mesh, P("data"))
     replicated = NamedSharding(mesh, P())
@@ -266,8 +324,10 @@ def train(
         abstract = jax.tree_util.tree_map(ocp.utils.to_shape_dtype_struct, state)
         state = mngr.restore(start, args=ocp.args.StandardRestore(abstract))
         state = jax.device_put(state, replicated)
-        logger.truncate_after(start)
         print(f"resumed from step {start}")
+    # Always, also with no checkpoint yet (start 0): rows of a killed attempt beyond the restored step
+    # would otherwise be logged twice (10, 20, 30, 10, 20, …).
+    logger.truncate_after(start)
 
     compute_dtype = jnp.bfloat16 if cfg.bf16 else jnp.float32
 
@@ -291,9 +351,20 @@ def train(
 
     jstep = jax.jit(step_fn, donate_argnums=(0,))
     end = min(cfg.steps, stop_at) if stop_at is not None else cfg.steps
+
+    def run_eval(done: int) -> None:
+        ev = evaluate(state["params"], state["ema"], done)
+        if ev:
+            row = {"step": done, **ev}
+            logger.log(row)
+            if on_log:
+                on_log(row)
+
+    if evaluate is not None and start == 0 and end > 0:
+        run_eval(0)  # the untrained model's numbers, the start of every curve
     t_last, n_since = time.perf_counter(), 0
     for step, local in _host_batches(get_batch, range(start, end), num_examples, cfg.batch_size, cfg.seed,
-                                     cfg.prefetch):
+                                     cfg.prefetch, get_step_batch):
         batch = _global_batch(local, cfg.batch_size, data_sharding)
         state, metrics = jstep(state, batch, jax.random.fold_in(jax.random.fold_in(rng, 1), step))
         n_since += cfg.batch_size
@@ -310,7 +381,9 @@ def train(
             if on_log:
                 on_log(row)
             t_last, n_since = time.perf_counter(), 0
-        if done % cfg.ckpt_every == 0 or done == cfg.steps:
+        if evaluate is not None and ((cfg.eval_every and done % cfg.eval_every == 0) or done == cfg.steps):
+            run_eval(done)
+        if done % cfg.ckpt_every == 0 or done == cfg.steps or (save_at_stop and done == end):
             mngr.save(done, args=ocp.args.StandardSave(state))
     mngr.wait_until_finished()
     mngr.close()

@@ -77,7 +77,7 @@ def test_blend_names_are_checked():
 
 def _drops_seen_by_make_loss(dcfg, batch_size):
     """The (B, 3) drop mask make_loss passes to the model, captured by a stand-in model."""
-    from handx_jax.diffusion_family import make_loss
+    from handx_jax.families.diffusion import make_loss
 
     seen = {}
 

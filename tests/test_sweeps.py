@@ -288,7 +288,7 @@ def test_launch_resume_and_results(tmp_path):
     # replacement over all train items, nested across fractions; "clips" keeps every level of each clip.
     import numpy as np
 
-    from handx_jax.diffusion_family import config_from_dict, load_train_data
+    from handx_jax.families.diffusion import config_from_dict, load_train_data
 
     td = load_train_data(config_from_dict(json.loads((tmp_path / "sweep/runs/b/config.json").read_text())))
     n = len(td.clips) * td.levels
