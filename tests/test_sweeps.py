@@ -318,16 +318,10 @@ def test_dry_run_and_slurm_time_limit(tmp_path, capsys):
 
 def test_diffusion_sweep_overrides_are_valid_configs():
     """Every run of the diffusion sweep files, both presets, is a valid diffusion config of its axes."""
-    try:  # after the family restructuring (issue 12): handx_jax/families/diffusion.py
-        from handx_jax.families.diffusion import make_config as mk
+    from handx_jax.families.diffusion import make_config as mk
 
-        def build(s):
-            return mk(s.preset, list(s.overrides), data="", encoder="")
-    except ImportError:
-        from handx_jax.diffusion_family import make_config as mk
-
-        def build(s):
-            return mk(s.preset, "", "", s.overrides)
+    def build(s):
+        return mk(s.preset, list(s.overrides), data="", encoder="")
 
     for f in ("diffusion_depth_data", "diffusion_flops_ladder", "diffusion_width"):
         for preset in ("tiny", "paper"):
