@@ -65,6 +65,8 @@ def _run(args: argparse.Namespace) -> int:
         print("\nfamily options: see `handx generate --run RUN --help`")
         return 0 if args.help else fail(CMD, "the following arguments are required: --run, --out")
     try:
+        if not args.help:
+            _prompts(args)  # bad prompts (e.g. empty) are refused before any run is opened
         fam, fp = family_parser(args.run)
     except ValueError as e:
         return fail(CMD, e)
