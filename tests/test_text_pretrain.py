@@ -11,7 +11,7 @@ from handx_jax.io import DataError, read_jsonl
 from handx_jax.text import cli
 from handx_jax.text import tokenizer as tk
 from handx_jax.text.pretrain import PretrainConfig, pretrain, span_corrupt, target_length
-from handx_jax.text.t5 import load_hf_t5_encoder
+from handx_jax.text.hf import load_hf_t5_encoder
 from handx_jax.text.toy import write_toy_dataset
 
 SENTINELS = list(range(1000, 1032))
