@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from handx_jax.io import DataError, append_jsonl, atomic_write_json, read_jsonl
+from handx_jax.io import DataError, append_jsonl, atomic_write_json, read_jsonl, verify_tree_checksum, write_tree_checksum
 
 
 @dataclass(frozen=True)
@@ -298,8 +298,8 @@ def train(
     run_dir = Path(run_dir).absolute()
     doc = {**config, "train": dataclasses.asdict(cfg)}
     check_resume(run_dir, doc, resume_keys)
-    # RUN-FOLDER LOCK (issue 14.8): after the merge with wt-sweeps, take handx_jax.runlock.RunLock(run_dir)
-    # here, around everything below, so two trainers never write one folder.
+    # The run-folder lock (handx_jax.runlock.RunLock, issue 14.8) is taken by `handx train` around the
+    # whole family run, before the family writes its first file; library callers take it themselves.
     logger = RunLogger(run_dir, doc, cfg.wandb)
     tx, sched = optimizer if optimizer is not None else make_optimizer(cfg.optim, cfg.steps)
     mesh = _mesh()
@@ -321,6 +321,7 @@ def train(
     start = 0
     if mngr.latest_step() is not None:
         start = int(mngr.latest_step())
+        verify_tree_checksum(run_dir / "checkpoints" / str(start))  # flipped bytes are refused, naming the file
         abstract = jax.tree_util.tree_map(ocp.utils.to_shape_dtype_struct, state)
         state = mngr.restore(start, args=ocp.args.StandardRestore(abstract))
         state = jax.device_put(state, replicated)
@@ -385,6 +386,8 @@ def train(
             run_eval(done)
         if done % cfg.ckpt_every == 0 or done == cfg.steps or (save_at_stop and done == end):
             mngr.save(done, args=ocp.args.StandardSave(state))
+            if jax.process_index() == 0:  # synchronous save: the step folder is complete here
+                write_tree_checksum(run_dir / "checkpoints" / str(done))
     mngr.wait_until_finished()
     mngr.close()
     logger.close()
@@ -399,6 +402,7 @@ def load_params(run_dir: str | os.PathLike, *, ema: bool = False, step: int | No
     step = mngr.latest_step() if step is None else step
     if step is None:
         raise FileNotFoundError(f"no checkpoint in {run_dir}/checkpoints")
+    verify_tree_checksum(Path(run_dir).absolute() / "checkpoints" / str(step))
     state = mngr.restore(step, args=ocp.args.StandardRestore())
     mngr.close()
     return (state["ema"] if ema and state["ema"] else state["params"]), int(step)

@@ -116,3 +116,26 @@ def test_evaluation_hook_and_resume_check(tmp_path):
     with pytest.raises(DataError, match=r"different configuration \(family differ\)"):
         train(tmp_path / "r", **{**kw, "config": {"family": "other"}}, cfg=cfg)
     assert (tmp_path / "r" / "config.json").read_text() == before
+
+
+def test_checkpoints_carry_checksums_and_flipped_bytes_are_refused(tmp_path):
+    """Each checkpoint step folder gets a SHA256SUMS listing (issue 14.8: 64 flipped bytes loaded
+    silently); a changed file is a DataError naming it, on resume and on load."""
+    from handx_jax.io import DataError
+    from handx_jax.train import load_params
+
+    init, loss, get_batch, _ = _problem()
+    train(tmp_path / "r", init=init, loss=loss, get_batch=get_batch, num_examples=96, cfg=CFG, config={})
+    step_dir = tmp_path / "r" / "checkpoints" / str(CFG.steps)
+    assert (step_dir / "SHA256SUMS").is_file()
+    load_params(tmp_path / "r")  # intact: loads
+    victim = max((p for p in step_dir.rglob("*") if p.is_file() and p.name != "SHA256SUMS"),
+                 key=lambda p: p.stat().st_size)
+    raw = bytearray(victim.read_bytes())
+    raw[len(raw) // 2:len(raw) // 2 + 64] = bytes(b ^ 0xFF for b in raw[len(raw) // 2:len(raw) // 2 + 64])
+    victim.write_bytes(bytes(raw))
+    with pytest.raises(DataError, match="checksum mismatch"):
+        load_params(tmp_path / "r")
+    with pytest.raises(DataError, match=victim.name):
+        train(tmp_path / "r", init=init, loss=loss, get_batch=get_batch, num_examples=96,
+              cfg=CFG, config={})

@@ -69,8 +69,20 @@ def _run(args: argparse.Namespace) -> int:
     if fargs.print_config:
         print_config(cfg)
         return 0
+    import contextlib
+
+    import jax
+
+    from handx_jax.runlock import RunLock, RunLocked
+
+    # One writer per run folder (issue 14.8): taken here, before the family writes anything into it
+    # (e.g. norm_stats.npz). Process 0 only: the other processes of a multi-process run are not
+    # children of the holder, and only process 0 writes the run files.
     try:
-        out = fam.train(fargs.out, cfg, on_log=None if fargs.quiet else _print_row)
+        with RunLock(fargs.out) if jax.process_index() == 0 else contextlib.nullcontext():
+            out = fam.train(fargs.out, cfg, on_log=None if fargs.quiet else _print_row)
+    except RunLocked as e:
+        return fail(cmd, e)
     except ValueError as e:  # config checks the family makes once it sees the data
         return fail(cmd, e)
     print(f"trained {fargs.out}: step {out['step']}")
