@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from handx_jax import diffusion as D
-from handx_jax.diffusion_family import DiffusionRunConfig, apply_overrides, make_loss, make_model, params_non_embedding
+from handx_jax.families.diffusion import DiffusionRunConfig, apply_overrides, make_loss, make_model, params_non_embedding
 from handx_jax.generation import _sample_impl
 from handx_jax.models.dit import PRESETS, forward_flops, init_denoiser, param_count
 from handx_jax.train import train

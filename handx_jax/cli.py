@@ -2,15 +2,12 @@
 
     handx data ...      corpus synthesis, import/export, statistics, rendering   (handx_jax.data.cli)
     handx text ...      tokenizer, T5 encoder, pretraining, embedding cache       (handx_jax.text.cli)
-    handx train ...     train a model family (diffusion)                          (handx_jax.commands.train)
+    handx train ...     train a model family (handx_jax.families.FAMILIES)        (handx_jax.commands.train)
     handx generate ...  sample motion from text, with masked-constraint tasks    (handx_jax.commands.generate)
     handx eval ...      train the evaluator, score generated motion              (handx_jax.commands.eval)
     handx params ...    parameter counts and analytic FLOPs                      (handx_jax.commands.params)
     handx sweep ...     launch sweeps locally or on SLURM, resumable             (sweeps.cli)
     handx analyze ...   scaling fits, tables and plots                           (analysis.cli)
-    handx train ...     train a model family into a run folder                   (handx_jax.commands.train)
-    handx generate ...  sample motion from a trained diffusion run               (handx_jax.commands.generate)
-    handx params ...    parameter count and analytic FLOPs of a configuration    (handx_jax.commands.params)
 
 Subcommand modules import heavy dependencies (jax, matplotlib) inside their handlers, so ``--help``
 stays fast.
@@ -57,7 +54,13 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     from handx_jax.io import DataError
 
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    # Commands whose options depend on a model family (train, generate, params) take the options
+    # they do not know themselves as ``args.extra`` and parse them with the family's own parser.
+    args, extra = parser.parse_known_args(argv)
+    if extra and not getattr(args, "takes_extra_args", False):
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    args.extra = extra
     try:
         rc = args.func(args)
     except (DataError, FileExistsError, FileNotFoundError) as e:

@@ -26,7 +26,7 @@ import numpy as np
 
 from handx_jax import diffusion as D
 from handx_jax import representation as rep
-from handx_jax.diffusion_family import DiffusionRun
+from handx_jax.families.diffusion import DiffusionRun
 from handx_jax.io import DataError
 
 K_INBET = 5  # paper App. D.2 (the code uses 10, reference §9.9)

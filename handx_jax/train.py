@@ -10,8 +10,13 @@ plus a ``get_batch(indices) -> pytree of arrays``; everything else lives here:
   position is therefore the step, and a resumed run sees exactly the batches it would have seen.
 - orbax checkpoints every ``ckpt_every`` steps and at the end, holding params, optimizer state, EMA,
   step and rng; a killed run resumes from the latest one and ends with the same parameters.
-- The run folder gets ``config.json`` (atomic) and ``metrics.jsonl`` (one fsynced line per log);
-  wandb mirrors them (offline by default; WANDB_MODE overrides).
+- The run folder gets ``config.json`` (atomic), ``metrics.jsonl`` (one fsynced line per log) and
+  ``checkpoints/``; wandb mirrors them (offline by default; WANDB_MODE overrides). Re-running on a
+  folder resumes it, only with the same configuration (:func:`check_resume`), and ``metrics.jsonl`` is
+  trimmed to the restored step (step 0 when no checkpoint was written yet), so a killed run never
+  logs a step twice.
+- ``evaluate(params, ema, step) -> dict`` runs every ``eval_every`` steps and at the end; its row
+  (``{"step", "eval/...": ...}``) goes to ``metrics.jsonl`` beside the training rows.
 - Data parallel across all devices through ``jax.sharding``: the batch is split along a ("data",)
   mesh axis and parameters are replicated. Multi-host: call :func:`initialize_distributed` before
   any other JAX call (the ``handx train`` command does); each process then loads only its slice of
@@ -28,14 +33,14 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
 
-from handx_jax.io import append_jsonl, atomic_write_json, read_jsonl
+from handx_jax.io import DataError, append_jsonl, atomic_write_json, read_jsonl
 
 
 @dataclass(frozen=True)
@@ -68,6 +73,8 @@ class TrainConfig:
     # accelerator the host-side batch (memory-map reads, feature maths) otherwise serialises with the
     # step; batches depend only on (seed, step), so prefetching changes no number.
     prefetch: int = 2
+    # Steps between calls of the family's evaluation hook (0: only at the end, if a hook is given).
+    eval_every: int = 0
     optim: OptimConfig = OptimConfig()
 
 
@@ -209,6 +216,25 @@ class RunLogger:
             self._wandb.finish()
 
 
+def check_resume(run_dir: str | os.PathLike, config: dict, keys: Sequence[str] | None = None) -> None:
+    """Re-running on an existing run folder resumes it, but only with the same configuration: the
+    ``keys`` of ``config`` (all of them by default) must equal those in the folder's config.json."""
+    from handx_jax.config import diff_keys
+
+    p = Path(run_dir) / "config.json"
+    if not p.exists():
+        return
+    try:
+        old = json.loads(p.read_text())
+    except json.JSONDecodeError as e:
+        raise DataError(f"config.json is not valid JSON ({e}); move the folder away or use a new --out",
+                        path=p) from None
+    diff = diff_keys(old, config, list(config) if keys is None else keys)
+    if diff:
+        raise DataError(f"run folder exists with a different configuration ({', '.join(diff)} differ); "
+                        "use a new --out to start another run", path=run_dir)
+
+
 def _mesh():
     from jax.sharding import Mesh
 
@@ -231,18 +257,28 @@ def train(
     stop_at: int | None = None,
     on_log: Callable[[dict], None] | None = None,
     flops_per_sample: float | None = None,
+    evaluate: Callable[[Any, Any, int], dict] | None = None,
+    resume_keys: Sequence[str] | None = None,
 ) -> dict:
     """Train (or resume) a run; returns {"params", "ema", "step"}.
 
     ``stop_at`` ends the process early (as if killed) after that step's checkpoint logic — used by the
     kill-and-resume tests. ``flops_per_sample`` (forward FLOPs of the trainable model per sample) makes
     every log line carry the cumulative ``train_flops`` = 3 × forward × samples seen (fwd + bwd).
+    ``evaluate(params, ema, step)`` (``ema`` is ``{}`` without EMA) returns metrics logged as a row of
+    their own every ``cfg.eval_every`` steps and at the last step; it must not change the training
+    state. ``resume_keys``: the keys of ``config`` (+ ``train``) a resumed run must share with the
+    folder's config.json (default: all).
     """
     import orbax.checkpoint as ocp
     from jax.sharding import NamedSharding, PartitionSpec as P
 
     run_dir = Path(run_dir).absolute()
-    logger = RunLogger(run_dir, {**config, "train": dataclasses.asdict(cfg)}, cfg.wandb)
+    doc = {**config, "train": dataclasses.asdict(cfg)}
+    check_resume(run_dir, doc, resume_keys)
+    # RUN-FOLDER LOCK (issue 14.8): after the merge with wt-sweeps, take handx_jax.runlock.RunLock(run_dir)
+    # here, around everything below, so two trainers never write one folder.
+    logger = RunLogger(run_dir, doc, cfg.wandb)
     tx, sched = make_optimizer(cfg.optim, cfg.steps)
     mesh = _mesh()
     data_sharding = NamedSharding(mesh, P("data"))
@@ -266,8 +302,10 @@ def train(
         abstract = jax.tree_util.tree_map(ocp.utils.to_shape_dtype_struct, state)
         state = mngr.restore(start, args=ocp.args.StandardRestore(abstract))
         state = jax.device_put(state, replicated)
-        logger.truncate_after(start)
         print(f"resumed from step {start}")
+    # Always, also with no checkpoint yet (start 0): rows of a killed attempt beyond the restored step
+    # would otherwise be logged twice (10, 20, 30, 10, 20, …).
+    logger.truncate_after(start)
 
     compute_dtype = jnp.bfloat16 if cfg.bf16 else jnp.float32
 
@@ -310,6 +348,13 @@ def train(
             if on_log:
                 on_log(row)
             t_last, n_since = time.perf_counter(), 0
+        if evaluate is not None and ((cfg.eval_every and done % cfg.eval_every == 0) or done == cfg.steps):
+            ev = evaluate(state["params"], state["ema"], done)
+            if ev:
+                row = {"step": done, **ev}
+                logger.log(row)
+                if on_log:
+                    on_log(row)
         if done % cfg.ckpt_every == 0 or done == cfg.steps:
             mngr.save(done, args=ocp.args.StandardSave(state))
     mngr.wait_until_finished()

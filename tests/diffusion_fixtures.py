@@ -19,8 +19,8 @@ def make_dataset(root: Path) -> Path:
 
 
 def tiny_config(data: Path, *overrides: str):
-    from handx_jax.diffusion_family import make_config
+    from handx_jax.families.diffusion import make_config
 
     base = ("train.steps=6", "train.batch_size=8", "train.log_every=2", "train.ckpt_every=3", "train.wandb=disabled",
             "train.optim.warmup_steps=0", "train.optim.lr=1e-3")
-    return make_config("tiny", str(data), str(ENCODER), base + overrides)
+    return make_config("tiny", base + overrides, data=str(data), encoder=str(ENCODER))

@@ -8,7 +8,7 @@ from handx_jax import diffusion as D
 from handx_jax.cli import main
 from handx_jax.data.dataset import Dataset
 from handx_jax.data.handx_npz import read_handx_npz
-from handx_jax.diffusion_family import load_run, train_diffusion
+from handx_jax.families.diffusion import load_run, train_diffusion
 from handx_jax.generation import Prompt, SampleOptions, generate, generate_long, task_gamma
 from tests.diffusion_fixtures import make_dataset, tiny_config
 
@@ -112,14 +112,23 @@ def test_long_horizon_chains_segments_with_the_overlap(setup, tmp_path):
 
 
 def test_generate_errors(setup, tmp_path, capsys):
+    """Errors go to stderr with exit status 2 and write nothing (issue 14.8)."""
     data, run = setup
     base = ["generate", "--run", str(run), "--out", str(tmp_path / "x.npz")]
     assert main(base + ["--task", "inbetween", "--left", "a", "--right", "b", "--interaction", "c"]) == 2
-    assert "needs a constraint clip" in capsys.readouterr().out
+    assert "needs a constraint clip" in capsys.readouterr().err
     assert main(base + ["--left", "a", "--right", "b"]) == 2
-    assert "same number of times" in capsys.readouterr().out
+    assert "same number of times" in capsys.readouterr().err
     assert main(base + ["--left", "a", "--right", "b", "--interaction", "c", "--set", "train.steps=3"]) == 2
-    assert "only override diffusion" in capsys.readouterr().out
+    assert "only override diffusion" in capsys.readouterr().err
     assert main(base + ["--left", "a", "--right", "b", "--interaction", "c", "--set", "diffusion.p_hrd=1"]) == 2
-    assert "did you mean 'diffusion.p_hard'" in capsys.readouterr().out
+    assert "did you mean 'diffusion.p_hard'" in capsys.readouterr().err
+    assert main(base + ["--task", "dance", "--source", str(data), "--clip", "0"]) == 2
+    assert "does not do --task dance" in capsys.readouterr().err
+    # A folder that is not a run, and a run of a family nobody registered.
+    assert main(["generate", "--run", str(tmp_path), "--out", str(tmp_path / "x.npz"), "--left", "a"]) == 2
+    assert "no config.json" in capsys.readouterr().err
+    (tmp_path / "config.json").write_text('{"family": "difusion"}')
+    assert main(["generate", "--run", str(tmp_path), "--out", str(tmp_path / "x.npz"), "--left", "a"]) == 2
+    assert "unknown model family 'difusion' (did you mean 'diffusion'?)" in capsys.readouterr().err
     assert not (tmp_path / "x.npz").exists()

@@ -76,3 +76,43 @@ def test_nan_loss_stops_with_clear_error(tmp_path):
 
     with pytest.raises(FloatingPointError, match="step 5"):
         train(tmp_path / "r", init=init, loss=bad_loss, get_batch=get_batch, num_examples=96, cfg=CFG, config={})
+
+
+def test_metrics_are_trimmed_when_killed_before_the_first_checkpoint(tmp_path):
+    """Issue 14.8: a kill before the first checkpoint used to leave steps 5, 10, 5, 10, … in metrics.jsonl."""
+    init, loss, get_batch, _ = _problem()
+    kw = dict(init=init, loss=loss, get_batch=get_batch, num_examples=96, cfg=CFG, config={})
+    train(tmp_path / "r", **kw, stop_at=8)  # logs step 5, no checkpoint yet (the first is at 10)
+    assert not list((tmp_path / "r" / "checkpoints").glob("[0-9]*"))
+    train(tmp_path / "r", **kw)
+    steps = [json.loads(l)["step"] for l in (tmp_path / "r" / "metrics.jsonl").read_text().splitlines()]
+    assert steps == list(range(5, 41, 5))
+
+
+def test_evaluation_hook_and_resume_check(tmp_path):
+    import dataclasses
+
+    from handx_jax.io import DataError
+
+    init, loss, get_batch, w_true = _problem()
+    seen = []
+
+    def evaluate(params, ema, step):
+        seen.append(step)
+        return {"eval/w_err": float(np.abs(np.asarray(params["w"][:, 0]) - w_true).max()), "eval/has_ema": bool(ema)}
+
+    cfg = dataclasses.replace(CFG, eval_every=20)
+    kw = dict(init=init, loss=loss, get_batch=get_batch, num_examples=96, config={"family": "toy"})
+    out = train(tmp_path / "r", **kw, cfg=cfg, evaluate=evaluate)
+    assert seen == [20, 40]
+    rows = [json.loads(l) for l in (tmp_path / "r" / "metrics.jsonl").read_text().splitlines()]
+    ev = [r for r in rows if "eval/w_err" in r]
+    assert [r["step"] for r in ev] == [20, 40] and ev[-1]["eval/has_ema"] is True
+    assert ev[-1]["eval/w_err"] == pytest.approx(float(np.abs(np.asarray(out["params"]["w"][:, 0]) - w_true).max()))
+    # The same folder with another config is refused before anything is written.
+    before = (tmp_path / "r" / "config.json").read_text()
+    with pytest.raises(DataError, match=r"different configuration \(train differ\)"):
+        train(tmp_path / "r", **kw, cfg=dataclasses.replace(cfg, batch_size=8))
+    with pytest.raises(DataError, match=r"different configuration \(family differ\)"):
+        train(tmp_path / "r", **{**kw, "config": {"family": "other"}}, cfg=cfg)
+    assert (tmp_path / "r" / "config.json").read_text() == before

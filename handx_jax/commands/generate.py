@@ -1,4 +1,4 @@
-"""``handx generate``: sample motion from a trained diffusion run into an official-layout ``.npz``.
+"""``handx generate``: sample motion from a trained run (any family) into an official-layout ``.npz``.
 
 Prompt mode (G samples for one prompt; ``--task`` other than text2motion needs ``--source``):
 
@@ -10,7 +10,9 @@ Prompt mode (G samples for one prompt; ``--task`` other than text2motion needs `
 Without prompts, a source clip's own annotation at ``--level`` is used. Tasks (paper App. D.2):
 inbetween (first/last 5 frames), keyframes (``--keyframes``), wrist (wrist trajectories), reaction
 (``--fixed-hand`` fully constrained), long (one segment per repeated --left/--right/--interaction;
-continues ``--source`` if given). ``--set diffusion.p_hard=1.0`` etc. change the mask constants.
+continues ``--source`` if given). A family may support only some tasks. The run's family (its
+``config.json``) adds its own sampling options: ``handx generate --run RUN --help`` lists them (for
+diffusion ``--sampler``, ``--steps``, ``--guidance`` and ``--set diffusion.p_hard=1.0`` etc.).
 
 Batch mode (for evaluation): one prompt per clip of a dataset split, G samples each, entries in clip
 order with fields ``source_clip`` (clip id) and ``group`` (0..G−1):
@@ -25,8 +27,9 @@ import time
 
 import numpy as np
 
-# diffusion.TASKS (kept literal so --help does not import JAX; tests check they agree).
-TASKS = ("text2motion", "inbetween", "keyframes", "wrist", "reaction", "long")
+from handx_jax.commands import fail
+
+CMD = "handx generate"
 
 
 def _prompts(args) -> list:
@@ -41,28 +44,52 @@ def _prompts(args) -> list:
     return [Prompt(*x) for x in zip(L, R, I)]
 
 
-def _run(args: argparse.Namespace) -> int:
-    from handx_jax.diffusion_family import load_run
-    from handx_jax.generation import SampleOptions, generate, generate_long, load_source, write_generated
+def family_parser(run: str):
+    """(family module, parser of its options): the options the shared parser did not know."""
+    from handx_jax.families import family_of, get_family
 
+    name = family_of(run)
+    fam = get_family(name)
+    p = argparse.ArgumentParser(prog=f"{CMD} --run {run}", add_help=False, allow_abbrev=False)
+    fam.add_generate_args(p.add_argument_group(f"{name} options"))
+    return fam, p
+
+
+def _run(args: argparse.Namespace) -> int:
+    if not args.run:
+        args.parser.print_help()
+        print("\nfamily options: see `handx generate --run RUN --help`")
+        return 0 if args.help else fail(CMD, "the following arguments are required: --run, --out")
+    try:
+        fam, fp = family_parser(args.run)
+    except ValueError as e:
+        return fail(CMD, e)
+    if args.help:
+        args.parser.print_help()
+        print()
+        fp.print_help()
+        return 0
+    if not args.out:
+        return fail(CMD, "the following arguments are required: --out")
+    from handx_jax.generation import load_source, write_generated
+
+    fargs = fp.parse_args(args.extra, namespace=argparse.Namespace(**vars(args)))
     if args.task not in ("text2motion", "long") and not (args.source or args.reference):
-        print(f"handx generate: error: --task {args.task} needs a constraint clip: --source (or --reference)")
-        return 2
+        return fail(CMD, f"--task {args.task} needs a constraint clip: --source (or --reference)")
     try:
         prompts = _prompts(args)
-        run = load_run(args.run, ema=not args.no_ema, encoder=args.encoder, overrides=args.set or [])
+        run, opts = fam.load_for_generate(fargs, ema=not args.no_ema, encoder=args.encoder, seed=args.seed,
+                                          batch_size=args.batch_size)
     except ValueError as e:
-        print(f"handx generate: error: {e}")
-        return 2
-    opts = SampleOptions(sampler=args.sampler, steps=args.steps, guidance=args.guidance, seed=args.seed,
-                         batch_size=args.batch_size)
+        return fail(CMD, e)
+    if args.task not in run.tasks:
+        return fail(CMD, f"family {fam.FAMILY} does not do --task {args.task}; it does {', '.join(run.tasks)}")
     keyframes = tuple(int(k) for k in args.keyframes.split(",")) if args.keyframes else (30,)
     t0 = time.perf_counter()
     G = args.samples
     if args.reference:
         if prompts:
-            print("handx generate: error: --reference takes its prompts from the dataset; drop --left/--right/...")
-            return 2
+            return fail(CMD, "--reference takes its prompts from the dataset; drop --left/--right/...")
         from handx_jax.data.dataset import Dataset
         from handx_jax.generation import Prompt
 
@@ -72,8 +99,8 @@ def _run(args: argparse.Namespace) -> int:
             clips = np.sort(np.random.default_rng(42).permutation(clips)[:args.limit])
         ps = [Prompt(*(ds.texts[c][f][args.level] for f in ("left", "right", "interaction"))) for c in clips]
         sources = [np.asarray(ds.motion[c], np.float32) for c in clips]
-        j = generate(run, ps, opts, samples=G, task=args.task, sources=sources, keyframes=keyframes,
-                     fixed_hand=args.fixed_hand)
+        j = run.generate(ps, opts, samples=G, task=args.task, sources=sources, keyframes=keyframes,
+                         fixed_hand=args.fixed_hand)
         ids = [ds.ids[c] for c in clips]
         write_generated(args.out, j.reshape(-1, *j.shape[2:]), [[p] for p in ps for _ in range(G)],
                         source_clips=[i for i in ids for _ in range(G)], groups=[g for _ in ids for g in range(G)])
@@ -83,29 +110,24 @@ def _run(args: argparse.Namespace) -> int:
         src = load_source(args.source, args.clip) if args.source else None
         if not prompts:
             if src is None:
-                print("handx generate: error: give --left/--right/--interaction, a --source clip, or --reference")
-                return 2
+                return fail(CMD, "give --left/--right/--interaction, a --source clip, or --reference")
             prompts = [src.prompts[args.level]]
         if args.task == "long":
-            j = generate_long(run, prompts, opts, samples=G, source=None if src is None else src.joints)
+            j = run.generate_long(prompts, opts, samples=G, source=None if src is None else src.joints)
             write_generated(args.out, j, [prompts] * G, groups=list(range(G)),
                             source_clips=[src.key if src else None] * G)
             first, first_prompt = j[0], prompts[0]
         else:
             if len(prompts) != 1:
-                print(f"handx generate: error: task {args.task} takes one prompt, got {len(prompts)}")
-                return 2
-            j = generate(run, prompts, opts, samples=G, task=args.task,
-                         sources=None if src is None else [src.joints], keyframes=keyframes, fixed_hand=args.fixed_hand)
+                return fail(CMD, f"task {args.task} takes one prompt, got {len(prompts)}")
+            j = run.generate(prompts, opts, samples=G, task=args.task, sources=None if src is None else [src.joints],
+                             keyframes=keyframes, fixed_hand=args.fixed_hand)
             write_generated(args.out, j[0], [prompts] * G, groups=list(range(G)),
                             source_clips=[src.key if src else None] * G)
             first, first_prompt = j[0, 0], prompts[0]
         n = G
     dt = time.perf_counter() - t0
-    print(f"wrote {args.out}: {n} motion(s), task {args.task}, {args.sampler}"
-          f"{'-' + str(args.steps) if args.sampler == 'ddim' else ''}, guidance "
-          f"{run.cfg.diffusion.guidance if args.guidance is None else args.guidance}, "
-          f"{'EMA' if run.used_ema else 'raw'} params at step {run.step}, {dt:.1f} s")
+    print(f"wrote {args.out}: {n} motion(s), task {args.task}, {run.describe(opts)}, {dt:.1f} s")
     if args.gif:
         from handx_jax.data.render import render_gif
 
@@ -115,13 +137,15 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser("generate", help="sample motion from a trained diffusion run",
+    p = subparsers.add_parser("generate", help="sample motion from a trained run", add_help=False, allow_abbrev=False,
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--run", required=True, help="diffusion run folder")
+    p.add_argument("-h", "--help", action="store_true", help="show this help (with --run: the family's options too)")
+    p.add_argument("--run", help="run folder (required)")
     p.add_argument("--left", action="append", help="left-hand prompt (repeat for --task long)")
     p.add_argument("--right", action="append", help="right-hand prompt")
     p.add_argument("--interaction", action="append", help="interaction prompt")
-    p.add_argument("--task", default="text2motion", choices=TASKS)
+    p.add_argument("--task", default="text2motion",
+                   help="text2motion (default), inbetween, keyframes, wrist, reaction, long; as the family supports")
     p.add_argument("--source", help="constraint clip: official-layout .npz or a dataset directory (with --clip)")
     p.add_argument("--clip", help="key in the .npz, or clip id/index in the dataset")
     p.add_argument("--level", type=int, default=-1, help="annotation level for prompts taken from data (-1 = most detailed)")
@@ -131,16 +155,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--split", default="test", choices=["train", "val", "test"])
     p.add_argument("--limit", type=int, help="batch mode: at most N clips (shuffled with seed 42, then sorted)")
     p.add_argument("--samples", type=int, default=1, help="samples per prompt (G)")
-    p.add_argument("--sampler", default="ddpm", choices=["ddpm", "ddim"])
-    p.add_argument("--steps", type=int, default=50, help="DDIM steps (DDPM always uses all T steps)")
-    p.add_argument("--guidance", type=float, help="CFG scale (default: the run's, 2.5)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--batch-size", type=int, default=256, help="samples per compiled sampler call")
     p.add_argument("--no-ema", action="store_true", help="use the raw (not EMA) parameters")
     p.add_argument("--encoder", help="encoder folder (default: the one the run was trained with)")
-    p.add_argument("--set", action="append", metavar="diffusion.KEY=VALUE",
-                   help="override diffusion settings, e.g. diffusion.p_hard=1.0, diffusion.blend=xt")
-    p.add_argument("--out", required=True, help="output .npz (official layout)")
+    p.add_argument("--out", help="output .npz (official layout; required)")
     p.add_argument("--gif", help="also render the first sample as a GIF")
-    p.set_defaults(func=_run)
+    p.set_defaults(func=_run, parser=p, takes_extra_args=True)
     return p

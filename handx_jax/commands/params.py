@@ -1,9 +1,13 @@
-"""``handx params diffusion``: trainable parameters and analytic forward FLOPs of a configuration.
+"""``handx params <family>``: trainable parameters and analytic forward FLOPs of a configuration.
 
-FLOPs are per sample and per forward pass, 2 per multiply-add, matrix products and attention only
-(``models.dit.forward_flops``). The frozen text encoder is reported separately
-(``text_flops_per_sample``: three prompts of ``--text-len`` tokens), from ``--encoder`` if given, else
-for T5-base (d 768, 12 layers, 12 heads, d_ff 3072, the reference's encoder, §3.1).
+    handx params diffusion --preset L12-d768 --json
+    handx params diffusion --layers 4 --dim 256 --heads 4 --ff 1024 --text-len 32
+
+FLOPs are per sample and per forward pass, 2 per multiply-add, matrix products and attention only.
+Every family prints ``params``, ``params_non_embedding``, ``flops_per_sample`` and
+``text_flops_per_sample`` (the frozen text encoder, counted apart). Size flags override the preset;
+``--set`` takes the same dotted keys as ``handx train``. ``handx params FAMILY --help`` lists a
+family's flags.
 """
 
 from __future__ import annotations
@@ -11,52 +15,57 @@ from __future__ import annotations
 import argparse
 import json
 
-T5_BASE = dict(vocab_size=32128, d_model=768, d_kv=64, d_ff=3072, num_layers=12, num_heads=12)
+from handx_jax.commands import fail
 
 
-def diffusion_numbers(layers: int, dim: int, heads: int, ff: int, text_dim: int, text_len: int,
-                      encoder: str | None = None) -> dict:
-    from handx_jax.models.dit import DiTConfig, forward_flops, param_count
-    from handx_jax.text.t5 import T5Config, encoder_flops
+def family_parser(name: str) -> argparse.ArgumentParser:
+    from handx_jax.config import add_config_args
+    from handx_jax.families import FAMILIES, get_family
 
-    cfg = DiTConfig(layers=layers, dim=dim, heads=heads, ff=ff, text_dim=text_dim)
-    if encoder:
-        from handx_jax.text.t5 import load_hf_t5_encoder
-
-        enc_cfg = load_hf_t5_encoder(encoder).cfg
-    else:
-        enc_cfg = T5Config(**T5_BASE)
-    return {"params": param_count(cfg), "flops_per_sample": forward_flops(cfg, text_len),
-            "text_flops_per_sample": 3 * int(encoder_flops(enc_cfg, text_len))}
+    fam = get_family(name)
+    p = argparse.ArgumentParser(prog=f"handx params {name}", description=f"{FAMILIES[name].help}.\n\n{__doc__}",
+                                formatter_class=argparse.RawDescriptionHelpFormatter, allow_abbrev=False)
+    add_config_args(p, fam.PRESETS, default=next(iter(fam.PRESETS)), example="model.layers=8")
+    p.add_argument("--json", action="store_true",
+                   help="print {params, params_non_embedding, flops_per_sample, text_flops_per_sample}")
+    fam.add_params_args(p)
+    return p
 
 
-def _diffusion(args: argparse.Namespace) -> int:
-    if args.dim % args.heads:
-        print(f"handx params diffusion: error: --dim {args.dim} is not divisible by --heads {args.heads}")
-        return 2
-    out = diffusion_numbers(args.layers, args.dim, args.heads, args.ff, args.text_dim, args.text_len, args.encoder)
-    if args.json:
+def _run(args: argparse.Namespace) -> int:
+    from handx_jax.families import FAMILIES, get_family
+
+    if args.family is None:
+        args.parser.print_help()
+        print("\nfamilies:\n" + "\n".join(f"  {k:<12s}{f.help}" for k, f in FAMILIES.items()))
+        return 0 if args.help else 2
+    cmd = f"handx params {args.family}"
+    try:
+        p = family_parser(args.family)
+    except ValueError as e:
+        return fail("handx params", e)
+    if args.help:
+        p.print_help()
+        return 0
+    fargs = p.parse_args(args.extra)
+    try:
+        label, out = get_family(args.family).params_from_args(fargs)
+    except ValueError as e:
+        return fail(cmd, e)
+    if fargs.json:
         print(json.dumps(out))
     else:
-        print(f"diffusion L{args.layers} d{args.dim} H{args.heads} FF{args.ff} (text {args.text_dim}-d, "
-              f"{args.text_len} tokens): {out['params']:,} params ({out['params'] / 1e6:.2f}M), "
-              f"{out['flops_per_sample'] / 1e9:.3f} GFLOPs/sample forward; text encoder "
-              f"{out['text_flops_per_sample'] / 1e9:.3f} GFLOPs/sample (3 prompts)")
+        print(f"{label}: {out['params']:,} params ({out['params'] / 1e6:.2f}M; "
+              f"{out['params_non_embedding']:,} non-embedding), {out['flops_per_sample'] / 1e9:.3f} GFLOPs/sample "
+              f"forward; text encoder {out['text_flops_per_sample'] / 1e9:.3f} GFLOPs/sample")
     return 0
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser("params", help="parameter count and analytic FLOPs of a model configuration")
-    p.set_defaults(func=lambda a: (p.print_help(), 0)[1])
-    sub = p.add_subparsers(dest="family", metavar="FAMILY")
-    d = sub.add_parser("diffusion", help="treble-residual denoiser", description=__doc__)
-    d.add_argument("--layers", type=int, required=True)
-    d.add_argument("--dim", type=int, required=True)
-    d.add_argument("--heads", type=int, required=True)
-    d.add_argument("--ff", type=int, required=True)
-    d.add_argument("--text-dim", type=int, default=768, help="text feature width (768 for T5-base)")
-    d.add_argument("--text-len", type=int, default=32, help="tokens per prompt for the FLOPs count")
-    d.add_argument("--encoder", help="encoder folder for text_flops_per_sample (default: T5-base)")
-    d.add_argument("--json", action="store_true", help="print {params, flops_per_sample, text_flops_per_sample}")
-    d.set_defaults(func=_diffusion)
+    p = subparsers.add_parser("params", help="parameter count and analytic FLOPs of a model configuration",
+                              add_help=False, allow_abbrev=False, description=__doc__,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("family", nargs="?", metavar="FAMILY", help="model family (see the list below)")
+    p.add_argument("-h", "--help", action="store_true", help="show this help (with FAMILY: its options)")
+    p.set_defaults(func=_run, parser=p, takes_extra_args=True)
     return p

@@ -3,61 +3,85 @@
     handx train diffusion --data DIR --encoder ENC --preset tiny --set train.steps=2000 --out RUN
 
 Re-running the same command on an existing run folder resumes it from its latest checkpoint (the
-configuration must match). ``--set`` takes dotted keys of the run config (``model.*``,
-``diffusion.*``, ``train.*``, ``train.optim.*``, ``data.*``); unknown keys and ill-typed values are
-errors.
+configuration must match). ``--set`` takes dotted keys of the family's run config (for diffusion
+``model.*``, ``diffusion.*``, ``train.*``, ``train.optim.*``, ``data.*``); unknown keys and ill-typed
+values are errors. ``handx train FAMILY --help`` lists a family's presets and options; families are
+registered in ``handx_jax.families.FAMILIES``.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import json
 
-# models.dit.PRESETS (kept literal so --help does not import JAX; tests check they agree).
-PRESET_NAMES = ("tiny", "small", "paper-4L", "paper-8L", "paper-12L")
+from handx_jax.commands import fail
 
 
-def _diffusion(args: argparse.Namespace) -> int:
+def family_parser(name: str) -> argparse.ArgumentParser:
+    """The full ``handx train NAME`` parser: the shared flags plus the family's own."""
+    from handx_jax.config import add_config_args
+    from handx_jax.families import FAMILIES, get_family
+
+    fam = get_family(name)
+    p = argparse.ArgumentParser(prog=f"handx train {name}", description=f"{FAMILIES[name].help}.\n\n{__doc__}",
+                                formatter_class=argparse.RawDescriptionHelpFormatter, allow_abbrev=False)
+    add_config_args(p, fam.PRESETS, default=next(iter(fam.PRESETS)))
+    p.add_argument("--out", required=True, help="run folder (re-running resumes it)")
+    p.add_argument("--quiet", action="store_true", help="do not print the log lines")
+    fam.add_train_args(p)
+    return p
+
+
+def _print_row(row: dict) -> None:
+    if "loss" in row:
+        print(f"step {row['step']:>7d}  loss {row['loss']:.4f}  grad_norm {row['grad_norm']:.3f}  "
+              f"lr {row['lr']:.2e}  {row['samples_per_s']:.0f} samples/s", flush=True)
+    else:  # an evaluation row
+        vals = "  ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items() if k != "step")
+        print(f"step {row['step']:>7d}  {vals}", flush=True)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from handx_jax.families import FAMILIES
+
+    if args.family is None:
+        args.parser.print_help()
+        print("\nfamilies:\n" + "\n".join(f"  {k:<12s}{f.help}" for k, f in FAMILIES.items()))
+        return 0 if args.help else 2
+    cmd = f"handx train {args.family}"
+    try:
+        p = family_parser(args.family)
+    except ValueError as e:
+        return fail("handx train", e)
+    if args.help:
+        p.print_help()
+        return 0
+    fargs = p.parse_args(args.extra)
+    from handx_jax.config import print_config
+    from handx_jax.families import get_family
     from handx_jax.train import initialize_distributed
 
     initialize_distributed()  # before any other JAX call; a no-op unless launched multi-process
-    from handx_jax.diffusion_family import make_config, train_diffusion
-
+    fam = get_family(args.family)
     try:
-        cfg = make_config(args.preset, args.data, args.encoder, args.set or [])
+        cfg = fam.config_from_args(fargs)
     except ValueError as e:
-        print(f"handx train diffusion: error: {e}")
-        return 2
-    if args.print_config:
-        print(json.dumps(dataclasses.asdict(cfg), indent=2))
+        return fail(cmd, e)
+    if fargs.print_config:
+        print_config(cfg)
         return 0
-
-    def on_log(row):
-        if not args.quiet:
-            print(f"step {row['step']:>7d}  loss {row['loss']:.4f}  grad_norm {row['grad_norm']:.3f}  "
-                  f"lr {row['lr']:.2e}  {row['samples_per_s']:.0f} samples/s", flush=True)
-
-    out = train_diffusion(args.out, cfg, on_log=on_log)
-    print(f"trained {args.out}: step {out['step']}")
+    try:
+        out = fam.train(fargs.out, cfg, on_log=None if fargs.quiet else _print_row)
+    except ValueError as e:  # config checks the family makes once it sees the data
+        return fail(cmd, e)
+    print(f"trained {fargs.out}: step {out['step']}")
     return 0
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser("train", help="train a model family (diffusion)",
-                              description="Train a model family into a run folder (config.json, metrics.jsonl, "
-                                          "checkpoints/); re-running resumes.")
-    p.set_defaults(func=lambda a: (p.print_help(), 0)[1])
-    sub = p.add_subparsers(dest="family", metavar="FAMILY")
-    d = sub.add_parser("diffusion", help="the treble-residual diffusion model (paper §5.1)",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    d.add_argument("--data", required=True, help="dataset directory (with a text cache for --encoder)")
-    d.add_argument("--encoder", required=True, help="frozen T5 encoder folder")
-    d.add_argument("--preset", default="tiny", choices=PRESET_NAMES)
-    d.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="override a config value, e.g. train.steps=2000, train.optim.lr=3e-4, data.fraction=0.2")
-    d.add_argument("--out", required=True, help="run folder")
-    d.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
-    d.add_argument("--quiet", action="store_true")
-    d.set_defaults(func=_diffusion)
+    p = subparsers.add_parser("train", help="train a model family into a run folder", add_help=False,
+                              allow_abbrev=False, description=__doc__,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("family", nargs="?", metavar="FAMILY", help="model family (see the list below)")
+    p.add_argument("-h", "--help", action="store_true", help="show this help (with FAMILY: its options)")
+    p.set_defaults(func=_run, parser=p, takes_extra_args=True)
     return p

@@ -45,14 +45,32 @@ class DiTConfig:
         return self.joints * self.channels
 
 
-# Named size ladder (reference §3.3, paper Table B/C); "tiny" and "small" are CPU presets.
+# Named size ladder (reference §3.3, paper Table B/C); "tiny" and "small" are CPU presets. The
+# "L{layers}-d{dim}" names are the Table B points (heads dim/64, FF 4·dim), so a sweep over size is a
+# sweep over names; the "paper-*" names are the reference's three configs (FF 1024).
 PRESETS = {
     "tiny": DiTConfig(layers=2, dim=64, heads=4, ff=128),
     "small": DiTConfig(layers=4, dim=128, heads=4, ff=512),
     "paper-4L": DiTConfig(layers=4, dim=256, heads=4, ff=1024),
     "paper-8L": DiTConfig(layers=8, dim=512, heads=8, ff=1024),
     "paper-12L": DiTConfig(layers=12, dim=512, heads=8, ff=1024),
+    **{f"L{L}-d{d}": DiTConfig(layers=L, dim=d, heads=H, ff=F)
+       for L, d, H, F in [(2, 256, 4, 1024), (4, 256, 4, 1024), (4, 384, 6, 1536), (8, 384, 6, 1536),
+                          (8, 512, 8, 2048), (12, 512, 8, 2048), (12, 768, 12, 3072)]},
 }
+SIZE_FIELDS = ("layers", "dim", "heads", "ff")
+
+
+def size_name(cfg: DiTConfig, preset: str | None = None) -> str:
+    """The name of ``cfg``'s size: ``preset`` if the sizes agree, else the first ladder name that
+    matches, else ``L{layers}-d{dim}-H{heads}-F{ff}`` (so a run records the size it really has)."""
+    size = lambda c: tuple(getattr(c, f) for f in SIZE_FIELDS)  # noqa: E731
+    if preset in PRESETS and size(PRESETS[preset]) == size(cfg):
+        return preset
+    for name, c in PRESETS.items():
+        if size(c) == size(cfg):
+            return name
+    return f"L{cfg.layers}-d{cfg.dim}-H{cfg.heads}-F{cfg.ff}"
 
 
 class TrebleDenoiser(nn.Module):

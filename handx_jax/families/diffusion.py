@@ -17,11 +17,10 @@ keeps ``norm_stats.npz`` so generation does not need the dataset.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
-import difflib
 import json
 import os
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -31,8 +30,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from handx_jax import diffusion as D
+from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
 from handx_jax.io import DataError
-from handx_jax.models.dit import PRESETS, DiTConfig, TrebleDenoiser, forward_flops, init_denoiser, param_count
+from handx_jax.models.dit import PRESETS, DiTConfig, TrebleDenoiser, forward_flops, init_denoiser, param_count, size_name
 from handx_jax.train import OptimConfig, TrainConfig
 
 FAMILY = "diffusion"
@@ -60,104 +60,43 @@ class DiffusionRunConfig:
                                      ema_warmup=True, optim=OptimConfig(warmup_steps=500))
     data: DataConfig = field(default_factory=DataConfig)
 
-
-def make_config(preset: str, data: str, encoder: str, overrides: Sequence[str] = ()) -> DiffusionRunConfig:
-    if preset not in PRESETS:
-        raise ValueError(f"unknown preset {preset!r}; choose from {', '.join(PRESETS)}")
-    cfg = DiffusionRunConfig(preset=preset, model=PRESETS[preset],
-                             data=DataConfig(path=str(Path(data).absolute()), encoder=str(Path(encoder).absolute())))
-    return apply_overrides(cfg, overrides)
-
-
-# ------------------------------------------------------------------------------------------------
-# Dotted overrides
-
-
-def _parse_value(text: str, kind: Any, key: str):
-    if kind is bool:
-        low = text.strip().lower()
-        if low in ("1", "true", "yes", "on"):
-            return True
-        if low in ("0", "false", "no", "off"):
-            return False
-        raise ValueError(f"--set {key}: expected a boolean (true/false), got {text!r}")
-    if kind is int:
-        try:
-            f = float(text.replace("_", ""))
-        except ValueError:
-            raise ValueError(f"--set {key}: expected an integer, got {text!r}") from None
-        if f != int(f):
-            raise ValueError(f"--set {key}: expected an integer, got {text!r}")
-        return int(f)
-    if kind is float:
-        try:
-            return float(text.replace("_", ""))
-        except ValueError:
-            raise ValueError(f"--set {key}: expected a number, got {text!r}") from None
-    if kind is str:
-        return text
-    raise ValueError(f"--set {key}: values of type {kind} cannot be set from the command line")
+    def validate(self) -> None:
+        m, d = self.model, self.diffusion
+        if m.dim % m.heads:
+            raise ConfigError(f"model.dim {m.dim} is not divisible by model.heads {m.heads}")
+        if d.blend not in ("x0", "xt"):
+            raise ConfigError(f"diffusion.blend must be 'x0' or 'xt', got {d.blend!r}")
+        if not 0 <= d.cond_drop < 1:
+            raise ConfigError(f"diffusion.cond_drop must be in [0, 1), got {d.cond_drop}")
+        if not 0 < self.data.fraction <= 1:
+            raise ConfigError(f"data.fraction must be in (0, 1], got {self.data.fraction}")
+        if not 0 <= d.p_soft <= d.p_hard <= 1:
+            raise ConfigError(f"need 0 <= diffusion.p_soft <= diffusion.p_hard <= 1, got {d.p_soft}, {d.p_hard}")
 
 
-def _set_path(obj, path: list[str], text: str, full: str):
-    hints = typing.get_type_hints(type(obj))
-    names = [f.name for f in dataclasses.fields(obj)]
-    name = path[0]
-    if name not in names:
-        close = difflib.get_close_matches(name, names, n=1)
-        hint = f" (did you mean {'.'.join(full.split('=')[0].split('.')[:-len(path)] + [close[0]])!r}?)" if close else ""
-        raise ValueError(f"--set {full}: unknown key {name!r}{hint}; valid keys here: {', '.join(names)}")
-    cur = getattr(obj, name)
-    if dataclasses.is_dataclass(cur):
-        if len(path) == 1:
-            sub = ", ".join(f"{name}.{f.name}" for f in dataclasses.fields(cur))
-            raise ValueError(f"--set {full}: {name!r} is a group; set one of its keys: {sub}")
-        return dataclasses.replace(obj, **{name: _set_path(cur, path[1:], text, full)})
-    if len(path) > 1:
-        raise ValueError(f"--set {full}: {name!r} is a value, not a group")
-    return dataclasses.replace(obj, **{name: _parse_value(text, hints[name], full.split("=")[0])})
-
-
-def apply_overrides(cfg, overrides: Sequence[str]):
-    """Apply ``key.sub=value`` strings to a (nested) frozen dataclass, type-checked."""
-    for item in overrides:
-        if "=" not in item:
-            raise ValueError(f"--set {item!r}: expected key=value (e.g. train.optim.lr=3e-4)")
-        key, text = item.split("=", 1)
-        cfg = _set_path(cfg, key.strip().split("."), text.strip(), item)
-    if isinstance(cfg, DiffusionRunConfig):
-        validate(cfg)
-    return cfg
+Config = DiffusionRunConfig
 
 
 def validate(cfg: DiffusionRunConfig) -> None:
-    m, d = cfg.model, cfg.diffusion
-    if m.dim % m.heads:
-        raise ValueError(f"model.dim {m.dim} is not divisible by model.heads {m.heads}")
-    if d.blend not in ("x0", "xt"):
-        raise ValueError(f"diffusion.blend must be 'x0' or 'xt', got {d.blend!r}")
-    if not 0 <= d.cond_drop < 1:
-        raise ValueError(f"diffusion.cond_drop must be in [0, 1), got {d.cond_drop}")
-    if not 0 < cfg.data.fraction <= 1:
-        raise ValueError(f"data.fraction must be in (0, 1], got {cfg.data.fraction}")
-    if not 0 <= d.p_soft <= d.p_hard <= 1:
-        raise ValueError(f"need 0 <= diffusion.p_soft <= diffusion.p_hard <= 1, got {d.p_soft}, {d.p_hard}")
+    cfg.validate()
+
+
+def make_config(preset: str = "tiny", overrides: Sequence[str] = (), *, data: str = "", encoder: str = ""
+                ) -> DiffusionRunConfig:
+    """The run config of a named size with dotted overrides. The recorded ``preset`` is the size the
+    run really has: if overrides change the model's layers/dim/heads/ff, it becomes the ladder name
+    of that size (e.g. ``L12-d768``) or a derived one (``L6-d320-H5-F1280``)."""
+    model = get_preset(PRESETS, preset)
+    cfg = DiffusionRunConfig(preset=preset, model=model,
+                             data=DataConfig(path=str(Path(data).absolute()) if data else "",
+                                             encoder=str(Path(encoder).absolute()) if encoder else ""))
+    cfg = apply_overrides(cfg, overrides)
+    return dataclasses.replace(cfg, preset=size_name(cfg.model, preset))
 
 
 def config_from_dict(doc: dict) -> DiffusionRunConfig:
     """Rebuild the run config from a run folder's config.json."""
-    def build(cls, d):
-        kw = {}
-        hints = typing.get_type_hints(cls)
-        for f in dataclasses.fields(cls):
-            if f.name in d:
-                kw[f.name] = build(hints[f.name], d[f.name]) if dataclasses.is_dataclass(hints[f.name]) else d[f.name]
-        return cls(**kw)
-
-    model = {k: v for k, v in doc["model"].items() if k in {f.name for f in dataclasses.fields(DiTConfig)}}
-    return DiffusionRunConfig(preset=doc["preset"], model=build(DiTConfig, model),
-                              diffusion=build(D.DiffusionConfig, doc["diffusion"]),
-                              train=build(TrainConfig, doc["train"]), data=build(DataConfig, doc["data"]))
+    return from_dict(DiffusionRunConfig, doc)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -261,33 +200,25 @@ def run_record(cfg: DiffusionRunConfig, cache_meta: dict) -> dict:
     }
 
 
-def _check_resume(run_dir: Path, record: dict, cfg: DiffusionRunConfig) -> None:
-    """Re-running on an existing run folder resumes it, but only with the same configuration."""
-    p = run_dir / "config.json"
-    if not p.exists():
-        return
-    old = json.loads(p.read_text())
-    new = {**record, "train": dataclasses.asdict(cfg.train)}
-    diff = [k for k in ("model", "diffusion", "data", "train")
-            if json.loads(json.dumps(old.get(k))) != json.loads(json.dumps(new[k]))]
-    if diff:
-        raise DataError(f"run folder exists with a different configuration ({', '.join(diff)} differ); "
-                        "use a new --out to start another run", path=run_dir)
+# Run config keys a resumed run must share with the folder's config.json (train.py refuses others).
+RESUME_KEYS = ("model", "diffusion", "data", "train")
 
 
-def train_diffusion(run_dir: str | os.PathLike, cfg: DiffusionRunConfig, *, stop_at: int | None = None,
-                    on_log=None) -> dict:
-    """Train (or resume) a diffusion run in ``run_dir``; returns the train loop's result."""
-    from handx_jax.train import train
+def train(run_dir: str | os.PathLike, cfg: DiffusionRunConfig, *, stop_at: int | None = None, on_log=None,
+          encoder=None) -> dict:
+    """Train (or resume) a diffusion run in ``run_dir``; returns the train loop's result. The text
+    comes from the cache, so ``encoder`` (a loaded FrozenEncoder) is not needed; it is accepted for
+    the family interface."""
+    from handx_jax import train as loop
 
-    validate(cfg)
+    cfg.validate()
     run_dir = Path(run_dir)
     data = load_train_data(cfg)
     D_text = int(data.cache.meta["d_model"])
     if cfg.model.text_dim != D_text:
         cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, text_dim=D_text))
     record = run_record(cfg, data.cache.meta)
-    _check_resume(run_dir, record, cfg)
+    loop.check_resume(run_dir, {**record, "train": to_dict(cfg.train)}, RESUME_KEYS)
     run_dir.mkdir(parents=True, exist_ok=True)
     if jax.process_index() == 0:
         np.savez(run_dir / NORM_FILE, **data.norm.to_npz_dict("diffusion"))
@@ -297,9 +228,12 @@ def train_diffusion(run_dir: str | os.PathLike, cfg: DiffusionRunConfig, *, stop
     def init(rng):
         return init_denoiser(cfg.model, rng, text_len=L)[1]
 
-    return train(run_dir, init=init, loss=make_loss(model, cfg.diffusion), get_batch=data.batch,
-                 num_examples=data.num_items, cfg=cfg.train, config=record, stop_at=stop_at, on_log=on_log,
-                 flops_per_sample=record["flops_per_sample"])
+    return loop.train(run_dir, init=init, loss=make_loss(model, cfg.diffusion), get_batch=data.batch,
+                      num_examples=data.num_items, cfg=cfg.train, config=record, stop_at=stop_at, on_log=on_log,
+                      flops_per_sample=record["flops_per_sample"], resume_keys=RESUME_KEYS)
+
+
+train_diffusion = train  # the name older notebooks and scripts use
 
 
 # ------------------------------------------------------------------------------------------------
@@ -326,10 +260,36 @@ class DiffusionRun:
         # Rounded through the cache dtype, so prompts look exactly like the training text.
         return (h * m[..., None]).astype(self.cfg.data.cache_dtype).astype(np.float32), m
 
+    # The family interface's run object: what ``handx generate`` calls.
+    @property
+    def tasks(self) -> tuple[str, ...]:
+        return D.TASKS
 
-def load_run(run_dir: str | os.PathLike, *, ema: bool = True, encoder: str | None = None,
-             overrides: Sequence[str] = ()) -> DiffusionRun:
-    """Open a run folder for generation. ``overrides`` may change ``diffusion.*`` (guidance, masks)."""
+    def generate(self, prompts, opts, *, samples: int = 1, task: str = "text2motion", sources=None,
+                 keyframes: Sequence[int] = (30,), fixed_hand: str = "left") -> np.ndarray:
+        """G samples per prompt: joints (P, G, F, 2, 21, 3); see ``generation.generate``."""
+        from handx_jax import generation
+
+        return generation.generate(self, prompts, opts, samples=samples, task=task, sources=sources,
+                                   keyframes=keyframes, fixed_hand=fixed_hand)
+
+    def generate_long(self, segments, opts, *, samples: int = 1, source=None) -> np.ndarray:
+        """Chained segments (App. D.2): joints (G, T, 2, 21, 3); see ``generation.generate_long``."""
+        from handx_jax import generation
+
+        return generation.generate_long(self, segments, opts, samples=samples, source=source)
+
+    def describe(self, opts) -> str:
+        """How the samples were drawn, for the command's summary line."""
+        g = self.cfg.diffusion.guidance if opts.guidance is None else opts.guidance
+        sampler = f"{opts.sampler}-{opts.steps}" if opts.sampler == "ddim" else opts.sampler
+        return f"{sampler}, guidance {g}, {'EMA' if self.used_ema else 'raw'} params at step {self.step}"
+
+
+def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, overrides: Sequence[str] = ()) -> DiffusionRun:
+    """Open a run folder for generation. ``encoder`` is a folder or an already loaded FrozenEncoder
+    (default: the folder the run was trained with); ``overrides`` may change ``diffusion.*``
+    (guidance, masks)."""
     from handx_jax import representation as rep
     from handx_jax.text.t5 import load_hf_t5_encoder
     from handx_jax.train import load_params
@@ -343,13 +303,89 @@ def load_run(run_dir: str | os.PathLike, *, ema: bool = True, encoder: str | Non
     if bad:
         raise ValueError(f"generation can only override diffusion.* keys, got {bad}")
     cfg = apply_overrides(cfg, overrides)
-    enc = load_hf_t5_encoder(encoder or cfg.data.encoder)
+    enc = encoder if hasattr(encoder, "encode") else load_hf_t5_encoder(encoder or cfg.data.encoder)
     want = doc.get("text_cache", {}).get("encoder_fingerprint")
     if want and enc.fingerprint != want:
         raise DataError(f"encoder fingerprint {enc.fingerprint} differs from the one the run was trained with "
-                        f"({want})", path=encoder or cfg.data.encoder)
+                        f"({want})", path=getattr(enc, "path", None) or encoder or cfg.data.encoder)
     params, step = load_params(run_dir, ema=ema)
     with np.load(run_dir / NORM_FILE) as z:
         norm = rep.NormStats.from_npz_dict(dict(z), "diffusion")
     used_ema = bool(ema and cfg.train.ema_decay > 0)
     return DiffusionRun(run_dir, cfg, make_model(cfg.model), params, step, norm, enc, used_ema)
+
+
+load_run = load  # the name older notebooks and scripts use
+
+
+# ------------------------------------------------------------------------------------------------
+# Accounting and the command-line hooks of the family interface (handx_jax.families)
+
+T5_BASE = dict(vocab_size=32128, d_model=768, d_kv=64, d_ff=3072, num_layers=12, num_heads=12)
+
+
+def numbers(cfg: DiffusionRunConfig, *, text_len: int = 32, encoder_cfg=None) -> dict:
+    """Parameters and analytic forward FLOPs per sample (2 per multiply-add; ``models.dit.forward_flops``)
+    at ``text_len`` tokens per prompt; the frozen text encoder (``encoder_cfg``, default T5-base, the
+    reference's encoder, §3.1) is counted apart, for three prompts."""
+    from handx_jax.text.t5 import T5Config, encoder_flops
+
+    enc_cfg = encoder_cfg if encoder_cfg is not None else T5Config(**T5_BASE)
+    return {"params": param_count(cfg.model), "params_non_embedding": params_non_embedding(cfg.model),
+            "flops_per_sample": forward_flops(cfg.model, text_len),
+            "text_flops_per_sample": 3 * int(encoder_flops(enc_cfg, text_len))}
+
+
+def add_train_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--data", required=True, help="dataset directory (with a text cache for --encoder)")
+    p.add_argument("--encoder", required=True, help="frozen T5 encoder folder")
+
+
+def config_from_args(args: argparse.Namespace) -> DiffusionRunConfig:
+    return make_config(args.preset, args.set, data=args.data, encoder=args.encoder)
+
+
+def add_params_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--layers", type=int, help="decoder layers (overrides the preset)")
+    p.add_argument("--dim", type=int, help="model width")
+    p.add_argument("--heads", type=int, help="attention heads")
+    p.add_argument("--ff", type=int, help="feed-forward width")
+    p.add_argument("--text-dim", type=int, default=768, help="text feature width (768 for T5-base)")
+    p.add_argument("--text-len", type=int, default=32, help="tokens per prompt for the FLOPs count")
+    p.add_argument("--encoder", help="encoder folder for text_flops_per_sample (default: T5-base)")
+
+
+def params_from_args(args: argparse.Namespace) -> tuple[str, dict]:
+    """(a one-line description, ``numbers``) for ``handx params diffusion``."""
+    sizes = [f"model.{k}={v}" for k, v in
+             (("layers", args.layers), ("dim", args.dim), ("heads", args.heads), ("ff", args.ff),
+              ("text_dim", args.text_dim)) if v is not None]
+    cfg = make_config(args.preset, [*sizes, *args.set])
+    enc_cfg = None
+    if args.encoder:
+        from handx_jax.text.t5 import load_hf_t5_encoder
+
+        enc_cfg = load_hf_t5_encoder(args.encoder).cfg
+    m = cfg.model
+    out = numbers(cfg, text_len=args.text_len, encoder_cfg=enc_cfg)
+    label = (f"diffusion {cfg.preset}: L{m.layers} d{m.dim} H{m.heads} FF{m.ff} (text {m.text_dim}-d, "
+             f"{args.text_len} tokens)")
+    return label, out
+
+
+def add_generate_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--sampler", default="ddpm", choices=["ddpm", "ddim"])
+    p.add_argument("--steps", type=int, default=50, help="DDIM steps (DDPM always uses all T steps)")
+    p.add_argument("--guidance", type=float, help="CFG scale (default: the run's, 2.5)")
+    p.add_argument("--set", action="append", default=[], metavar="diffusion.KEY=VALUE",
+                   help="override diffusion settings, e.g. diffusion.p_hard=1.0, diffusion.blend=xt")
+
+
+def load_for_generate(args: argparse.Namespace, *, ema: bool, encoder, seed: int, batch_size: int):
+    """(run, sampling options) for ``handx generate``."""
+    from handx_jax.generation import SampleOptions
+
+    run = load(args.run, ema=ema, encoder=encoder, overrides=args.set)
+    opts = SampleOptions(sampler=args.sampler, steps=args.steps, guidance=args.guidance, seed=seed,
+                         batch_size=batch_size)
+    return run, opts
