@@ -155,7 +155,7 @@ def make_evaluate(model: Q.FSQTokenizer, cfg: Q.FSQConfig, x_val_n, norm):
         xhat, digits = model.apply(params, x)
         d = jnp.linalg.norm(Q.wrist_relative_joints(xhat * scale + mean) - Q.wrist_relative_joints(x * scale + mean),
                             axis=-1)
-        return 1000.0 * d.mean(axis=(1, 2, 3, 4)), Q.digits_to_index(digits, cfg.levels)
+        return 1000.0 * d.mean(axis=(1, 2, 3)), Q.digits_to_index(digits, cfg.levels)
 
     def evaluate(params, ema, step):
         errs, codes = [], []
