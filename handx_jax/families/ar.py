@@ -300,8 +300,16 @@ class ARRun:
                 f"{'EMA' if self.used_ema else 'raw'} params at step {self.step}")
 
 
-def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, overrides: Sequence[str] = ()) -> ARRun:
+def _encoder(encoder, default):
+    """A loaded FrozenEncoder as is; a folder (or None: ``default``) loaded (a ``str`` has ``.encode`` too)."""
     from handx_jax.text.t5 import load_hf_t5_encoder
+
+    if encoder is None or isinstance(encoder, (str, os.PathLike)):
+        return load_hf_t5_encoder(encoder or default)
+    return encoder
+
+
+def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, overrides: Sequence[str] = ()) -> ARRun:
     from handx_jax.train import load_params
 
     run_dir = Path(run_dir)
@@ -314,7 +322,7 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
     if bad:
         raise ValueError(f"generation can only override sample.* keys, got {bad}")
     cfg = apply_overrides(cfg, overrides)
-    enc = encoder if hasattr(encoder, "encode") else load_hf_t5_encoder(encoder or cfg.data.encoder)
+    enc = _encoder(encoder, cfg.data.encoder)
     want = doc.get("text_cache", {}).get("encoder_fingerprint")
     if want and enc.fingerprint != want:
         raise DataError(f"encoder fingerprint {enc.fingerprint} differs from the one the run was trained with ({want})",
@@ -330,10 +338,8 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
 
 def init_run(cfg: ARRunConfig, tokenizer_dir, encoder, rng_seed: int = 0) -> ARRun:
     """An UNTRAINED LM (random init) around a trained tokenizer: the baseline a trained LM must beat."""
-    from handx_jax.text.t5 import load_hf_t5_encoder
-
     tok = T.load(tokenizer_dir)
-    enc = encoder if hasattr(encoder, "encode") else load_hf_t5_encoder(encoder)
+    enc = _encoder(encoder, encoder)
     m = dataclasses.replace(cfg.model, nb_code=tok.cfg.model.nb_code, text_dim=enc.cfg.d_model)
     cfg = dataclasses.replace(cfg, model=m)
     model, params = P.init_lm(m, jax.random.PRNGKey(rng_seed))
