@@ -141,14 +141,26 @@ def _global_batch(local: Any, global_size: int, sharding) -> Any:
         lambda x: jax.make_array_from_process_local_data(sharding, x, (global_size,) + x.shape[1:]), local)
 
 
-def _host_batches(get_batch: Callable[[np.ndarray], Any], steps: range, num_examples: int, batch_size: int,
-                  seed: int, depth: int):
+def _local_rows(batch: Any) -> Any:
+    """This process's rows of a whole host batch (all of them for a single process)."""
+    n = jax.process_count()
+    if n == 1:
+        return batch
+    i = jax.process_index()
+    return jax.tree_util.tree_map(lambda x: x[i * (len(x) // n):(i + 1) * (len(x) // n)], batch)
+
+
+def _host_batches(get_batch: Callable[[np.ndarray], Any] | None, steps: range, num_examples: int, batch_size: int,
+                  seed: int, depth: int, get_step_batch: Callable[[int], Any] | None = None):
     """Yield (step, local host batch) in step order, up to ``depth`` batches built ahead in threads.
 
     ``get_batch`` must be safe to call from several threads (read-only memory maps and numpy are; numpy
     releases the GIL in copies and maths, so the threads really overlap with the device step).
     """
-    make = lambda s: _local_batch(get_batch, batch_indices(num_examples, batch_size, seed, s))  # noqa: E731
+    if get_step_batch is not None:
+        make = lambda s: _local_rows(get_step_batch(s))  # noqa: E731
+    else:
+        make = lambda s: _local_batch(get_batch, batch_indices(num_examples, batch_size, seed, s))  # noqa: E731
     if depth <= 0:
         for s in steps:
             yield s, make(s)
@@ -250,8 +262,8 @@ def train(
     *,
     init: Callable[[jax.Array], Any],
     loss: Callable[[Any, Any, jax.Array, bool], tuple[jax.Array, dict]],
-    get_batch: Callable[[np.ndarray], Any],
-    num_examples: int,
+    get_batch: Callable[[np.ndarray], Any] | None = None,
+    num_examples: int = 0,
     cfg: TrainConfig,
     config: dict,
     stop_at: int | None = None,
@@ -259,6 +271,9 @@ def train(
     flops_per_sample: float | None = None,
     evaluate: Callable[[Any, Any, int], dict] | None = None,
     resume_keys: Sequence[str] | None = None,
+    get_step_batch: Callable[[int], Any] | None = None,
+    optimizer: tuple[optax.GradientTransformation, Callable] | None = None,
+    save_at_stop: bool = False,
 ) -> dict:
     """Train (or resume) a run; returns {"params", "ema", "step"}.
 
@@ -266,9 +281,16 @@ def train(
     kill-and-resume tests. ``flops_per_sample`` (forward FLOPs of the trainable model per sample) makes
     every log line carry the cumulative ``train_flops`` = 3 × forward × samples seen (fwd + bwd).
     ``evaluate(params, ema, step)`` (``ema`` is ``{}`` without EMA) returns metrics logged as a row of
-    their own every ``cfg.eval_every`` steps and at the last step; it must not change the training
-    state. ``resume_keys``: the keys of ``config`` (+ ``train``) a resumed run must share with the
-    folder's config.json (default: all).
+    their own at step 0 of a fresh run, every ``cfg.eval_every`` steps and at the last step; it must
+    not change the training state. ``resume_keys``: the keys of ``config`` (+ ``train``) a resumed run
+    must share with the folder's config.json (default: all).
+
+    Batches come from ``get_batch(indices)`` over ``num_examples`` items in the order of
+    :func:`batch_indices`, or, for a family with its own data order, from ``get_step_batch(step)``
+    (a pure function of the step, so resumes stay exact). ``optimizer`` = (transformation, schedule)
+    replaces the one built from ``cfg.optim`` (a family with its own recipe, e.g. T5 pretraining).
+    ``save_at_stop`` checkpoints at ``stop_at`` (a pre-emptible job's time slice) instead of
+    behaving as killed there.
     """
     import orbax.checkpoint as ocp
     from jax.sharding import NamedSharding, PartitionSpec as P
@@ -279,7 +301,7 @@ def train(
     # RUN-FOLDER LOCK (issue 14.8): after the merge with wt-sweeps, take handx_jax.runlock.RunLock(run_dir)
     # here, around everything below, so two trainers never write one folder.
     logger = RunLogger(run_dir, doc, cfg.wandb)
-    tx, sched = make_optimizer(cfg.optim, cfg.steps)
+    tx, sched = optimizer if optimizer is not None else make_optimizer(cfg.optim, cfg.steps)
     mesh = _mesh()
     data_sharding = NamedSharding(mesh, P("data"))
     replicated = NamedSharding(mesh, P())
@@ -329,9 +351,20 @@ def train(
 
     jstep = jax.jit(step_fn, donate_argnums=(0,))
     end = min(cfg.steps, stop_at) if stop_at is not None else cfg.steps
+
+    def run_eval(done: int) -> None:
+        ev = evaluate(state["params"], state["ema"], done)
+        if ev:
+            row = {"step": done, **ev}
+            logger.log(row)
+            if on_log:
+                on_log(row)
+
+    if evaluate is not None and start == 0 and end > 0:
+        run_eval(0)  # the untrained model's numbers, the start of every curve
     t_last, n_since = time.perf_counter(), 0
     for step, local in _host_batches(get_batch, range(start, end), num_examples, cfg.batch_size, cfg.seed,
-                                     cfg.prefetch):
+                                     cfg.prefetch, get_step_batch):
         batch = _global_batch(local, cfg.batch_size, data_sharding)
         state, metrics = jstep(state, batch, jax.random.fold_in(jax.random.fold_in(rng, 1), step))
         n_since += cfg.batch_size
@@ -349,13 +382,8 @@ def train(
                 on_log(row)
             t_last, n_since = time.perf_counter(), 0
         if evaluate is not None and ((cfg.eval_every and done % cfg.eval_every == 0) or done == cfg.steps):
-            ev = evaluate(state["params"], state["ema"], done)
-            if ev:
-                row = {"step": done, **ev}
-                logger.log(row)
-                if on_log:
-                    on_log(row)
-        if done % cfg.ckpt_every == 0 or done == cfg.steps:
+            run_eval(done)
+        if done % cfg.ckpt_every == 0 or done == cfg.steps or (save_at_stop and done == end):
             mngr.save(done, args=ocp.args.StandardSave(state))
     mngr.wait_until_finished()
     mngr.close()

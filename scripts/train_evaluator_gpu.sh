@@ -7,7 +7,7 @@
 # OUT receives the evaluator folder, its log and gt_rows.jsonl. A 60-step probe run measures samples/s
 # (after compilation) so that the real run's cosine schedule is sized to the budget up front; the step
 # count it picked is in the log and in OUT/evaluator/config.json. Extra settings go in EVAL_SET
-# (space-separated key=value pairs for --set), e.g. EVAL_SET="eval_level=-1". Text is padded to one shape
+# (space-separated key=value pairs for --set), e.g. EVAL_SET="text.eval_level=-1". Text is padded to one shape
 # (text_bucket = MAX_LEN): on an accelerator every new text length would recompile the whole step.
 # TRAIN_LEVELS (default all) and WARMUP (default 300) pass through; MAX_STEPS caps the probe's step count
 # (more epochs than the corpus supports only overfits it).
@@ -25,7 +25,7 @@ MAX_LEN=${MAX_LEN:-384}
 PY=${PYTHON:-python3}
 TRAIN_LEVELS=${TRAIN_LEVELS:-all}
 WARMUP=${WARMUP:-300}
-SETS=(--set "max_len=$MAX_LEN" --set "text_bucket=$MAX_LEN")
+SETS=(--set "text.max_len=$MAX_LEN" --set "data.text_bucket=$MAX_LEN")
 for kv in ${EVAL_SET:-}; do SETS+=(--set "$kv"); done
 mkdir -p "$OUT"
 t0=$(date +%s)
@@ -40,7 +40,7 @@ else
 rm -rf /tmp/handx-probe
 $PY -m handx_jax eval train-evaluator --data "$DATA" --encoder "$ENC" --out /tmp/handx-probe --preset "$PRESET" \
   --steps 40 --batch-size "$BATCH" --lr "$LR" --train-levels "$TRAIN_LEVELS" --no-final-eval "${SETS[@]}" \
-  --set log_every=20 --set ckpt_every=100000 --set wandb=disabled
+  --set train.log_every=20 --set train.ckpt_every=100000 --set train.wandb=disabled
 RATE=$($PY -c "import json;r=[json.loads(l) for l in open('/tmp/handx-probe/metrics.jsonl')];print(r[-1]['samples_per_s'])")
 STEPS=$($PY -c "print(min(${MAX_STEPS:-10**9}, max(200, int($RATE * $BUDGET / $BATCH))))")
 echo "probe: $RATE samples/s -> $STEPS steps of batch $BATCH for ${BUDGET} s (setup so far $(( $(date +%s) - t0 )) s)"
@@ -48,7 +48,7 @@ fi
 
 $PY -m handx_jax eval train-evaluator --data "$DATA" --encoder "$ENC" --out "$OUT/evaluator" --preset "$PRESET" \
   --steps "$STEPS" --batch-size "$BATCH" --lr "$LR" --warmup "$WARMUP" --train-levels "$TRAIN_LEVELS" "${SETS[@]}" \
-  --set log_every=200 --set ckpt_every=100000 --set wandb=disabled
+  --set train.log_every=200 --set train.ckpt_every=100000 --set train.wandb=disabled
 echo "trained: $(( $(date +%s) - t0 )) s"
 if [ -n "${PACK:-}" ]; then
   mkdir -p "$PACK"

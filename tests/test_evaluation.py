@@ -20,8 +20,17 @@ from handx_jax.metrics import MetricConfig
 
 ENCODER = Path(__file__).parent / "fixtures" / "t5_tiny_gated"
 
-TINY = dict(preset="tiny", batch_size=8, lr=1e-3, warmup=0, log_every=5, wandb="disabled",
-            policy=TextPolicy(max_len=64, train_levels=None, eval_level=0), log=lambda s: None)
+TINY = ("train.steps=40", "train.batch_size=8", "train.optim.lr=1e-3", "train.optim.warmup_steps=0",
+        "train.log_every=5", "train.wandb=disabled", "text.max_len=64", "text.train_levels=none", "text.eval_level=0",
+        "final_eval=false")
+
+
+def tiny_evaluator(data, *overrides):
+    from handx_jax.evaluation import make_evaluator_config
+
+    return make_evaluator_config("tiny", TINY + overrides, data=str(data), encoder=str(ENCODER))
+
+
 CFG = MetricConfig(replications=4, rprec_block=4)
 
 
@@ -32,7 +41,7 @@ def setup(tmp_path_factory):
     root = tmp_path_factory.mktemp("evaluation")
     data = build_corpus(root / "ds", BuildConfig(clips=32, seed=5, workers=1, val_fraction=0.2, test_fraction=0.25),
                         progress=False)
-    E = train_evaluator(data, ENCODER, root / "E", steps=40, final_eval=False, **TINY)
+    E = train_evaluator(root / "E", tiny_evaluator(data), log=lambda s: None)
     return root, data, E
 
 
@@ -304,7 +313,26 @@ def test_training_lowers_infonce_and_refuses_overwrite(setup):
     before, after = loss(init), loss(ev.params)
     assert after < before - 0.5, (before, after)
     with pytest.raises(FileExistsError, match="already holds a trained evaluator"):
-        train_evaluator(data, ENCODER, E, steps=40, final_eval=False, **TINY)
+        train_evaluator(E, tiny_evaluator(data), log=lambda s: None)
+
+
+def test_resuming_with_a_different_config_is_refused(setup, tmp_path, monkeypatch):
+    """The evaluator trains through handx_jax.train, which refuses to resume a folder with another config.
+    A training run loads (and hashes) the T5 encoder once, for the text cache and the checkpoint alike."""
+    from handx_jax.text import hf
+
+    loads = []
+    real = hf.load_hf_t5_encoder
+    monkeypatch.setattr(hf, "load_hf_t5_encoder", lambda folder: loads.append(folder) or real(folder))
+    root, data, _ = setup
+    E = tmp_path / "E"
+    train_evaluator(E, tiny_evaluator(data), stop_at=10, log=lambda s: None)  # "killed" before the end
+    assert len(loads) == 1
+    assert (E / "config.json").exists() and not (E / "evaluator.json").exists()
+    with pytest.raises(DataError, match="different configuration"):
+        train_evaluator(E, tiny_evaluator(data, "train.optim.lr=2e-3"), log=lambda s: None)
+    with pytest.raises(ValueError, match="did you mean 'train.optim.lr'"):
+        tiny_evaluator(data, "train.optim.lrr=1")
 
 
 def test_item_levels_are_a_function_of_the_batch(setup):
@@ -334,8 +362,8 @@ def test_hand_frames_input_with_patches_trains_saves_and_reloads(setup, tmp_path
 
     root, data, _ = setup
     ds = Dataset.open(data)
-    over = {"motion_input": "hand_frames", "motion_patch": 2}
-    E = train_evaluator(data, ENCODER, tmp_path / "E", steps=40, final_eval=False, overrides=over, **TINY)
+    cfg = tiny_evaluator(data, "model.motion_input=hand_frames", "model.motion_patch=2")
+    E = train_evaluator(tmp_path / "E", cfg, log=lambda s: None)
     ev = load_evaluator(E)
     assert ev.cfg.motion_input == "hand_frames" and ev.cfg.motion_patch == 2 and ev.cfg.motion_dim == 307
     # statistics are the train split's, per feature; constant features (middle MCP local y, z) get std 1

@@ -81,7 +81,9 @@ def test_pretrain_lowers_loss_and_resumes_exactly(data, tmp_path):
     assert resumed["resumed_from"] == 12 and full["resumed_from"] is None
     rows_b = read_jsonl(tmp_path / "b" / "metrics.jsonl")
     rows_c = read_jsonl(tmp_path / "c" / "metrics.jsonl")
-    assert [r["step"] for r in rows_b] == [r["step"] for r in rows_c] == [0, 4, 8, 12, 16, 20, 24]
+    # training rows every 4 steps; evaluation rows at step 0 and the end (the shared loop's hook)
+    assert [r["step"] for r in rows_b] == [r["step"] for r in rows_c] == [0, 4, 8, 12, 16, 20, 24, 24]
+    assert [r["step"] for r in rows_b if "eval_loss" in r] == [0, 24]
     for rb, rc in zip(rows_b, rows_c):
         for k in ("loss", "eval_loss", "grad_norm"):
             assert rb.get(k) == rc.get(k)
@@ -96,5 +98,5 @@ def test_pretrain_lowers_loss_and_resumes_exactly(data, tmp_path):
         == ["16", "24"]
 
     # a different config cannot resume into the same folder
-    with pytest.raises(DataError, match="different pretrain"):
+    with pytest.raises(DataError, match=r"different configuration \(pretrain differ\)"):
         pretrain(data, tmp_path / "c", PretrainConfig(**{**CFG.__dict__, "lr": 1e-3}), log=lambda s: None)

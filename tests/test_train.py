@@ -104,10 +104,10 @@ def test_evaluation_hook_and_resume_check(tmp_path):
     cfg = dataclasses.replace(CFG, eval_every=20)
     kw = dict(init=init, loss=loss, get_batch=get_batch, num_examples=96, config={"family": "toy"})
     out = train(tmp_path / "r", **kw, cfg=cfg, evaluate=evaluate)
-    assert seen == [20, 40]
+    assert seen == [0, 20, 40]  # the untrained model, every eval_every steps, the end
     rows = [json.loads(l) for l in (tmp_path / "r" / "metrics.jsonl").read_text().splitlines()]
     ev = [r for r in rows if "eval/w_err" in r]
-    assert [r["step"] for r in ev] == [20, 40] and ev[-1]["eval/has_ema"] is True
+    assert [r["step"] for r in ev] == [0, 20, 40] and ev[-1]["eval/has_ema"] is True
     assert ev[-1]["eval/w_err"] == pytest.approx(float(np.abs(np.asarray(out["params"]["w"][:, 0]) - w_true).max()))
     # The same folder with another config is refused before anything is written.
     before = (tmp_path / "r" / "config.json").read_text()

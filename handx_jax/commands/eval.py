@@ -1,6 +1,6 @@
 """``handx eval …``: train the text–motion evaluator and score generated motion (paper Table 2).
 
-    handx eval train-evaluator --data DIR --encoder ENC --out E [--preset small] [--steps N] [--set k=v]
+    handx eval train-evaluator --data DIR --encoder ENC --out E [--preset small] [--steps N] [--set key.sub=v]
     handx eval run --evaluator E --generated G.npz --reference DIR [--json] [--out RUN_DIR]
     handx eval run --evaluator E --ground-truth --reference DIR [--json]
 
@@ -15,56 +15,31 @@ import dataclasses
 import json
 import sys
 
-TRAIN_KEYS = ("lr", "warmup", "weight_decay", "schedule", "seed", "log_every", "ckpt_every", "keep_checkpoints",
-              "max_len", "train_levels", "eval_level", "wandb", "text_bucket", "prefetch")
-
-
-def _parse_sets(items: list[str]) -> tuple[dict, dict]:
-    """``key=value`` pairs → (evaluator-config overrides, training/text-policy overrides)."""
-    from handx_jax.models.evaluator import EvaluatorConfig
-
-    fields = {f.name: f for f in dataclasses.fields(EvaluatorConfig)}
-    model, train = {}, {}
-    for kv in items:
-        if "=" not in kv:
-            raise SystemExit(f"handx: error: --set expects key=value, got {kv!r}")
-        k, v = kv.split("=", 1)
-        k = k.strip()
-        if k in fields:
-            typ = type(getattr(EvaluatorConfig(), k))
-            model[k] = (v.lower() in ("1", "true", "yes")) if typ is bool else typ(v)
-        elif k in TRAIN_KEYS:
-            if k == "train_levels":
-                train[k] = None if v in ("all", "") else tuple(int(x) for x in v.split(","))
-            elif k in ("schedule", "wandb"):
-                train[k] = v
-            elif k in ("lr", "weight_decay"):
-                train[k] = float(v)
-            else:
-                train[k] = int(v)
-        else:
-            raise SystemExit(f"handx: error: unknown --set key {k!r}; evaluator config keys: {sorted(fields)}; "
-                             f"training keys: {list(TRAIN_KEYS)}")
-    return model, train
-
+from handx_jax.config import add_config_args
 
 def _train(args: argparse.Namespace) -> int:
-    from handx_jax.evaluation import TextPolicy, train_evaluator
-    from handx_jax.metrics import MetricConfig
+    from handx_jax.commands import fail
+    from handx_jax.config import print_config
+    from handx_jax.evaluation import make_evaluator_config, train_evaluator
 
-    model, tr = _parse_sets(args.set)
-    policy = TextPolicy(max_len=tr.pop("max_len", args.max_len),
-                        train_levels=tr.pop("train_levels", _levels(args.train_levels)),
-                        eval_level=tr.pop("eval_level", args.eval_level))
-    kw = {"lr": args.lr, "warmup": args.warmup, **tr}
-    train_evaluator(args.data, args.encoder, args.out, preset=args.preset, steps=args.steps,
-                    batch_size=args.batch_size, policy=policy, overrides=model, force=args.force,
-                    final_eval=not args.no_final_eval, metric_cfg=MetricConfig(rprec_block=args.block), **kw)
+    # The named flags are shorthands for config keys; --set (applied after them) reaches every key.
+    flags = [("train.steps", args.steps), ("train.batch_size", args.batch_size), ("train.optim.lr", args.lr),
+             ("train.optim.warmup_steps", args.warmup), ("text.max_len", args.max_len),
+             ("text.train_levels", None if args.train_levels is None else
+              ("none" if args.train_levels == "all" else args.train_levels)),
+             ("text.eval_level", args.eval_level), ("metrics.rprec_block", args.block)]
+    sets = [f"{k}={v}" for k, v in flags if v is not None]
+    if args.no_final_eval:
+        sets.append("final_eval=false")
+    try:
+        cfg = make_evaluator_config(args.preset, sets + args.set, data=args.data, encoder=args.encoder)
+    except ValueError as e:
+        return fail("handx eval train-evaluator", e)
+    if args.print_config:
+        print_config(cfg)
+        return 0
+    train_evaluator(args.out, cfg, force=args.force)
     return 0
-
-
-def _levels(s: str) -> tuple[int, ...] | None:
-    return None if s in ("all", "") else tuple(int(x) for x in s.split(","))
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -112,22 +87,22 @@ def add_parser(subparsers) -> None:
     sub = p.add_subparsers(dest="eval_command", metavar="SUBCOMMAND")
     sub.required = True
 
-    t = sub.add_parser("train-evaluator", help="train a contrastive evaluator; write a versioned checkpoint folder")
+    t = sub.add_parser("train-evaluator", help="train a contrastive evaluator; write a versioned checkpoint folder",
+                       description="Train the evaluator (config: handx_jax.evaluation.EvaluatorRunConfig; --set takes "
+                                   "its dotted keys: model.*, text.*, train.*, train.optim.*, data.text_bucket, "
+                                   "metrics.*, final_eval). Re-running resumes an unfinished folder (same config).")
     t.add_argument("--data", required=True, help="dataset directory (trains on its train split)")
     t.add_argument("--encoder", required=True, help="frozen T5 encoder folder (Hugging Face layout)")
     t.add_argument("--out", required=True, help="evaluator folder E (resumed if unfinished)")
-    t.add_argument("--preset", default="small", choices=["tiny", "small", "paper"])
-    t.add_argument("--steps", type=int, default=3000)
-    t.add_argument("--batch-size", type=int, default=128)
-    t.add_argument("--lr", type=float, default=3e-4)
-    t.add_argument("--warmup", type=int, default=200)
-    t.add_argument("--max-len", type=int, default=256, help="joined-caption token limit")
-    t.add_argument("--train-levels", default="0", help="comma-separated caption levels to train on, or 'all'")
-    t.add_argument("--eval-level", type=int, default=0, help="caption level used at evaluation (−1 = most detailed)")
-    t.add_argument("--block", type=int, default=32, help="R-Precision block of the final Ground Truth row")
-    t.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override an evaluator config field (latent, layers, heads, ff, dropout, temperature, "
-                        "w_infonce, recon, ...) or a training key (lr, warmup, schedule, weight_decay, seed, ...)")
+    add_config_args(t, ("tiny", "small", "paper"), default="small", example="model.layers=2")
+    t.add_argument("--steps", type=int, help="training steps (train.steps; default 3000)")
+    t.add_argument("--batch-size", type=int, help="train.batch_size (default 128)")
+    t.add_argument("--lr", type=float, help="train.optim.lr (default 3e-4)")
+    t.add_argument("--warmup", type=int, help="train.optim.warmup_steps (default 200, capped at steps/5)")
+    t.add_argument("--max-len", type=int, help="joined-caption token limit (text.max_len; default 256)")
+    t.add_argument("--train-levels", help="comma-separated caption levels to train on, or 'all' (default 0)")
+    t.add_argument("--eval-level", type=int, help="caption level used at evaluation (−1 = most detailed; default 0)")
+    t.add_argument("--block", type=int, help="R-Precision block of the final Ground Truth row (default 32)")
     t.add_argument("--no-final-eval", action="store_true", help="skip the Ground Truth row on the test split")
     t.add_argument("--force", action="store_true", help="retrain over a finished evaluator folder")
     t.set_defaults(func=_train)

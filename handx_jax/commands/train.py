@@ -46,7 +46,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.family is None:
         args.parser.print_help()
         print("\nfamilies:\n" + "\n".join(f"  {k:<12s}{f.help}" for k, f in FAMILIES.items()))
-        return 0 if args.help else 2
+        return 0 if args.help else fail("handx train", "give a FAMILY")
     cmd = f"handx train {args.family}"
     try:
         p = family_parser(args.family)

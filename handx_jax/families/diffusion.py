@@ -291,7 +291,7 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
     (default: the folder the run was trained with); ``overrides`` may change ``diffusion.*``
     (guidance, masks)."""
     from handx_jax import representation as rep
-    from handx_jax.text.t5 import load_hf_t5_encoder
+    from handx_jax.text.hf import as_encoder
     from handx_jax.train import load_params
 
     run_dir = Path(run_dir)
@@ -303,11 +303,11 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
     if bad:
         raise ValueError(f"generation can only override diffusion.* keys, got {bad}")
     cfg = apply_overrides(cfg, overrides)
-    enc = encoder if hasattr(encoder, "encode") else load_hf_t5_encoder(encoder or cfg.data.encoder)
+    enc = as_encoder(encoder or cfg.data.encoder)
     want = doc.get("text_cache", {}).get("encoder_fingerprint")
     if want and enc.fingerprint != want:
         raise DataError(f"encoder fingerprint {enc.fingerprint} differs from the one the run was trained with "
-                        f"({want})", path=getattr(enc, "path", None) or encoder or cfg.data.encoder)
+                        f"({want})", path=enc.path or cfg.data.encoder)
     params, step = load_params(run_dir, ema=ema)
     with np.load(run_dir / NORM_FILE) as z:
         norm = rep.NormStats.from_npz_dict(dict(z), "diffusion")
@@ -363,7 +363,7 @@ def params_from_args(args: argparse.Namespace) -> tuple[str, dict]:
     cfg = make_config(args.preset, [*sizes, *args.set])
     enc_cfg = None
     if args.encoder:
-        from handx_jax.text.t5 import load_hf_t5_encoder
+        from handx_jax.text.hf import load_hf_t5_encoder
 
         enc_cfg = load_hf_t5_encoder(args.encoder).cfg
     m = cfg.model

@@ -89,12 +89,12 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
     fingerprint is complete by construction (atomic write) and is reused unless ``overwrite``.
     """
     from handx_jax.data.dataset import TEXT_FIELDS, Dataset
-    from handx_jax.text.t5 import load_hf_t5_encoder
+    from handx_jax.text.hf import as_encoder
 
     if dtype not in DTYPES:
         raise ValueError(f"dtype must be one of {DTYPES}, got {dtype!r}")
     ds = Dataset.open(data_dir)
-    enc = load_hf_t5_encoder(encoder_dir)
+    enc = as_encoder(encoder_dir)  # a folder, or an encoder the command already loaded
     fp = cache_fingerprint(ds.fingerprint, enc.fingerprint, enc.tokenizer.fingerprint, max_len, dtype, joined)
     out = Path(data_dir) / CACHE_DIRNAME / fp
     if out.exists() and not overwrite:
@@ -155,7 +155,7 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
         meta = {
             "format": FORMAT, "format_version": FORMAT_VERSION, "fingerprint": fp,
             "dataset_fingerprint": ds.fingerprint, "encoder_fingerprint": enc.fingerprint,
-            "tokenizer_fingerprint": enc.tokenizer.fingerprint, "encoder_path": str(Path(encoder_dir).absolute()),
+            "tokenizer_fingerprint": enc.tokenizer.fingerprint, "encoder_path": str(Path(enc.path or encoder_dir).absolute()),
             "encoder_config": dataclasses.asdict(enc.cfg), "max_len": int(max_len), "Lmax": L,
             "d_model": D, "dtype": dtype, "num_rows": len(texts), "num_captions": int(rows.size),
             "num_clips": int(rows.shape[0]), "levels": int(rows.shape[2]), "fields": list(fields),
@@ -229,10 +229,10 @@ def open_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, m
                dtype: str = "float16", joined: bool = False) -> TextCache:
     """The cache for this dataset + encoder folder, verified; a clear error if there is none."""
     from handx_jax.data.dataset import Dataset
-    from handx_jax.text.t5 import load_hf_t5_encoder
+    from handx_jax.text.hf import as_encoder
 
     ds = Dataset.open(data_dir)
-    enc = load_hf_t5_encoder(encoder_dir)
+    enc = as_encoder(encoder_dir)  # a folder, or an encoder the command already loaded
     fp = cache_fingerprint(ds.fingerprint, enc.fingerprint, enc.tokenizer.fingerprint, max_len, dtype, joined)
     root = Path(data_dir) / CACHE_DIRNAME / fp
     if not root.exists():
@@ -240,7 +240,7 @@ def open_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, m
                         and not p.name.startswith(".")) if (Path(data_dir) / CACHE_DIRNAME).is_dir() else []
         raise DataError(f"no text cache for this dataset + encoder {enc.fingerprint} (max_len {max_len}, {dtype}); "
                         f"existing caches {others} were built for other encoders, data or options; "
-                        f"run `handx text cache --data {data_dir} --encoder {encoder_dir}`", path=root.parent)
+                        f"run `handx text cache --data {data_dir} --encoder {enc.path or encoder_dir}`", path=root.parent)
     return TextCache.open(root, dataset_fingerprint=ds.fingerprint, encoder_fingerprint=enc.fingerprint,
                           tokenizer_fingerprint=enc.tokenizer.fingerprint)
 

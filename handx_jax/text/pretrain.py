@@ -5,21 +5,22 @@ a caption's tokens in spans of mean length 3, replace each span by one sentinel 
 and train the decoder to emit ``sentinel₀ span₀ sentinel₁ span₁ … </s>``. Recipe of T5 v1.1: gated-GELU
 feed-forward, untied output head, no dropout in pretraining.
 
-A run folder holds ``config.json``, ``metrics.jsonl`` (one JSON line per logged step),
-``checkpoints/`` (orbax) and, when training ends, ``encoder/``: config.json + model.safetensors +
-spiece.model in Hugging Face's layout, so ``t5.load_hf_t5_encoder`` serves stock and home-made
-encoders alike. Batches and corruption noise are pure functions of (seed, step), so a resumed run
-reproduces an uninterrupted one exactly.
+The run trains through the one training loop (``handx_jax.train``): the folder holds its
+``config.json``, ``metrics.jsonl`` (training rows every ``log_every`` steps; ``eval_loss`` rows at step
+0, every ``eval_every`` steps and at the end) and ``checkpoints/`` (orbax), and, when training ends,
+``encoder/``: config.json + model.safetensors + spiece.model in Hugging Face's layout, so
+``text.hf.load_hf_t5_encoder`` serves stock and home-made encoders alike. Batches and corruption noise
+are pure functions of (seed, step) (the loop's ``get_step_batch``), so a resumed run reproduces an
+uninterrupted one exactly. ``PretrainConfig`` is a config of ``handx_jax.config`` (dotted overrides,
+``validate``).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import time
 from dataclasses import dataclass
-from functools import lru_cache, partial
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -27,11 +28,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-import orbax.checkpoint as ocp
 
-from handx_jax.io import DataError, append_jsonl, atomic_write_json, atomic_write_jsonl, read_jsonl
+from handx_jax.config import ConfigError, get_preset
+from handx_jax.io import DataError, atomic_write_json, read_jsonl
 from handx_jax.text import tokenizer as tk
-from handx_jax.text.t5 import T5Config, T5Model, count_params, encoder_params, save_hf_t5_encoder
+from handx_jax.text.hf import save_hf_t5_encoder
+from handx_jax.text.t5 import T5Config, T5Model, count_params, encoder_params
 
 # Named size ladder: encoder (what downstream models see) + a deliberately small decoder.
 PRESETS: dict[str, dict] = {
@@ -44,10 +46,8 @@ PRESET_TRAINING = {"tiny": (2000, 64, 2e-3), "small": (6000, 64, 1e-3), "base": 
 
 
 def model_config(preset: str, vocab_size: int) -> T5Config:
-    if preset not in PRESETS:
-        raise ValueError(f"unknown preset {preset!r}; choose from {sorted(PRESETS)}")
     return T5Config(vocab_size=vocab_size, feed_forward_proj="gated-gelu", tie_word_embeddings=False,
-                    **PRESETS[preset])
+                    **get_preset(PRESETS, preset))
 
 
 @dataclass(frozen=True)
@@ -68,9 +68,15 @@ class PretrainConfig:
     eval_every: int = 500
     eval_size: int = 256
 
+    def validate(self) -> None:
+        get_preset(PRESET_TRAINING, self.preset)
+        if not 0 < self.noise_density < 1:
+            raise ConfigError(f"noise_density must be in (0, 1), got {self.noise_density}")
+        if self.max_len < 4:
+            raise ConfigError(f"max_len must be >= 4, got {self.max_len}")
+
     def resolved(self) -> "PretrainConfig":
-        if self.preset not in PRESET_TRAINING:
-            raise ValueError(f"unknown preset {self.preset!r}; choose from {sorted(PRESET_TRAINING)}")
+        self.validate()
         steps, bs, lr = PRESET_TRAINING[self.preset]
         return dataclasses.replace(self, steps=self.steps or steps, batch_size=self.batch_size or bs,
                                    lr=self.lr or lr)
@@ -215,24 +221,6 @@ def batch_dict(b: Batch) -> dict[str, np.ndarray]:
     return dataclasses.asdict(b)
 
 
-def init_state(model: T5Model, tx: optax.GradientTransformation, seed: int, S: int, T: int) -> dict:
-    ids = jnp.zeros((1, S), jnp.int32)
-    dec = jnp.zeros((1, T), jnp.int32)
-    params = model.init(jax.random.key(seed), ids, jnp.ones_like(ids), dec, jnp.ones_like(dec))["params"]
-    return {"params": params, "opt_state": tx.init(params), "step": jnp.asarray(0, jnp.int32)}
-
-
-def make_train_step(model: T5Model, tx: optax.GradientTransformation) -> Callable:
-    @partial(jax.jit, donate_argnums=0)
-    def train_step(state, batch):
-        (loss, n), grads = jax.value_and_grad(lambda p: loss_fn(model, p, batch), has_aux=True)(state["params"])
-        updates, opt_state = tx.update(grads, state["opt_state"], state["params"])
-        params = optax.apply_updates(state["params"], updates)
-        return ({"params": params, "opt_state": opt_state, "step": state["step"] + 1},
-                {"loss": loss, "grad_norm": optax.tree.norm(grads), "target_tokens": n})
-    return train_step
-
-
 # --------------------------------------------------------------------------------------------------
 # The run
 
@@ -249,18 +237,9 @@ def _captions(ds, split: str) -> list[str]:
     return list(dict.fromkeys(tk.dataset_captions(ds, [split])))  # unique, first-appearance order
 
 
-@lru_cache(maxsize=4)
-def _compiled(mcfg: T5Config, cfg: PretrainConfig, S: int, T: int):
-    """Model, optimiser and jitted init/train/eval for one configuration, shared by repeated calls in a
-    process (a resumed or sliced run does not recompile)."""
-    model, tx = T5Model(mcfg), make_optimizer(cfg)
-    init = jax.jit(lambda: init_state(model, tx, cfg.seed, S, T))
-    return model, tx, init, make_train_step(model, tx), jax.jit(lambda p, b: loss_fn(model, p, b))
-
-
 def _run_identity(cfg: PretrainConfig, mcfg: T5Config, ds_fp: str, tok: tk.Tokenizer) -> dict:
     """What a resumed run must share with the original (paths may differ; content may not)."""
-    return {"pretrain": dataclasses.asdict(cfg), "model": dataclasses.asdict(mcfg),
+    return {"family": "t5-pretrain", "pretrain": dataclasses.asdict(cfg), "model": dataclasses.asdict(mcfg),
             "dataset_fingerprint": ds_fp, "tokenizer_fingerprint": tok.fingerprint}
 
 
@@ -274,6 +253,7 @@ def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainC
     exported once all ``cfg.steps`` are done.
     """
     from handx_jax.data.dataset import Dataset
+    from handx_jax.train import TrainConfig, check_resume, train
 
     t_start = time.perf_counter()
     cfg = cfg.resolved()
@@ -302,86 +282,58 @@ def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainC
     stream = CaptionStream(train_seqs, sentinels, cfg)
     eval_batches = [batch_dict(b) for b in stream.fixed(eval_seqs, cfg.seed)]
 
-    _, _, init, train_step, eval_step = _compiled(mcfg, cfg, stream.S, stream.T)
-    abstract = jax.eval_shape(init)
-    out.mkdir(parents=True, exist_ok=True)
-    cfg_path = out / "config.json"
-    if cfg_path.exists():
-        prev = json.loads(cfg_path.read_text())
-        diff = [k for k in identity if prev.get(k) != json.loads(json.dumps(identity[k]))]
-        if diff:
-            raise DataError(f"run folder was started with a different {', '.join(diff)}; "
-                            "use a new --out or the original settings", path=cfg_path)
+    # The loop's view of this run: T5 v1.1's optimiser recipe (make_optimizer), no EMA, float32.
+    tcfg = TrainConfig(steps=cfg.steps, batch_size=cfg.batch_size, seed=cfg.seed, log_every=cfg.log_every,
+                       ckpt_every=cfg.ckpt_every, keep_checkpoints=2, eval_every=cfg.eval_every, wandb="disabled")
+    model = T5Model(mcfg)
+    S, T = stream.S, stream.T
 
-    mngr = ocp.CheckpointManager(out / "checkpoints", options=ocp.CheckpointManagerOptions(
-        max_to_keep=2, create=True, enable_async_checkpointing=False))
-    latest = mngr.latest_step()
-    if latest is not None:
-        state = mngr.restore(latest, args=ocp.args.StandardRestore(abstract))
-        log(f"resuming {out} from step {latest}")
-        metrics_path = out / "metrics.jsonl"
-        if metrics_path.exists():  # drop rows logged after the checkpoint; they will be logged again
-            atomic_write_jsonl(metrics_path, [r for r in read_jsonl(metrics_path, strict=False) if r["step"] <= latest])
-    else:
-        if (out / "metrics.jsonl").exists():  # a start that died before its first checkpoint
-            atomic_write_jsonl(out / "metrics.jsonl", [])
-        state = init()
-        counts = param_counts(mcfg, state["params"])
-        atomic_write_json(cfg_path, {**identity, "paths": {"data": str(data_dir), "tokenizer": str(tokenizer.path)},
-                                     "n_params": counts, "train_captions": len(train_seqs),
-                                     "eval_captions": len(eval_seqs), "truncated_train_captions": int(n_trunc),
-                                     "input_len": stream.S, "target_len": stream.T})
-        log(f"pretrain {cfg.preset}: {counts['encoder_total']:,} encoder params ({counts['all']:,} with decoder), "
-            f"{len(train_seqs)} unique train captions, {cfg.steps} steps × batch {cfg.batch_size}")
+    def init(_rng):
+        # Keyed by the config seed alone (not the loop's key), as before this run used the shared loop.
+        ids, dec = jnp.zeros((1, S), jnp.int32), jnp.zeros((1, T), jnp.int32)
+        return model.init(jax.random.key(cfg.seed), ids, jnp.ones_like(ids), dec, jnp.ones_like(dec))["params"]
 
-    def evaluate(params) -> float:
+    def loss(params, batch, _rng, _train):
+        l, n = loss_fn(model, params, batch)
+        return l, {"target_tokens": n}
+
+    eval_step = jax.jit(lambda p, b: loss_fn(model, p, b))
+
+    def evaluate(params, _ema, step) -> dict:
         tot = n = 0.0
         for b in eval_batches:
             l, k = eval_step(params, b)
             tot, n = tot + float(l) * float(k), n + float(k)
-        return tot / max(n, 1.0)
+        return {"eval_loss": tot / max(n, 1.0)}
 
-    # Fresh and restored states alike committed to one device: the same compiled step serves both.
-    state = jax.device_put(state, jax.devices()[0])
-    step = int(state["step"])
-    if step == 0:
-        ev = evaluate(state["params"])
-        append_jsonl(out / "metrics.jsonl", {"step": 0, "eval_loss": ev, "wall_s": time.perf_counter() - t_start})
-        log(f"step 0: eval span-corruption loss {ev:.4f}")
-    sched = make_schedule(cfg)
-    t_loop = time.perf_counter()
-    steps_run = 0
-    last = cfg.steps if stop_at_step is None else min(cfg.steps, stop_at_step)
-    while step < last:
-        b = batch_dict(stream.batch(step))
-        state, m = train_step(state, b)
-        step += 1
-        steps_run += 1
-        row = None
-        if step % cfg.log_every == 0 or step == cfg.steps:
-            m = jax.device_get(m)
-            if not np.isfinite(m["loss"]):
-                raise FloatingPointError(f"loss became {m['loss']} at step {step}; lower --lr")
-            row = {"step": step, "loss": float(m["loss"]), "grad_norm": float(m["grad_norm"]),
-                   "lr": float(sched(step - 1)), "target_tokens": int(m["target_tokens"]),
-                   "steps_per_s": steps_run / (time.perf_counter() - t_loop)}
-        if step % cfg.eval_every == 0 or step == cfg.steps:
-            row = (row or {"step": step}) | {"eval_loss": evaluate(state["params"])}
-        if row is not None:
-            row["wall_s"] = time.perf_counter() - t_start
-            append_jsonl(out / "metrics.jsonl", row)
-            if "eval_loss" in row:
-                log(f"step {step}: loss {row.get('loss', float('nan')):.4f} eval {row['eval_loss']:.4f}")
-        if step % cfg.ckpt_every == 0 or step == last:
-            mngr.save(step, args=ocp.args.StandardSave(state))
-    mngr.wait_until_finished()
-    mngr.close()
+    shapes = jax.eval_shape(init, None)
+    counts = param_counts(mcfg, shapes)
+    config = {**identity, "paths": {"data": str(data_dir), "tokenizer": str(tokenizer.path)},
+              "n_params": counts, "train_captions": len(train_seqs), "eval_captions": len(eval_seqs),
+              "truncated_train_captions": int(n_trunc), "input_len": S, "target_len": T}
+    resume_keys = [*identity, "train"]
+    check_resume(out, {**config, "train": dataclasses.asdict(tcfg)}, resume_keys)
+    latest = _latest_checkpoint(out)
+    if latest is None:
+        log(f"pretrain {cfg.preset}: {counts['encoder_total']:,} encoder params ({counts['all']:,} with decoder), "
+            f"{len(train_seqs)} unique train captions, {cfg.steps} steps × batch {cfg.batch_size}")
+    else:
+        log(f"resuming {out} from step {latest}")
+
+    def on_log(row):
+        if "eval_loss" in row:
+            log(f"step {row['step']}: eval span-corruption loss {row['eval_loss']:.4f}")
+
+    res = train(out, init=init, loss=loss, get_step_batch=lambda step: batch_dict(stream.batch(step)), cfg=tcfg,
+                config=config, on_log=on_log, evaluate=evaluate, resume_keys=resume_keys,
+                optimizer=(make_optimizer(cfg), make_schedule(cfg)), stop_at=stop_at_step, save_at_stop=True)
+    step = int(res["step"])
     if step < cfg.steps:
         log(f"stopped at step {step} of {cfg.steps} after {time.perf_counter() - t_start:.1f} s; rerun to resume")
         return None
 
     enc_dir = out / "encoder"
-    save_hf_t5_encoder(enc_dir, mcfg, jax.device_get(encoder_params(state["params"])), tokenizer, overwrite=True,
+    save_hf_t5_encoder(enc_dir, mcfg, jax.device_get(encoder_params(res["params"])), tokenizer, overwrite=True,
                        extra_config={"handx": {"source": "handx text pretrain", "preset": cfg.preset,
                                                "steps": cfg.steps, "dataset_fingerprint": ds.fingerprint}})
     rows = read_jsonl(out / "metrics.jsonl", strict=False)
@@ -398,3 +350,8 @@ def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainC
         f"wall {summary['wall_s']:.1f} s; encoder in {enc_dir}")
     return summary
 
+
+def _latest_checkpoint(out: Path) -> int | None:
+    steps = [int(p.name) for p in (out / "checkpoints").glob("[0-9]*") if p.name.isdigit()] \
+        if (out / "checkpoints").is_dir() else []
+    return max(steps) if steps else None

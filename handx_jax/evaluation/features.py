@@ -1,0 +1,109 @@
+"""Evaluator inputs: the text policy, motion features and their normalisation, the joined caption,
+and the (clip, level) training items (paper E.2; reference §5.1–§5.3)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from handx_jax import representation as rep
+from handx_jax.io import DataError
+from handx_jax.text.cache import bucket_length
+
+JOINED = "joined"
+
+
+@dataclass(frozen=True)
+class TextPolicy:
+    """Which captions the evaluator sees. ``train_levels=None`` means every level of the dataset.
+
+    ``max_len`` truncates the joined caption (first max_len−1 tokens + eos, as the cache and Hugging
+    Face do); the truncated fraction is recorded at training time. ``eval_level`` indexes the level
+    lists (negative from the end, −1 = most detailed, 0 = most concise).
+    """
+
+    max_len: int = 256
+    train_levels: tuple[int, ...] | None = None
+    eval_level: int = 0
+    cache_dtype: str = "float16"
+
+
+
+def motion_features(joints_NxTx2x21x3: np.ndarray, stats: rep.NormStats, kind: str = "positions") -> np.ndarray:
+    """Evaluator input ``(N, T, F)`` float32, then z-scored. ``kind`` "positions": per-frame right-wrist
+    centring (§5.3, F = 126); "hand_frames": those plus derived features (F = 307)."""
+    fn, _ = rep.EVALUATOR_INPUTS[kind]
+    x = fn(np.asarray(joints_NxTx2x21x3, np.float32))
+    return np.asarray(stats.normalize(x), np.float32)
+
+
+STATS_CLIPS = 4096  # clips (evenly spaced over the train split) behind the "hand_frames" statistics
+
+
+def evaluator_stats(ds, kind: str = "positions", clips: np.ndarray | None = None) -> rep.NormStats:
+    """Normalisation of the evaluator input. "positions": the dataset's ``evaluator_mean/std`` (train
+    split, written at build time). Other inputs: mean/std over frames of up to :data:`STATS_CLIPS`
+    evenly spaced ``clips`` (default the train split); constant features (e.g. the middle MCP's
+    local y, z, zero by construction) get std 1. Stored with the evaluator, so evaluation reuses them."""
+    if kind == "positions":
+        return rep.NormStats.from_npz_dict(ds.stats, "evaluator")
+    clips = np.sort(np.asarray(ds.split("train") if clips is None else clips, np.int64))
+    if len(clips) == 0:
+        raise DataError("no clips to compute evaluator input statistics from", path=ds.root)
+    pick = clips[np.unique(np.linspace(0, len(clips) - 1, min(len(clips), STATS_CLIPS)).round().astype(np.int64))]
+    fn, _ = rep.EVALUATOR_INPUTS[kind]
+    # Streamed 256 clips at a time (4,096 clips of 307 float64 features would be 600 MB at once), with
+    # the positions preset's std floor.
+    chunks = (fn(np.asarray(ds.motion[pick[s:s + 256]], np.float32)) for s in range(0, len(pick), 256))
+    return rep.compute_norm_stats(chunks, axis=(0, 1), min_std=rep.NORM_PRESETS["evaluator"].min_std)
+
+
+def joined_caption(left: str, right: str, interaction: str) -> str:
+    """The evaluator's caption (reference §5.3, with real sentinels; identical to the joined cache's)."""
+    from handx_jax.text.tokenizer import join_fields, sentinel
+
+    return f"{join_fields(left, right, interaction)} {sentinel(3)}"
+
+
+def _level_index(level: int, levels: int) -> int:
+    if not -levels <= level < levels:
+        raise ValueError(f"level {level} out of range for {levels} levels")
+    return level % levels
+
+
+class TrainingData:
+    """(clip, level) items of one split: motion from the dataset memmap, text from the joined cache."""
+
+    def __init__(self, ds, cache, stats: rep.NormStats, clips: np.ndarray, levels: Sequence[int], seed: int,
+                 text_bucket: int = 16, motion_input: str = "positions"):
+        self.ds, self.cache, self.stats = ds, cache, stats
+        self.motion_input = motion_input
+        self.clips = np.asarray(clips, np.int64)
+        self.levels = np.asarray(levels, np.int64)
+        self.seed = int(seed)
+        self.text_bucket = int(text_bucket)
+
+    def __len__(self) -> int:
+        return len(self.clips)
+
+    def item_levels(self, idx: np.ndarray) -> np.ndarray:
+        """One random level per sample, a pure function of (seed, the batch's indices): exact resume."""
+        rng = np.random.default_rng([self.seed, 0x1E7, *np.asarray(idx, np.int64).tolist()])
+        return self.levels[rng.integers(0, len(self.levels), len(idx))]
+
+    def batch(self, idx: np.ndarray, levels: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        clips = self.clips[np.asarray(idx)]
+        levels = self.item_levels(idx) if levels is None else np.asarray(levels)
+        order = np.argsort(clips, kind="stable")  # sorted memmap reads
+        joints = np.empty((len(clips),) + self.ds.motion.shape[1:], np.float32)
+        joints[order] = self.ds.motion[clips[order]]
+        h, m = self.cache.lookup(clips, JOINED, levels)
+        # Trim the text to the batch's longest caption, rounded up to a multiple of ``text_bucket`` tokens:
+        # concise levels then cost a fraction of Lmax, and at most Lmax/bucket step shapes are compiled.
+        # Masking makes the loss independent of the padding; on an accelerator, where each new shape
+        # is a compile of the whole step, pass a bucket ≥ Lmax (one shape).
+        Lb = bucket_length(int(m.sum(1).max()), max(self.text_bucket, 1), m.shape[1])
+        return {"motion": motion_features(joints, self.stats, self.motion_input), "text": np.asarray(h[:, :Lb], np.float32),
+                "text_mask": np.asarray(m[:, :Lb], bool)}

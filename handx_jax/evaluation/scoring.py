@@ -1,0 +1,227 @@
+"""Scoring generated motion (paper Table 2 metrics): alignment to the reference prompts, the Ground
+Truth row, the printed table and ``eval.json``."""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from handx_jax.evaluation.model import TrainedEvaluator
+from handx_jax.evaluation.reference import ReferenceEmbeddings, _digest, reference_embeddings
+from handx_jax.io import DataError, atomic_write_json
+from handx_jax.metrics import MetricConfig, replicate_embedding_metrics, replicate_motion_metrics
+
+
+@dataclass
+class EvalResult:
+    metrics: dict[str, tuple[float, float]]
+    meta: dict
+
+    def flat(self) -> dict[str, float]:
+        """``{name: mean, name_ci: half-width}`` with the analysis schema's metric names."""
+        out: dict[str, float] = {}
+        for k, (m, c) in self.metrics.items():
+            out[k], out[f"{k}_ci"] = float(m), float(c)
+        return out
+
+
+def _schema_names(motion: dict) -> dict:
+    # replicate_motion_metrics names contacts contact_<p|r|f1>_<intra|inter>; the schema spells them out.
+    ren = {"precision": "precision", "recall": "recall", "f1": "f1"}
+    out = {}
+    for k, v in motion.items():
+        if k.startswith("contact_"):
+            _, what, scope = k.split("_")
+            out[f"contact_{ren[what]}_{scope}"] = v
+        else:
+            out[k] = v
+    return out
+
+
+def evaluate_embeddings_and_motion(ev: TrainedEvaluator, text_NxD: np.ndarray, gen_GxNxTx2x21x3: np.ndarray,
+                                   gt_NxTx2x21x3: np.ndarray, cfg: MetricConfig, *,
+                                   gt_NxD: np.ndarray | None = None, gen_GxNxD: np.ndarray | None = None,
+                                   meta: dict | None = None) -> EvalResult:
+    """All metrics of G generation groups against the GT; motion embeddings given are not recomputed
+    (the reference cache's GT embeddings; the GT row's generation, which is the GT)."""
+    t0 = time.perf_counter()
+    G, N = gen_GxNxTx2x21x3.shape[:2]
+    gt_emb = ev.embed_motion(gt_NxTx2x21x3) if gt_NxD is None else gt_NxD
+    if gen_GxNxD is None:
+        gen_GxNxD = np.stack([ev.embed_motion(gen_GxNxTx2x21x3[g]) for g in range(G)])
+    gen_emb = np.asarray(gen_GxNxD, np.float32)
+    t1 = time.perf_counter()
+    emb = replicate_embedding_metrics(text_NxD, gen_emb, gt_emb, cfg)
+    mot = _schema_names(replicate_motion_metrics(gen_GxNxTx2x21x3, gt_NxTx2x21x3, cfg))
+    t2 = time.perf_counter()
+    order = ("rprec_top1", "rprec_top2", "rprec_top3", "fid", "mm_dist", "diversity", "multimodality", "mpjpe",
+             "acceleration", "jitter", "contact_precision_intra", "contact_recall_intra", "contact_f1_intra",
+             "contact_precision_inter", "contact_recall_inter", "contact_f1_inter")
+    allm = {**emb, **mot}
+    metrics = {k: allm[k] for k in order if k in allm}
+    m = {"prompts": int(N), "groups": int(G), "replications": cfg.replications, "rprec_block": cfg.rprec_block,
+         "seed": cfg.seed, "mpjpe_root": cfg.mpjpe_root, "evaluator": str(ev.root) if ev.root else None,
+         "eval_level": ev.policy.eval_level, "seconds": {"motion_embedding": t1 - t0, "metrics": t2 - t1},
+         **(meta or {})}
+    return EvalResult(metrics, m)
+
+
+def _dataset_reference(ev: TrainedEvaluator, ds, clips: np.ndarray, cache: bool | str | os.PathLike):
+    """GT motion and (cached) reference embeddings of ``clips`` of ``ds`` at the evaluator's caption level."""
+    gt = np.asarray(ds.motion[clips], np.float32)
+    provenance = {"dataset": ds.fingerprint, "eval_level": ev.policy.eval_level,
+                  "clips": _digest(np.asarray(clips, np.int64).tobytes())}
+    return gt, reference_embeddings(ev, ev.captions(ds, clips), gt, provenance=provenance, cache=cache)
+
+
+def _note_reference(res: EvalResult, ref: ReferenceEmbeddings) -> EvalResult:
+    """Booked in meta: text seconds (the cache read on a hit), GT motion seconds, the cache status."""
+    res.meta["seconds"]["text_embedding"] = ref.seconds["text"]
+    res.meta["seconds"]["motion_embedding"] += ref.seconds["motion"]
+    res.meta["reference_cache"] = ref.status
+    return res
+
+
+def evaluate_ground_truth(ev: TrainedEvaluator, ds, cfg: MetricConfig = MetricConfig(), split: str = "test", *,
+                          cache: bool | str | os.PathLike = True) -> EvalResult:
+    """The "Ground Truth" row: the split's GT motion scored as if it were the generation (G = 1).
+
+    ``cache``: where the reference embeddings are cached (:func:`reference_embeddings`); False bypasses it.
+    """
+    ev.check_dataset(ds)
+    clips = np.sort(ds.split(split))
+    if len(clips) < 2:
+        raise DataError(f"split {split!r} has {len(clips)} clips; need at least 2", path=ds.root)
+    gt, ref = _dataset_reference(ev, ds, clips, cache)
+    res = evaluate_embeddings_and_motion(ev, ref.text_NxD, gt[None], gt, cfg, gt_NxD=ref.motion_NxD,
+                                         gen_GxNxD=ref.motion_NxD[None],
+                                         meta={"split": split, "ground_truth": True, "reference": str(ds.root)})
+    return _note_reference(res, ref)
+
+
+@dataclass
+class Generated:
+    """Generated clips aligned to reference prompts: motion (G, N, T, 2, 21, 3) for clips ``clips`` (N,)."""
+
+    motion: np.ndarray
+    clips: np.ndarray
+    keys: list[list[str]]
+
+
+def align_generated(entries: Sequence, ds, split: str = "test") -> Generated:
+    """Arrange generated :class:`~handx_jax.data.handx_npz.HandXClip` entries as (group, prompt).
+
+    With ``source_clip`` on every entry, it names the reference clip (any split); ``group`` defaults
+    to the entry's occurrence index among entries of the same source clip. Without ``source_clip`` on
+    any entry, entry i is taken as generation i // N of clip i mod N of the reference ``split`` (in
+    split order). Every group must cover the same prompts; captions stored in an entry must be the
+    reference clip's captions (all levels, or a subset of them), which catches misaligned files.
+    """
+    if not entries:
+        raise DataError("no generated clips")
+    has = [e.source_clip is not None for e in entries]
+    if any(has) and not all(has):
+        bad = next(e.key for e, h in zip(entries, has) if not h)
+        raise DataError("some entries carry source_clip and some do not; either all or none must", clip=bad,
+                        field="source_clip")
+    id_to_idx = {cid: i for i, cid in enumerate(ds.ids)}
+    cells: dict[tuple[int, int], Any] = {}
+    if all(has):
+        seen: dict[int, int] = {}
+        for e in entries:
+            if e.source_clip not in id_to_idx:
+                raise DataError(f"source_clip {e.source_clip!r} is not a clip of the reference dataset {ds.root}",
+                                clip=e.key, field="source_clip")
+            c = id_to_idx[e.source_clip]
+            g = e.group if e.group is not None else seen.get(c, 0)
+            seen[c] = max(seen.get(c, 0), g + 1)
+            if (g, c) in cells:
+                raise DataError(f"duplicate (source_clip {e.source_clip!r}, group {g})", clip=e.key, field="group")
+            cells[(g, c)] = e
+    else:
+        order = np.asarray(ds.split(split))
+        n = len(order)
+        if n == 0 or len(entries) % n:
+            raise DataError(f"{len(entries)} entries without source_clip cannot be matched to the {n} clips of the "
+                            f"reference {split!r} split (need a multiple of {n}); write source_clip per entry")
+        for i, e in enumerate(entries):
+            cells[(i // n, int(order[i % n]))] = e
+    groups = sorted({g for g, _ in cells})
+    if groups != list(range(len(groups))):
+        raise DataError(f"generation groups must be 0..G-1, got {groups}", field="group")
+    clips = np.array(sorted({c for _, c in cells}), np.int64)
+    for g in groups:
+        missing = [ds.ids[c] for c in clips if (g, c) not in cells]
+        if missing:
+            raise DataError(f"group {g} lacks {len(missing)} of the {len(clips)} prompts (e.g. {missing[:3]}); "
+                            "every group must cover the same prompts", field="group")
+    G, N = len(groups), len(clips)
+    T = entries[0].motion.shape[0]
+    motion = np.zeros((G, N, T, 2, 21, 3), np.float32)
+    keys = [[""] * N for _ in range(G)]
+    for (g, c), e in cells.items():
+        j = int(np.searchsorted(clips, c))
+        if e.motion.shape != motion.shape[2:]:
+            raise DataError(f"motion shape {e.motion.shape}, expected {motion.shape[2:]}", clip=e.key, field="motion")
+        _check_captions(e, ds.texts[c])
+        motion[g, j], keys[g][j] = e.motion, e.key
+    return Generated(motion, clips, keys)
+
+
+def _check_captions(entry, ref: dict) -> None:
+    for name, have in (("left", entry.left), ("right", entry.right), ("interaction", entry.interaction)):
+        want = ref[name]
+        ok = have == want if len(have) == len(want) else all(s in want for s in have)
+        if not ok:
+            raise DataError(f"captions differ from reference clip {ref.get('id')!r} (generated for another prompt, "
+                            f"or source_clip/order is wrong)", clip=entry.key, field=f"{name}_annotation")
+
+
+def evaluate_generated(ev: TrainedEvaluator, entries: Sequence, ds, cfg: MetricConfig = MetricConfig(),
+                       split: str = "test", *, cache: bool | str | os.PathLike = True) -> EvalResult:
+    """Table 2 metrics of generated clips against the reference dataset's GT and captions.
+
+    ``cache``: where the reference embeddings are cached (:func:`reference_embeddings`); False bypasses it.
+    """
+    ev.check_dataset(ds)
+    gen = align_generated(entries, ds, split)
+    gt, ref = _dataset_reference(ev, ds, gen.clips, cache)
+    res = evaluate_embeddings_and_motion(ev, ref.text_NxD, gen.motion, gt, cfg, gt_NxD=ref.motion_NxD,
+                                         meta={"ground_truth": False, "reference": str(ds.root)})
+    return _note_reference(res, ref)
+
+
+# ------------------------------------------------------------------------------------------------
+# Output
+
+
+TABLE_COLUMNS = (  # (metric, header) in the paper's Table 2 order, plus MPJPE and contact F1
+    ("rprec_top1", "Top-1"), ("rprec_top2", "Top-2"), ("rprec_top3", "Top-3"), ("fid", "FID"),
+    ("mm_dist", "MM-Dist"), ("diversity", "Diversity"), ("multimodality", "MModality"), ("mpjpe", "MPJPE(mm)"),
+    ("contact_f1_intra", "F1-intra"), ("contact_f1_inter", "F1-inter"),
+)
+
+
+def format_table(rows: Sequence[tuple[str, EvalResult]], block: int = 32) -> str:
+    """Rows in the paper's Table 2 layout: mean±CI (95%, 1.96·σ/√n over replications)."""
+    w_name = max(14, *(len(n) for n, _ in rows))
+    cells = [[f"{r.metrics[k][0]:.3f}±{r.metrics[k][1]:.3f}" if k in r.metrics else "-" for k, _ in TABLE_COLUMNS]
+             for _, r in rows]
+    widths = [max(len(h), *(len(c[i]) for c in cells)) for i, (_, h) in enumerate(TABLE_COLUMNS)]
+    span = sum(widths[:3]) + 4
+    lines = [" " * w_name + "  " + f"R-Precision (block {block}) ↑".ljust(span) + "  "
+             + "  ".join(h.ljust(w) for (_, h), w in list(zip(TABLE_COLUMNS, widths))[3:]),
+             " " * w_name + "  " + "  ".join(h.ljust(w) for (_, h), w in list(zip(TABLE_COLUMNS, widths))[:3])]
+    for (name, _), c in zip(rows, cells):
+        lines.append(name.ljust(w_name) + "  " + "  ".join(x.ljust(w) for x, w in zip(c, widths)))
+    return "\n".join(lines)
+
+
+def write_eval_json(path: str | os.PathLike, result: EvalResult) -> Path:
+    """``eval.json`` as the analysis run-folder contract reads it: ``name``/``name_ci`` plus ``_meta``."""
+    return atomic_write_json(path, {**result.flat(), "_meta": result.meta})
