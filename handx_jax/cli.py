@@ -29,6 +29,7 @@ GROUPS = (
     ("train", "handx_jax.commands.train"),
     ("generate", "handx_jax.commands.generate"),
     ("params", "handx_jax.commands.params"),
+    ("tokenize", "handx_jax.commands.tokenize"),
     ("sweep", "sweeps.cli"),
 )
 

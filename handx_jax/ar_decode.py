@@ -1,0 +1,165 @@
+"""Decoding the prefix LM: one jitted ``lax.while_loop`` with a KV cache (reference §4.6), then tokens →
+FSQ decoder → 288-d → de-normalised → global joints (§2.4 inverse).
+
+- Prefill: the text prefix (and, for motion prediction, the observed motion tokens) in one forward
+  pass that writes every layer's keys/values into a cache of Lp + 30 slots.
+- Each step samples the next token from the last logits (greedy = argmax, the paper's default; or
+  temperature / top-k / top-p), feeds it at the next slot, and stops when every row has produced END
+  or 30 tokens exist (the reference drops a 31st token, so at most 30 remain).
+- ``use_cache=False`` recomputes the whole sequence every step: the same tokens, used as the test
+  oracle and as the no-cache benchmark.
+
+Rows that end early keep PAD after END. To decode them to 60 frames, the tokens after END repeat the
+last code (the pose is held: §4.8 pads the joints to 60 frames); a row that produced END first decodes
+from code 1, as the reference returns the single id 1 (§4.6).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from handx_jax.models.prefix_lm import MOTION_TOKENS, PrefixLM, attention_mask, slot_positions, text_lengths
+
+
+@partial(jax.tree_util.register_dataclass, data_fields=["temperature", "top_k", "top_p"], meta_fields=["max_tokens"])
+@dataclass(frozen=True)
+class DecodeOptions:
+    """Sampling settings. They are traced values inside the jitted loop, so changing them does not
+    recompile; only ``max_tokens`` is static."""
+
+    temperature: float = 0.0  # 0 = greedy (paper default)
+    top_k: int = 0  # 0 = off
+    top_p: float = 1.0  # 1 = off
+    max_tokens: int = MOTION_TOKENS
+
+
+def sample_logits(logits_BxV, rng, opts: DecodeOptions):
+    """Greedy when temperature ≤ 0; else sample from softmax(logits / T) restricted to the top-k and
+    then to the smallest set of tokens whose probability reaches top-p (always at least one)."""
+    V = logits_BxV.shape[-1]
+    lg = logits_BxV / jnp.maximum(opts.temperature, 1e-6)
+    srt = jnp.sort(lg, axis=-1)[..., ::-1]
+    k = jnp.where(opts.top_k > 0, jnp.minimum(opts.top_k, V), V)
+    kth = jnp.take_along_axis(srt, jnp.broadcast_to(k - 1, srt.shape[:-1])[..., None], axis=-1)
+    srt = jnp.where(srt < kth, -jnp.inf, srt)
+    probs = jax.nn.softmax(srt, axis=-1)
+    keep = jnp.sum(jnp.cumsum(probs, axis=-1) - probs < opts.top_p, axis=-1, keepdims=True)
+    thr = jnp.take_along_axis(srt, jnp.maximum(keep, 1) - 1, axis=-1)
+    lg = jnp.where(lg < jnp.maximum(thr, kth), -jnp.inf, lg)
+    sampled = jax.random.categorical(rng, lg, axis=-1)
+    return jnp.where(opts.temperature <= 0, jnp.argmax(logits_BxV, axis=-1), sampled).astype(jnp.int32)
+
+
+def _empty_cache(model: PrefixLM, B: int, S: int, dtype):
+    c = model.cfg
+    z = jnp.zeros((B, S, c.heads, c.dim // c.heads), dtype)
+    return [(z, z) for _ in range(c.layers)]
+
+
+def _prefill(m: PrefixLM, text, text_mask, observed, cache, S):
+    """Forward over [text | observed] writing the cache; returns (logits of the next token, cache)."""
+    Lp, n_obs = text_mask.shape[1], observed.shape[1]
+    P = Lp + n_obs
+    x = m.embed_text(text)
+    if n_obs:
+        x = jnp.concatenate([x, m.embed_tokens(observed)], axis=1)
+    pos = slot_positions(text_mask, S)[:, :P]
+    h, cache = m.hidden(x, pos, attention_mask(text_mask, jnp.arange(P), S), cache, 0)
+    if n_obs:
+        last = h[:, -1]
+    else:
+        last = jnp.take_along_axis(h, (text_lengths(text_mask) - 1)[:, None, None], axis=1)[:, 0]
+    return m.logits(last), cache
+
+
+def _extend(m: PrefixLM, tok_B, i, text_mask, cache, S):
+    """Feed motion token i at slot Lp + i (position ℓ + i); returns (next logits, cache)."""
+    Lp = text_mask.shape[1]
+    slot = Lp + i
+    pos = (text_lengths(text_mask) + i)[:, None]
+    mask = attention_mask(text_mask, slot[None], S)
+    h, cache = m.hidden(m.embed_tokens(tok_B[:, None]), pos, mask, cache, slot)
+    return m.logits(h[:, 0]), cache
+
+
+def _full(m: PrefixLM, text, text_mask, tokens_BxT, i):
+    """No cache: the whole [text | tokens] sequence, logits of the state predicting token i."""
+    Lp = text_mask.shape[1]
+    S = Lp + tokens_BxT.shape[1]
+    x = jnp.concatenate([m.embed_text(text), m.embed_tokens(tokens_BxT)], axis=1)
+    h, _ = m.hidden(x, slot_positions(text_mask, S), attention_mask(text_mask, jnp.arange(S), S))
+    idx = jnp.where(i == 0, text_lengths(text_mask) - 1, Lp + i - 1)
+    return m.logits(jnp.take_along_axis(h, idx[:, None, None], axis=1)[:, 0])
+
+
+@partial(jax.jit, static_argnames=("model", "use_cache"))
+def decode(model: PrefixLM, params, text_BxLxDt, text_mask_BxL, observed_BxO, rng, opts: DecodeOptions = DecodeOptions(),
+           use_cache: bool = True):
+    """Generate motion tokens after the prefix (and the O observed tokens, O may be 0).
+
+    Returns (tokens (B, max_tokens) int32 with the observed ones first and PAD after END, lengths (B,):
+    the number of codes before END).
+    """
+    c, T = model.cfg, opts.max_tokens
+    B, Lp = text_mask_BxL.shape
+    n_obs = observed_BxO.shape[1]
+    S = Lp + T
+    tokens = jnp.full((B, T), c.pad_id, jnp.int32).at[:, :n_obs].set(observed_BxO.astype(jnp.int32))
+    run = lambda f, *a: model.apply(params, *a, method=f)  # noqa: E731
+    if use_cache:
+        dtype = jax.tree_util.tree_leaves(params)[0].dtype
+        logits, cache = run(lambda m, *a: _prefill(m, *a, S), text_BxLxDt, text_mask_BxL, observed_BxO,
+                            _empty_cache(model, B, S, dtype))
+    else:
+        cache = None
+        logits = run(_full, text_BxLxDt, text_mask_BxL, tokens, jnp.full((B,), n_obs))
+
+    def cond(s):
+        i, _, done, *_ = s
+        return (i < T) & ~jnp.all(done)
+
+    def body(s):
+        i, toks, done, cache, logits, rng = s
+        rng, sub = jax.random.split(rng)
+        tok = jnp.where(done, c.pad_id, sample_logits(logits, sub, opts))
+        toks = toks.at[:, i].set(tok)
+        done = done | (tok == c.end_id)
+        if use_cache:
+            logits, cache = run(lambda m, *a: _extend(m, *a, S), tok, i, text_mask_BxL, cache)
+        else:
+            logits = run(_full, text_BxLxDt, text_mask_BxL, toks, jnp.full((B,), i + 1))
+        return i + 1, toks, done, cache, logits, rng
+
+    state = (jnp.asarray(n_obs, jnp.int32), tokens, jnp.zeros((B,), bool), cache, logits, rng)
+    _, tokens, *_ = jax.lax.while_loop(cond, body, state)
+    lengths = jnp.argmax(tokens >= c.nb_code, axis=1)  # first END/PAD
+    lengths = jnp.where(jnp.any(tokens >= c.nb_code, axis=1), lengths, T)
+    return tokens, lengths.astype(jnp.int32)
+
+
+def fill_for_decoding(tokens_BxT, lengths_B, nb_code: int) -> np.ndarray:
+    """Codes for the FSQ decoder: tokens after END repeat the last code; an empty row is code 1 (§4.6)."""
+    tok = np.asarray(tokens_BxT).copy()
+    for b, n in enumerate(np.asarray(lengths_B)):
+        tok[b, n:] = tok[b, n - 1] if n > 0 else 1
+    return np.clip(tok, 0, nb_code - 1)
+
+
+def tokens_to_joints(tokenizer, tok_params, tokens_BxT, lengths_B, norm) -> np.ndarray:
+    """Codes → FSQ decoder → normalised 288-d → de-normalised (``norm``: representation.NormStats)
+    → global joints ``(B, 2·T, 2, 21, 3)`` (right wrist of frame 0 at the origin, §2.4 inverse)."""
+    from handx_jax.representation import ar_to_joints
+
+    codes = fill_for_decoding(tokens_BxT, lengths_B, tokenizer.cfg.nb_code)
+    x_n = np.asarray(_decode_codes(tokenizer, tok_params, jnp.asarray(codes)))
+    return ar_to_joints(norm.denormalize(x_n.astype(np.float64)).astype(np.float32))
+
+
+@partial(jax.jit, static_argnames=("tokenizer",))
+def _decode_codes(tokenizer, tok_params, codes):
+    return tokenizer.apply(tok_params, codes, method=tokenizer.decode)

@@ -1,0 +1,406 @@
+"""The autoregressive family: a text-prefix LM over FSQ motion tokens (paper §5.2; reference §4.5–4.8).
+
+    handx train tokenizer --data DIR --codebook 4096 --out TOK      # one per (dataset, codebook)
+    handx tokenize --tokenizer TOK --data DIR                       # token cache
+    handx text cache --data DIR --encoder ENC --joined              # the joined-prompt text cache
+    handx train ar --data DIR --encoder ENC --tokenizer TOK --preset 8L-512 --out RUN
+    handx generate --run RUN --reference DIR --split test --out gen.npz
+
+Training items are (clip, level) pairs of the train split's nested fraction. The prefix is the frozen
+text features of the clip's three prompts at that level, joined with separators (the text cache's
+joined mode); the same text mode is used at generation (the reference trains on the full prefix and
+evaluates with the first token only, §4.5; that mismatch is not ported). The targets are the clip's
+30 codes from the token cache, then END (§4.6). The LM's vocabulary is the tokenizer's REAL codebook
+size (e.g. 4375 for "4096"); the run records both sizes and the tokenizer's provenance.
+
+Generation decodes greedily by default (the paper), in one jitted loop with a KV cache
+(``handx_jax.ar_decode``), then tokens → FSQ decoder → de-normalised 288-d → global joints. Tasks:
+``text2motion`` and ``prediction`` (the first ``--observed-frames`` frames of ``--source`` are
+encoded and prefilled; the rest is generated).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from handx_jax import ar_decode as AD
+from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
+from handx_jax.families import tokenizer as T
+from handx_jax.io import DataError
+from handx_jax.models import prefix_lm as P
+from handx_jax.train import OptimConfig, TrainConfig
+
+FAMILY = "ar"
+PRESETS = P.PRESETS
+TASKS = ("text2motion", "prediction")
+T5_BASE = dict(vocab_size=32128, d_model=768, d_kv=64, d_ff=3072, num_layers=12, num_heads=12)
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    path: str = ""  # dataset directory (with a joined text cache and a token cache)
+    encoder: str = ""  # frozen T5 encoder folder
+    tokenizer: str = ""  # tokenizer run folder (its token cache must exist in the dataset)
+    fraction: float = 1.0
+    text_max_len: int = 128  # the joined text cache's max_len
+    cache_dtype: str = "float16"
+
+
+@dataclass(frozen=True)
+class SampleConfig:
+    """Decoding defaults of the run (``handx generate`` flags override them)."""
+
+    temperature: float = 0.0  # greedy, the paper's default
+    top_k: int = 0
+    top_p: float = 1.0
+
+
+@dataclass(frozen=True)
+class ARRunConfig:
+    preset: str = "tiny"
+    model: P.LMConfig = PRESETS["tiny"]
+    # Reference §4.7: batch 128, AdamW(3e-4, (0.9, 0.999), wd 1e-6, eps 1e-6), 10% linear warm-up then
+    # cosine to 0. Weight decay here skips vectors (norm gains), as the shared loop does for all families.
+    train: TrainConfig = TrainConfig(steps=150000, batch_size=128, log_every=100, ckpt_every=10000,
+                                     optim=OptimConfig(lr=3e-4, b1=0.9, b2=0.999, eps=1e-6, weight_decay=1e-6,
+                                                       warmup_steps=15000, schedule="cosine", grad_clip=1.0))
+    data: DataConfig = field(default_factory=DataConfig)
+    sample: SampleConfig = SampleConfig()
+
+    def validate(self) -> None:
+        m = self.model
+        if m.dim % m.heads or (m.dim // m.heads) % 2:
+            raise ConfigError(f"model.dim {m.dim} / model.heads {m.heads} must be an even integer (RoPE pairs)")
+        if not 0 < self.data.fraction <= 1:
+            raise ConfigError(f"data.fraction must be in (0, 1], got {self.data.fraction}")
+        if self.sample.temperature < 0 or not 0 < self.sample.top_p <= 1 or self.sample.top_k < 0:
+            raise ConfigError("sample: need temperature ≥ 0, top_k ≥ 0 and 0 < top_p ≤ 1")
+
+
+Config = ARRunConfig
+
+
+def _abs(p: str) -> str:
+    return str(Path(p).absolute()) if p else ""
+
+
+def make_config(preset: str = "tiny", overrides: Sequence[str] = (), *, data: str = "", encoder: str = "",
+                tokenizer: str = "") -> ARRunConfig:
+    """The run config of a named size; ``model.nb_code`` is taken from the tokenizer run when given."""
+    model = get_preset(PRESETS, preset, "LM preset")
+    if tokenizer:
+        model = dataclasses.replace(model, nb_code=_tokenizer_record(tokenizer)["nb_code"])
+    cfg = ARRunConfig(preset=preset, model=model,
+                      data=DataConfig(path=_abs(data), encoder=_abs(encoder), tokenizer=_abs(tokenizer)))
+    return apply_overrides(cfg, overrides)
+
+
+def _tokenizer_record(tokenizer_dir) -> dict:
+    p = Path(tokenizer_dir) / "config.json"
+    if not p.exists():
+        raise DataError("not a tokenizer run folder (no config.json)", path=tokenizer_dir)
+    doc = json.loads(p.read_text())
+    if doc.get("family") != T.FAMILY:
+        raise DataError(f"run folder is a {doc.get('family')!r} run, not a tokenizer", path=tokenizer_dir)
+    return doc
+
+
+def numbers(cfg: ARRunConfig, *, text_len: int = 96, encoder_cfg=None) -> dict:
+    """Params from shapes; analytic forward FLOPs per sample with a prefix of ``text_len`` joined-text
+    tokens and 31 motion slots (30 codes + END); the frozen encoder over the joined text, apart."""
+    from handx_jax.text.t5 import T5Config, encoder_flops
+
+    enc_cfg = encoder_cfg if encoder_cfg is not None else T5Config(**T5_BASE)
+    return {**P.param_counts(cfg.model), "flops_per_sample": P.forward_flops(cfg.model, text_len),
+            "text_flops_per_sample": int(encoder_flops(enc_cfg, text_len))}
+
+
+# ------------------------------------------------------------------------------------------------
+# Data and training
+
+
+@dataclass
+class TrainData:
+    clips: np.ndarray
+    levels: int
+    codes: np.ndarray  # (N_all, 30) token cache, dataset clip order
+    cache: Any  # joined TextCache
+
+    @property
+    def num_items(self) -> int:
+        return len(self.clips) * self.levels
+
+    def batch(self, idx: np.ndarray) -> dict:
+        ci, lv = np.asarray(idx) // self.levels, np.asarray(idx) % self.levels
+        clip = self.clips[ci]
+        h, m = self.cache.lookup(clip, "joined", lv)
+        return {"codes": self.codes[clip].astype(np.int32), "text": h, "mask": m}
+
+
+def load_train_data(cfg: ARRunConfig):
+    from handx_jax.data.dataset import Dataset
+    from handx_jax.text.cache import open_cache
+
+    for key in ("path", "encoder", "tokenizer"):
+        if not getattr(cfg.data, key):
+            raise ConfigError(f"data.{key} is empty: give --data, --encoder and --tokenizer")
+    ds = Dataset.open(cfg.data.path)
+    cache = open_cache(cfg.data.path, cfg.data.encoder, max_len=cfg.data.text_max_len, dtype=cfg.data.cache_dtype,
+                       joined=True)
+    tokens = T.open_token_cache(cfg.data.path, cfg.data.tokenizer)
+    clips = np.asarray(ds.split("train", cfg.data.fraction))
+    if not len(clips):
+        raise DataError("the train split is empty", path=cfg.data.path)
+    return TrainData(clips, int(ds.meta["levels"]), tokens.codes, cache), tokens
+
+
+RESUME_KEYS = ("model", "data", "train", "tokenizer")
+
+
+def run_record(cfg: ARRunConfig, cache_meta: dict, tokens) -> dict:
+    mean_len = max(1, round(float(cache_meta["mean_tokens"])))
+    from handx_jax.text.t5 import T5Config
+
+    enc_cfg = T5Config(**{k: v for k, v in cache_meta["encoder_config"].items()
+                          if k in {f.name for f in dataclasses.fields(T5Config)}})
+    n = numbers(cfg, text_len=mean_len, encoder_cfg=enc_cfg)
+    tm = tokens.meta
+    return {
+        "family": FAMILY, "preset": cfg.preset, "model": to_dict(cfg.model), "data": to_dict(cfg.data),
+        "sample": to_dict(cfg.sample), "data_fraction": cfg.data.fraction, **n,
+        "flops_per_sample_padded": P.forward_flops(cfg.model, int(cache_meta["Lmax"])),
+        "text_len_mean": float(cache_meta["mean_tokens"]),
+        "codebook": tm["codebook"], "nb_code": tm["nb_code"],
+        "tokenizer": {k: tm[k] for k in ("tokenizer_path", "tokenizer_fingerprint", "tokenizer_step", "codebook",
+                                         "nb_code", "levels", "quantizer")} | {"token_cache": tm["fingerprint"]},
+        "text_cache": {"fingerprint": cache_meta["fingerprint"], "encoder_fingerprint": cache_meta["encoder_fingerprint"],
+                       "Lmax": cache_meta["Lmax"], "d_model": cache_meta["d_model"], "fields": "joined"},
+    }
+
+
+def make_loss(model: P.PrefixLM):
+    def loss(params, batch, rng, train: bool):
+        return P.lm_loss(model, params, batch["text"].astype(jnp.float32), batch["mask"], batch["codes"])
+
+    return loss
+
+
+def train(run_dir: str | os.PathLike, cfg: ARRunConfig, *, stop_at: int | None = None, on_log=None,
+          encoder=None) -> dict:
+    """Train (or resume) an LM run from the token cache and the joined text cache."""
+    from handx_jax import train as loop
+
+    cfg.validate()
+    data, tokens = load_train_data(cfg)
+    nb, D_text = int(tokens.meta["nb_code"]), int(data.cache.meta["d_model"])
+    if cfg.model.nb_code != nb or cfg.model.text_dim != D_text:  # the vocabulary and text width follow the data
+        cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, nb_code=nb, text_dim=D_text))
+    record = run_record(cfg, data.cache.meta, tokens)
+    run_dir = Path(run_dir)
+    loop.check_resume(run_dir, {**record, "train": to_dict(cfg.train)}, RESUME_KEYS)
+    model = P.PrefixLM(cfg.model)
+    L = int(data.cache.meta["Lmax"])
+    return loop.train(run_dir, init=lambda rng: P.init_lm(cfg.model, rng, text_len=L)[1], loss=make_loss(model),
+                      get_batch=data.batch, num_examples=data.num_items, cfg=cfg.train, config=record,
+                      stop_at=stop_at, on_log=on_log, flops_per_sample=record["flops_per_sample"],
+                      resume_keys=RESUME_KEYS)
+
+
+# ------------------------------------------------------------------------------------------------
+# Loading and generation
+
+
+@dataclass(frozen=True)
+class GenerateOptions:
+    decode: AD.DecodeOptions = AD.DecodeOptions()
+    seed: int = 0
+    batch_size: int = 256
+    observed_frames: int = 20  # for the prediction task
+    use_cache: bool = True
+
+
+@dataclass
+class ARRun:
+    run_dir: Path
+    cfg: ARRunConfig
+    model: P.PrefixLM
+    params: Any
+    step: int
+    encoder: Any
+    tokenizer: Any  # TokenizerRun
+    used_ema: bool
+    tasks: tuple[str, ...] = TASKS
+
+    def encode(self, prompts) -> tuple[np.ndarray, np.ndarray]:
+        """The joined prefix of each prompt, exactly as the joined text cache stores it (same string,
+        max_len, zeroed padding and cache-dtype rounding)."""
+        from handx_jax.text.cache import joined_texts
+
+        texts = joined_texts([{"left": [p.left], "right": [p.right], "interaction": [p.interaction]}
+                              for p in prompts])
+        e, h = self.encoder.encode([t["joined"][0] for t in texts], max_len=self.cfg.data.text_max_len)
+        m = e.mask_BxL.astype(bool)
+        L = int(max(m.sum(1).max(), 1))
+        h = (h * m[..., None]).astype(self.cfg.data.cache_dtype).astype(np.float32)
+        return h[:, :L], m[:, :L]
+
+    def generate(self, prompts, opts: GenerateOptions, *, samples: int = 1, task: str = "text2motion", sources=None,
+                 keyframes=(30,), fixed_hand: str = "left") -> np.ndarray:
+        """G samples per prompt → joints (P, G, 60, 2, 21, 3). Greedy decoding gives G equal samples."""
+        if task not in TASKS:
+            raise ValueError(f"the ar family does {', '.join(TASKS)}, not {task!r}")
+        text, mask = self.encode(prompts)
+        n_obs = 0
+        observed = np.zeros((len(prompts), 0), np.int32)
+        if task == "prediction":
+            if sources is None or len(sources) != len(prompts):
+                raise ValueError("--task prediction needs one source clip per prompt")
+            f = opts.observed_frames
+            if f <= 0 or f >= 60 or f % 2:
+                raise ValueError(f"--observed-frames must be even and in (0, 60), got {f}")
+            n_obs = f // 2
+            observed = self.tokenizer.encode_clips(np.stack([np.asarray(s)[:f] for s in sources]))
+        G = samples
+        rows = np.repeat(np.arange(len(prompts)), G)
+        rng = jax.random.PRNGKey(opts.seed)
+        out = []
+        for s in range(0, len(rows), opts.batch_size):
+            r = rows[s:s + opts.batch_size]
+            pad = opts.batch_size - len(r) if len(rows) > opts.batch_size else 0  # one compiled shape
+            rr = np.concatenate([r, np.full(pad, r[-1])])
+            toks, lens = AD.decode(self.model, self.params, jnp.asarray(text[rr]), jnp.asarray(mask[rr]),
+                                   jnp.asarray(observed[rr][:, :n_obs]), jax.random.fold_in(rng, s), opts.decode,
+                                   use_cache=opts.use_cache)
+            j = AD.tokens_to_joints(self.tokenizer.model, self.tokenizer.params, np.asarray(toks), np.asarray(lens),
+                                    self.tokenizer.norm)
+            out.append(j[:len(r)])
+        j = np.concatenate(out)
+        if task == "prediction":  # the observed frames are the source's own, in its global frame
+            src = np.stack([np.asarray(x, np.float32) for x in sources])[rows]
+            j = j + (src[:, :1, 1:2, :1] - j[:, :1, 1:2, :1])  # align the frame-0 right wrist
+        return j.reshape(len(prompts), G, *j.shape[1:])
+
+    def generate_long(self, segments, opts, *, samples: int = 1, source=None) -> np.ndarray:
+        raise ValueError("the ar family does not do --task long")
+
+    def describe(self, opts: GenerateOptions) -> str:
+        d = opts.decode
+        how = "greedy" if d.temperature <= 0 else f"T={d.temperature}, top-k {d.top_k}, top-p {d.top_p}"
+        return (f"{how} decoding{' with KV cache' if opts.use_cache else ''}, "
+                f"{'EMA' if self.used_ema else 'raw'} params at step {self.step}")
+
+
+def _encoder(encoder, default):
+    """A loaded FrozenEncoder as is; a folder (or None: ``default``) loaded (a ``str`` has ``.encode`` too)."""
+    from handx_jax.text.t5 import load_hf_t5_encoder
+
+    if encoder is None or isinstance(encoder, (str, os.PathLike)):
+        return load_hf_t5_encoder(encoder or default)
+    return encoder
+
+
+def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, overrides: Sequence[str] = ()) -> ARRun:
+    from handx_jax.train import load_params
+
+    run_dir = Path(run_dir)
+    p = run_dir / "config.json"
+    doc = json.loads(p.read_text()) if p.exists() else None
+    if doc is None or doc.get("family") != FAMILY:
+        raise DataError("not an ar run folder (config.json missing or family is not 'ar')", path=run_dir)
+    cfg = from_dict(ARRunConfig, doc)
+    bad = [o for o in overrides if not o.split("=", 1)[0].strip().startswith("sample.")]
+    if bad:
+        raise ValueError(f"generation can only override sample.* keys, got {bad}")
+    cfg = apply_overrides(cfg, overrides)
+    enc = _encoder(encoder, cfg.data.encoder)
+    want = doc.get("text_cache", {}).get("encoder_fingerprint")
+    if want and enc.fingerprint != want:
+        raise DataError(f"encoder fingerprint {enc.fingerprint} differs from the one the run was trained with ({want})",
+                        path=getattr(enc, "path", None) or encoder or cfg.data.encoder)
+    tok = T.load(doc["tokenizer"]["tokenizer_path"])
+    if tok.fingerprint != doc["tokenizer"]["tokenizer_fingerprint"]:
+        raise DataError("the tokenizer folder changed since this LM was trained (fingerprint "
+                        f"{tok.fingerprint}, recorded {doc['tokenizer']['tokenizer_fingerprint']})",
+                        path=doc["tokenizer"]["tokenizer_path"])
+    params, step = load_params(run_dir, ema=ema)
+    return ARRun(run_dir, cfg, P.PrefixLM(cfg.model), params, step, enc, tok, bool(ema and cfg.train.ema_decay > 0))
+
+
+def init_run(cfg: ARRunConfig, tokenizer_dir, encoder, rng_seed: int = 0) -> ARRun:
+    """An UNTRAINED LM (random init) around a trained tokenizer: the baseline a trained LM must beat."""
+    tok = T.load(tokenizer_dir)
+    enc = _encoder(encoder, encoder)
+    m = dataclasses.replace(cfg.model, nb_code=tok.cfg.model.nb_code, text_dim=enc.cfg.d_model)
+    cfg = dataclasses.replace(cfg, model=m)
+    model, params = P.init_lm(m, jax.random.PRNGKey(rng_seed))
+    return ARRun(Path("."), cfg, model, params, 0, enc, tok, False)
+
+
+# ------------------------------------------------------------------------------------------------
+# Command-line hooks of the family interface
+
+
+def add_train_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--data", required=True, help="dataset directory (joined text cache + token cache)")
+    p.add_argument("--encoder", required=True, help="frozen T5 encoder folder")
+    p.add_argument("--tokenizer", required=True, help="tokenizer run folder (`handx train tokenizer`)")
+
+
+def config_from_args(args: argparse.Namespace) -> ARRunConfig:
+    return make_config(args.preset, args.set, data=args.data, encoder=args.encoder, tokenizer=args.tokenizer)
+
+
+def add_params_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--layers", type=int, help="transformer layers (overrides the preset)")
+    p.add_argument("--dim", type=int, help="model width")
+    p.add_argument("--heads", type=int, help="attention heads")
+    p.add_argument("--codebook", type=int, default=4096, help="NOMINAL codebook size; the real one sets the vocabulary")
+    p.add_argument("--text-dim", type=int, default=768, help="text feature width (768 for T5-base)")
+    p.add_argument("--text-len", type=int, default=96, help="joined-prefix tokens for the FLOPs count")
+    p.add_argument("--encoder", help="encoder folder for text_flops_per_sample (default: T5-base)")
+
+
+def params_from_args(args: argparse.Namespace) -> tuple[str, dict]:
+    from handx_jax.models.fsq import real_codebook_size
+
+    nb = real_codebook_size(args.codebook)
+    sizes = [f"model.{k}={v}" for k, v in (("layers", args.layers), ("dim", args.dim), ("heads", args.heads),
+                                          ("text_dim", args.text_dim), ("nb_code", nb)) if v is not None]
+    cfg = make_config(args.preset, [*sizes, *args.set])
+    enc_cfg = None
+    if args.encoder:
+        from handx_jax.text.t5 import load_hf_t5_encoder
+
+        enc_cfg = load_hf_t5_encoder(args.encoder).cfg
+    m = cfg.model
+    label = (f"ar {cfg.preset}: L{m.layers} d{m.dim} H{m.heads} SwiGLU {m.hidden}, codebook {args.codebook} "
+             f"({nb} codes), text {m.text_dim}-d, {args.text_len} prefix tokens")
+    return label, numbers(cfg, text_len=args.text_len, encoder_cfg=enc_cfg)
+
+
+def add_generate_args(p) -> None:
+    p.add_argument("--temperature", type=float, help="sampling temperature (default: the run's, 0 = greedy)")
+    p.add_argument("--top-k", type=int, help="keep the k most likely tokens (0 = off)")
+    p.add_argument("--top-p", type=float, help="nucleus mass (1 = off)")
+    p.add_argument("--observed-frames", type=int, default=20, help="--task prediction: observed frames (even)")
+    p.add_argument("--no-kv-cache", action="store_true", help="recompute the whole sequence every step")
+
+
+def load_for_generate(args: argparse.Namespace, *, ema: bool, encoder, seed: int, batch_size: int):
+    run = load(args.run, ema=ema, encoder=encoder)
+    s = run.cfg.sample
+    pick = lambda v, d: d if v is None else v  # noqa: E731
+    dec = AD.DecodeOptions(temperature=pick(args.temperature, s.temperature), top_k=pick(args.top_k, s.top_k),
+                           top_p=pick(args.top_p, s.top_p))
+    return run, GenerateOptions(decode=dec, seed=seed, batch_size=batch_size, observed_frames=args.observed_frames,
+                                use_cache=not args.no_kv_cache)

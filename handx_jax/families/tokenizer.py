@@ -1,0 +1,386 @@
+"""The FSQ motion-tokenizer family (paper §5.2; reference §4.1–4.4): training, loading, the token cache.
+
+    handx train tokenizer --data DIR --codebook 4096 --preset paper --out TOK
+    handx tokenize --tokenizer TOK --data DIR          # DIR/token_cache/<fingerprint>/codes.npy
+
+Training items are 48-frame windows of the train split's clips at every start 0..12 (13 per clip,
+§4.3), in the normalised 288-d AR representation (§2.4, the dataset's ``ar`` stats). The loss is the
+§4.3 sum (``models.fsq.tokenizer_loss``). Every ``train.eval_every`` steps and at the end the hook
+logs, on up to ``data.eval_clips`` full clips of the val split: MPJPE in mm (per hand, relative to
+its wrist, de-normalised), codebook usage and perplexity.
+
+A trained tokenizer is one per (dataset, codebook): ``handx tokenize`` encodes every clip once
+(30 codes each) into a token cache that every LM size trains from. The cache's fingerprint hashes
+the dataset and the tokenizer's parameters, so an LM run can name exactly the tokenizer it used.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
+from handx_jax.io import DataError
+from handx_jax.models import fsq as Q
+from handx_jax.train import OptimConfig, TrainConfig
+
+FAMILY = "tokenizer"
+NORM_FILE = "norm_stats.npz"
+WINDOW_STARTS = 13  # 60-frame clips, 48-frame windows at starts 0..12 (§4.3)
+TOKEN_CACHE_DIRNAME = "token_cache"
+TOKEN_FORMAT, TOKEN_FORMAT_VERSION = "handx-jax-token-cache", 1
+PRESETS = Q.PRESETS
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    path: str = ""  # dataset directory
+    fraction: float = 1.0  # nested train subset
+    window: int = 48  # training window in frames (§4.3)
+    eval_clips: int = 512  # val clips for the MPJPE / usage hook
+
+
+@dataclass(frozen=True)
+class TokenizerRunConfig:
+    preset: str = "tiny"
+    model: Q.FSQConfig = PRESETS["tiny"]
+    # Reference §4.3: batch 512, AdamW(2e-4, (0.9, 0.99), wd 0), 8000 warm-up steps, no clipping. The
+    # reference's ×0.1 steps at 50% and 75% of 600k iterations are not reproduced (the shared loop has
+    # constant and cosine schedules); cosine to 0 is the default here.
+    train: TrainConfig = TrainConfig(steps=600000, batch_size=512, log_every=100, ckpt_every=5000, eval_every=8000,
+                                     optim=OptimConfig(lr=2e-4, b1=0.9, b2=0.99, weight_decay=0.0, warmup_steps=8000,
+                                                       schedule="cosine", grad_clip=0.0))
+    data: DataConfig = field(default_factory=DataConfig)
+
+    def validate(self) -> None:
+        m = self.model
+        if m.codebook not in Q.LEVELS:
+            raise ConfigError(f"model.codebook {m.codebook} has no FSQ levels; choose from {sorted(Q.LEVELS)}")
+        if m.quantizer not in Q.QUANTIZERS:
+            raise ConfigError(f"model.quantizer must be one of {Q.QUANTIZERS}, got {m.quantizer!r}")
+        if self.data.window % (2 ** m.down_t) or not 0 < self.data.window <= 60:
+            raise ConfigError(f"data.window {self.data.window} must be in (0, 60] and divisible by {2 ** m.down_t}")
+        if not 0 < self.data.fraction <= 1:
+            raise ConfigError(f"data.fraction must be in (0, 1], got {self.data.fraction}")
+
+
+Config = TokenizerRunConfig
+
+
+def make_config(preset: str = "tiny", overrides: Sequence[str] = (), *, data: str = "") -> TokenizerRunConfig:
+    cfg = TokenizerRunConfig(preset=preset, model=get_preset(PRESETS, preset, "tokenizer preset"),
+                             data=DataConfig(path=str(Path(data).absolute()) if data else ""))
+    return apply_overrides(cfg, overrides)
+
+
+def numbers(cfg: TokenizerRunConfig, **_) -> dict:
+    """Parameters and analytic forward FLOPs per training window (no text encoder)."""
+    n = Q.param_count(cfg.model)
+    return {"params": n, "params_non_embedding": n, "flops_per_sample": Q.forward_flops(cfg.model, cfg.data.window),
+            "text_flops_per_sample": 0}
+
+
+# ------------------------------------------------------------------------------------------------
+# Data
+
+
+@dataclass
+class TrainData:
+    motion: Any  # (N, 60, 2, 21, 3) memory map
+    clips: np.ndarray  # train clip indices
+    window: int
+    norm: Any  # NormStats ("ar")
+
+    @property
+    def num_items(self) -> int:
+        return len(self.clips) * WINDOW_STARTS
+
+    def batch(self, idx: np.ndarray) -> dict:
+        """Windows of the normalised AR features: the features are computed on the whole clip (the
+        velocities at a window's last frame are real, not 0) and then cut."""
+        from handx_jax import representation as rep
+
+        ci, start = np.asarray(idx) // WINDOW_STARTS, np.asarray(idx) % WINDOW_STARTS
+        f = rep.to_ar(np.asarray(self.motion[np.sort(self.clips[ci])], np.float64))
+        f = f[np.argsort(np.argsort(self.clips[ci], kind="stable"), kind="stable")]
+        take = start[:, None] + np.arange(self.window)[None]
+        x = np.take_along_axis(f, take[..., None], axis=1)
+        return {"x": self.norm.normalize(x).astype(np.float32)}
+
+
+def _ar_norm(ds):
+    from handx_jax import representation as rep
+
+    try:
+        return rep.NormStats.from_npz_dict(ds.stats, "ar")
+    except KeyError as e:
+        raise DataError(f"stats.npz has no AR statistics ({e}); rebuild the dataset", path=ds.root) from None
+
+
+def _norm_arrays(norm):
+    return jnp.asarray(norm.mean), jnp.asarray(norm.std + np.float32(norm.eps))
+
+
+# ------------------------------------------------------------------------------------------------
+# Training
+
+
+def make_loss(model: Q.FSQTokenizer, norm):
+    mean, scale = _norm_arrays(norm)
+
+    def loss(params, batch, rng, train: bool):
+        x = batch["x"]
+        xhat, _ = model.apply(params, x)
+        return Q.tokenizer_loss(xhat.astype(jnp.float32), x, mean, scale)
+
+    return loss
+
+
+def make_evaluate(model: Q.FSQTokenizer, cfg: Q.FSQConfig, x_val_n, norm):
+    """Validation hook: MPJPE (mm), usage and perplexity on full clips (§4.3)."""
+    mean, scale = _norm_arrays(norm)
+
+    @jax.jit
+    def one(params, x):
+        xhat, digits = model.apply(params, x)
+        d = jnp.linalg.norm(Q.wrist_relative_joints(xhat * scale + mean) - Q.wrist_relative_joints(x * scale + mean),
+                            axis=-1)
+        return 1000.0 * d.mean(axis=(1, 2, 3)), Q.digits_to_index(digits, cfg.levels)
+
+    def evaluate(params, ema, step):
+        errs, codes = [], []
+        for s in range(0, len(x_val_n), 64):
+            e, c = one(params, jnp.asarray(x_val_n[s:s + 64]))
+            errs.append(np.asarray(e))
+            codes.append(np.asarray(c))
+        st = Q.codebook_stats(np.concatenate(codes), cfg.nb_code)
+        return {"eval/mpjpe_mm": float(np.concatenate(errs).mean()), "eval/usage": st["usage"],
+                "eval/perplexity": st["perplexity"], "eval/codes_used": st["codes_used"]}
+
+    return evaluate
+
+
+RESUME_KEYS = ("model", "data", "train")
+
+
+def run_record(cfg: TokenizerRunConfig, ds) -> dict:
+    return {"family": FAMILY, "preset": cfg.preset, "model": to_dict(cfg.model), "data": to_dict(cfg.data),
+            "data_fraction": cfg.data.fraction, "dataset_fingerprint": ds.fingerprint,
+            "codebook": cfg.model.codebook, "nb_code": cfg.model.nb_code, "levels": list(cfg.model.levels),
+            **numbers(cfg)}
+
+
+def train(run_dir: str | os.PathLike, cfg: TokenizerRunConfig, *, stop_at: int | None = None, on_log=None,
+          encoder=None) -> dict:
+    """Train (or resume) a tokenizer in ``run_dir`` (``encoder`` is unused: no text)."""
+    from handx_jax import representation as rep
+    from handx_jax import train as loop
+    from handx_jax.data.dataset import Dataset
+
+    cfg.validate()
+    if not cfg.data.path:
+        raise ConfigError("data.path is empty: give --data DIR")
+    run_dir = Path(run_dir)
+    ds = Dataset.open(cfg.data.path)
+    clips = np.asarray(ds.split("train", cfg.data.fraction))
+    if not len(clips):
+        raise DataError("the train split is empty", path=cfg.data.path)
+    norm = _ar_norm(ds)
+    val = np.asarray(ds.split("val"))
+    val = val if len(val) else np.asarray(ds.split("test"))
+    val = val[: cfg.data.eval_clips]
+    x_val = norm.normalize(rep.to_ar(np.asarray(ds.motion[val], np.float64))).astype(np.float32) if len(val) else None
+    record = run_record(cfg, ds)
+    loop.check_resume(run_dir, {**record, "train": to_dict(cfg.train)}, RESUME_KEYS)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    if jax.process_index() == 0:
+        np.savez(run_dir / NORM_FILE, **norm.to_npz_dict("ar"))
+    model = Q.FSQTokenizer(cfg.model)
+    data = TrainData(ds.motion, clips, cfg.data.window, norm)
+    return loop.train(run_dir, init=lambda rng: Q.init_tokenizer(cfg.model, rng, cfg.data.window)[1],
+                      loss=make_loss(model, norm), get_batch=data.batch, num_examples=data.num_items, cfg=cfg.train,
+                      config=record, stop_at=stop_at, on_log=on_log, flops_per_sample=record["flops_per_sample"],
+                      evaluate=None if x_val is None else make_evaluate(model, cfg.model, x_val, norm),
+                      resume_keys=RESUME_KEYS)
+
+
+# ------------------------------------------------------------------------------------------------
+# Loading, encoding, decoding
+
+
+@dataclass
+class TokenizerRun:
+    run_dir: Path
+    cfg: TokenizerRunConfig
+    model: Q.FSQTokenizer
+    params: Any
+    step: int
+    norm: Any  # NormStats ("ar")
+    record: dict
+
+    tasks: tuple[str, ...] = ()  # a tokenizer does not generate from text
+
+    @property
+    def fingerprint(self) -> str:
+        """Hash of the tokenizer's configuration and parameter bytes."""
+        h = hashlib.sha256(json.dumps({k: self.record[k] for k in ("model", "codebook", "nb_code")},
+                                      sort_keys=True).encode())
+        for leaf in jax.tree_util.tree_leaves(self.params):
+            h.update(np.ascontiguousarray(np.asarray(leaf, np.float32)).tobytes())
+        return h.hexdigest()[:16]
+
+    def encode_clips(self, joints_NxTx2x21x3, batch_size: int = 256) -> np.ndarray:
+        """Joints → codes (N, T/2) int32 (normalised AR features, §4.4)."""
+        from handx_jax import representation as rep
+
+        enc = jax.jit(lambda p, x: self.model.apply(p, x, method=self.model.encode))
+        out = []
+        for s in range(0, len(joints_NxTx2x21x3), batch_size):
+            x = self.norm.normalize(rep.to_ar(np.asarray(joints_NxTx2x21x3[s:s + batch_size], np.float64)))
+            out.append(np.asarray(enc(self.params, jnp.asarray(x, jnp.float32))))
+        return np.concatenate(out).astype(np.int32)
+
+    def generate(self, *a, **kw):
+        raise ValueError("a tokenizer run does not generate from text; train an `ar` run on its token cache")
+
+    def generate_long(self, *a, **kw):
+        raise ValueError("a tokenizer run does not generate from text")
+
+    def describe(self, opts) -> str:
+        return f"FSQ tokenizer ({self.cfg.model.codebook}/{self.cfg.model.nb_code} codes) at step {self.step}"
+
+
+def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, overrides: Sequence[str] = ()) -> TokenizerRun:
+    from handx_jax import representation as rep
+    from handx_jax.train import load_params
+
+    run_dir = Path(run_dir)
+    p = run_dir / "config.json"
+    doc = json.loads(p.read_text()) if p.exists() else None
+    if doc is None or doc.get("family") != FAMILY:
+        raise DataError("not a tokenizer run folder (config.json missing or family is not 'tokenizer')", path=run_dir)
+    cfg = from_dict(TokenizerRunConfig, doc)
+    params, step = load_params(run_dir, ema=ema)
+    with np.load(run_dir / NORM_FILE) as z:
+        norm = rep.NormStats.from_npz_dict(dict(z), "ar")
+    return TokenizerRun(run_dir, cfg, Q.FSQTokenizer(cfg.model), params, step, norm, doc)
+
+
+def token_cache_fingerprint(dataset_fp: str, tokenizer_fp: str) -> str:
+    doc = {"format": TOKEN_FORMAT, "version": TOKEN_FORMAT_VERSION, "dataset": dataset_fp, "tokenizer": tokenizer_fp}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def tokenize(tokenizer_dir: str | os.PathLike, data_dir: str | os.PathLike, *, overwrite: bool = False,
+             log=print) -> Path:
+    """Encode every clip of the dataset (all splits) into ``DATA/token_cache/<fp>/`` (atomic):
+    ``codes.npy`` (N, 30) int32 in dataset clip order and ``meta.json`` (provenance: the tokenizer
+    folder, its fingerprint, step, nominal and real codebook size, levels, quantizer; the dataset)."""
+    from handx_jax.data.dataset import Dataset
+    from handx_jax.io import atomic_dir, atomic_write_json
+
+    tok = load(tokenizer_dir)
+    ds = Dataset.open(data_dir)
+    if tok.record.get("dataset_fingerprint") not in (None, ds.fingerprint):
+        log(f"note: tokenizer {tokenizer_dir} was trained on dataset {tok.record['dataset_fingerprint']}, "
+            f"encoding dataset {ds.fingerprint}")
+    tfp = tok.fingerprint
+    fp = token_cache_fingerprint(ds.fingerprint, tfp)
+    out = Path(data_dir) / TOKEN_CACHE_DIRNAME / fp
+    if out.exists() and not overwrite:
+        log(f"token cache {out} is up to date")
+        return out
+    codes = tok.encode_clips(ds.motion)
+    counts = np.bincount(codes.reshape(-1), minlength=tok.cfg.model.nb_code)
+    with atomic_dir(out, overwrite=overwrite) as tmp:
+        np.save(tmp / "codes.npy", codes)
+        atomic_write_json(tmp / "meta.json", {
+            "format": TOKEN_FORMAT, "format_version": TOKEN_FORMAT_VERSION, "fingerprint": fp,
+            "dataset_fingerprint": ds.fingerprint, "tokenizer_fingerprint": tfp,
+            "tokenizer_path": str(Path(tokenizer_dir).absolute()), "tokenizer_step": tok.step,
+            "codebook": tok.cfg.model.codebook, "nb_code": tok.cfg.model.nb_code, "levels": list(tok.cfg.model.levels),
+            "quantizer": tok.cfg.model.quantizer, "num_clips": int(codes.shape[0]), "tokens_per_clip": int(codes.shape[1]),
+            "codes_used": int((counts > 0).sum())})
+    log(f"token cache {out}: {codes.shape[0]} clips × {codes.shape[1]} codes, "
+        f"{int((counts > 0).sum())}/{tok.cfg.model.nb_code} codes used")
+    return out
+
+
+@dataclass
+class TokenCache:
+    root: Path
+    meta: dict
+    codes: np.ndarray  # (N, 30) int32
+
+    @classmethod
+    def open(cls, root: str | os.PathLike, *, dataset_fingerprint: str | None = None) -> "TokenCache":
+        from handx_jax.io import read_format_meta
+
+        root = Path(root)
+        meta = read_format_meta(root / "meta.json", TOKEN_FORMAT, TOKEN_FORMAT_VERSION,
+                                missing="not a token cache (missing meta.json); build one with `handx tokenize`",
+                                upgrade="; rebuild it with `handx tokenize`")
+        if dataset_fingerprint is not None and meta["dataset_fingerprint"] != dataset_fingerprint:
+            raise DataError(f"token cache built for dataset {meta['dataset_fingerprint']}, not {dataset_fingerprint}; "
+                            "run `handx tokenize` on this dataset", path=root)
+        codes = np.load(root / "codes.npy")
+        if codes.shape != (meta["num_clips"], meta["tokens_per_clip"]):
+            raise DataError(f"codes.npy {codes.shape} does not match meta.json", path=root)
+        return cls(root, meta, codes)
+
+
+def open_token_cache(data_dir: str | os.PathLike, tokenizer_dir: str | os.PathLike) -> TokenCache:
+    """The cache of this dataset + tokenizer, verified; a clear error naming the command if absent."""
+    from handx_jax.data.dataset import Dataset
+
+    ds = Dataset.open(data_dir)
+    fp = token_cache_fingerprint(ds.fingerprint, load(tokenizer_dir).fingerprint)
+    root = Path(data_dir) / TOKEN_CACHE_DIRNAME / fp
+    if not root.exists():
+        raise DataError(f"no token cache for this dataset + tokenizer; run `handx tokenize --tokenizer {tokenizer_dir} "
+                        f"--data {data_dir}`", path=root.parent)
+    return TokenCache.open(root, dataset_fingerprint=ds.fingerprint)
+
+
+# ------------------------------------------------------------------------------------------------
+# Command-line hooks of the family interface
+
+
+def add_train_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--data", required=True, help="dataset directory")
+    p.add_argument("--codebook", type=int, default=512, help=f"nominal codebook size ({', '.join(map(str, Q.LEVELS))})")
+    p.add_argument("--quantizer", choices=Q.QUANTIZERS, default="paper",
+                   help="paper: round(σ(y)(L−1)) (default); fsq: the reference code's tanh form")
+
+
+def config_from_args(args: argparse.Namespace) -> TokenizerRunConfig:
+    return make_config(args.preset, [f"model.codebook={args.codebook}", f"model.quantizer={args.quantizer}", *args.set],
+                       data=args.data)
+
+
+def add_params_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--codebook", type=int, default=512, help="nominal codebook size")
+
+
+def params_from_args(args: argparse.Namespace) -> tuple[str, dict]:
+    cfg = make_config(args.preset, [f"model.codebook={args.codebook}", *args.set])
+    m = cfg.model
+    return f"tokenizer {cfg.preset}: width {m.width}, levels {m.levels} ({m.nb_code} codes)", numbers(cfg)
+
+
+def add_generate_args(p) -> None:
+    pass
+
+
+def load_for_generate(args: argparse.Namespace, *, ema: bool, encoder, seed: int, batch_size: int):
+    return load(args.run, ema=ema), None

@@ -1,0 +1,110 @@
+"""AR family end to end on a 32-clip corpus: `handx train tokenizer`, `handx tokenize`, `handx train ar`,
+`handx generate` (official .npz layout, text2motion and prediction), `handx params ar` (Table C)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from handx_jax.cli import main
+from handx_jax.io import read_jsonl
+from tests.diffusion_fixtures import ENCODER
+
+LOOP = ["--set", "train.batch_size=8", "--set", "train.log_every=2", "--set", "train.ckpt_every=4",
+        "--set", "train.wandb=disabled", "--set", "train.optim.warmup_steps=0", "--set", "train.optim.lr=2e-3"]
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    from handx_jax.data.build import BuildConfig, build_corpus
+    from handx_jax.text.cache import build_cache
+
+    root = tmp_path_factory.mktemp("ar")
+    data = build_corpus(root / "ds", BuildConfig(clips=32, seed=3, workers=1, val_fraction=0.2, test_fraction=0.2),
+                        progress=False)
+    build_cache(data, ENCODER, joined=True, log=lambda s: None)
+    tok, run = root / "tok", root / "lm"
+    assert main(["train", "tokenizer", "--data", str(data), "--codebook", "256", "--preset", "tiny", "--quiet",
+                 "--set", "train.steps=4", "--set", "train.eval_every=2", *LOOP, "--out", str(tok)]) == 0
+    assert main(["tokenize", "--tokenizer", str(tok), "--data", str(data)]) == 0
+    assert main(["train", "ar", "--data", str(data), "--encoder", str(ENCODER), "--tokenizer", str(tok),
+                 "--preset", "tiny", "--quiet", "--set", "train.steps=8", *LOOP, "--out", str(run)]) == 0
+    return data, tok, run
+
+
+def test_tokenizer_run_records_codebook_and_logs_validation(built):
+    _, tok, _ = built
+    cfg = json.loads((tok / "config.json").read_text())
+    assert (cfg["family"], cfg["codebook"], cfg["nb_code"], cfg["levels"]) == ("tokenizer", 256, 240, [8, 6, 5])
+    ev = [r for r in read_jsonl(tok / "metrics.jsonl") if "eval/mpjpe_mm" in r]
+    assert [r["step"] for r in ev] == [2, 4]
+    for r in ev:
+        assert 0 < r["eval/mpjpe_mm"] < 1e4 and 0 < r["eval/usage"] <= 1 and 1 <= r["eval/perplexity"] <= 240
+
+
+def test_token_cache_holds_every_clip_and_matches_the_encoder(built):
+    from handx_jax.data.dataset import Dataset
+    from handx_jax.families import tokenizer as T
+
+    data, tok, _ = built
+    cache = T.open_token_cache(data, tok)
+    ds = Dataset.open(data)
+    assert cache.codes.shape == (len(ds), 30) and cache.codes.min() >= 0 and cache.codes.max() < 240
+    run = T.load(tok)
+    np.testing.assert_array_equal(run.encode_clips(np.asarray(ds.motion[:5])), cache.codes[:5])
+    assert cache.meta["tokenizer_fingerprint"] == run.fingerprint and cache.meta["nb_code"] == 240
+
+
+def test_lm_run_records_tokenizer_provenance_and_vocabulary(built):
+    _, tok, run = built
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["family"] == "ar" and cfg["model"]["nb_code"] == 240 and (cfg["codebook"], cfg["nb_code"]) == (256, 240)
+    assert cfg["tokenizer"]["tokenizer_path"] == str(tok.absolute())
+    assert cfg["text_cache"]["fields"] == "joined" and cfg["flops_per_sample"] > 0
+    rows = [r for r in read_jsonl(run / "metrics.jsonl") if "loss" in r]
+    assert rows[0]["loss"] == pytest.approx(np.log(241), rel=0.1)  # ≈ uniform over 240 codes + END at init
+
+
+def test_generate_writes_the_official_layout(built, tmp_path):
+    from handx_jax.data.handx_npz import read_handx_npz
+
+    data, _, run = built
+    out = tmp_path / "gen.npz"
+    assert main(["generate", "--run", str(run), "--reference", str(data), "--split", "test", "--limit", "3",
+                 "--samples", "2", "--temperature", "1.0", "--top-k", "20", "--encoder", str(ENCODER),
+                 "--out", str(out)]) == 0
+    clips = read_handx_npz(out)
+    assert len(clips) == 6
+    for c in clips:
+        assert c.motion.shape == (60, 2, 21, 3) and np.all(np.isfinite(c.motion))
+        np.testing.assert_allclose(c.motion[0, 1, 0], 0.0, atol=1e-6)  # right wrist of frame 0 at the origin
+
+
+def test_prediction_keeps_the_observed_start(built, tmp_path):
+    from handx_jax.data.dataset import Dataset
+    from handx_jax.families import load_run
+    from handx_jax.families.ar import GenerateOptions
+    from handx_jax.generation import Prompt
+
+    data, _, run_dir = built
+    ds = Dataset.open(data)
+    run = load_run(run_dir)
+    src = np.asarray(ds.motion[0], np.float32)
+    j = run.generate([Prompt(*ds.captions()[0])], GenerateOptions(observed_frames=20), task="prediction", sources=[src])
+    assert j.shape == (1, 1, 60, 2, 21, 3)
+    np.testing.assert_allclose(j[0, 0, 0, 1, 0], src[0, 1, 0], atol=1e-5)
+    # The first 10 tokens are the tokenizer's codes of the observed 20 frames (prefilled, not sampled).
+    obs = run.tokenizer.encode_clips(src[None, :20])
+    assert obs.shape == (1, 10)
+
+
+@pytest.mark.parametrize("argv,expected", [
+    (["--preset", "8L-512", "--codebook", "2048"], 29_633_024),
+    (["--layers", "12", "--dim", "768", "--heads", "12", "--codebook", "4096"], 92_266_752),
+    (["--preset", "16L-1024", "--codebook", "4096"], 215_305_216)])
+def test_params_command_reproduces_table_c(argv, expected, capsys):
+    assert main(["params", "ar", *argv, "--text-dim", "768", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["params"] == expected
+    assert set(out) >= {"params", "params_non_embedding", "flops_per_sample", "text_flops_per_sample"}
+    assert out["flops_per_sample"] > 2 * out["params_non_embedding"] * 31  # at least 2·N per motion slot

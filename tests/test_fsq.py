@@ -1,0 +1,146 @@
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from handx_jax import representation as R
+from handx_jax.models import fsq as Q
+from tests import handmade_hands as hh
+
+
+@pytest.mark.parametrize("quantizer", Q.QUANTIZERS)
+@pytest.mark.parametrize("codebook", sorted(Q.LEVELS))
+def test_every_code_lies_on_its_grid(codebook, quantizer):
+    levels = Q.levels_for(codebook)
+    y = jnp.asarray(np.random.default_rng(0).normal(scale=4.0, size=(4096, len(levels))), jnp.float32)
+    code, digits = Q.quantize(y, levels, quantizer)
+    L = np.asarray(levels)
+    d = np.asarray(digits)
+    assert d.min() >= 0 and np.all(d <= L - 1)
+    assert np.all(d.min(0) == 0) and np.all(d.max(0) == L - 1)  # wide inputs reach both ends of each level
+    np.testing.assert_allclose(code, Q.digits_to_code(digits, levels, quantizer), atol=1e-6)
+    for k, Lk in enumerate(levels):  # every value is one of the Lk grid points of its dimension
+        grid = np.asarray(Q.digits_to_code(np.arange(Lk)[:, None].repeat(len(levels), 1), levels, quantizer))[:, k]
+        assert len(np.unique(grid)) == Lk
+        assert np.abs(np.asarray(code)[:, k, None] - grid[None]).min(1).max() < 1e-6
+    if quantizer == "fsq":  # §4.2: code = q/⌊L/2⌋ with q ∈ {−⌊L/2⌋..⌈L/2⌉−1}
+        assert np.asarray(code).min() >= -1.0 and np.asarray(code).max() <= 1.0
+
+
+@pytest.mark.parametrize("codebook,real", [(256, 240), (512, 512), (1024, 1000), (2048, 1920), (4096, 4375),
+                                           (16384, 15360), (65536, 64000)])
+def test_index_code_round_trip_every_codebook(codebook, real):
+    levels = Q.levels_for(codebook)
+    assert Q.real_codebook_size(codebook) == real
+    idx = jnp.arange(real)
+    for quantizer in Q.QUANTIZERS:
+        code = Q.index_to_code(idx, levels, quantizer)
+        assert len(np.unique(np.asarray(code), axis=0)) == real
+        np.testing.assert_array_equal(Q.code_to_index(code, levels, quantizer), idx)
+    digits = Q.index_to_digits(idx, levels)
+    np.testing.assert_array_equal(Q.digits_to_index(digits, levels), idx)
+    # First dimension least significant (§4.2).
+    np.testing.assert_array_equal(digits[1], [1] + [0] * (len(levels) - 1))
+    np.testing.assert_array_equal(digits[levels[0]], [0, 1] + [0] * (len(levels) - 2))
+
+
+@pytest.mark.parametrize("quantizer", Q.QUANTIZERS)
+def test_straight_through_gradient_is_identity_inside_range(quantizer):
+    levels = Q.levels_for(4096)
+    b = jnp.linspace(0.01, 3.9, 40)
+    np.testing.assert_array_equal(jax.grad(lambda x: Q._round_ste(x).sum())(b), np.ones(40))
+    # The quantiser's Jacobian equals that of the same map without rounding.
+    y = jnp.asarray(np.random.default_rng(1).normal(size=(8, len(levels))), jnp.float32)
+    smooth = lambda y: Q._to_code(Q.bounded(y, levels, quantizer), levels, quantizer)  # noqa: E731
+    g_q = jax.grad(lambda y: (Q.quantize(y, levels, quantizer)[0] * jnp.arange(1.0, 6.0)).sum())(y)
+    g_s = jax.grad(lambda y: (smooth(y) * jnp.arange(1.0, 6.0)).sum())(y)
+    np.testing.assert_allclose(g_q, g_s, rtol=1e-6)
+    assert np.all(np.asarray(g_q) != 0)
+
+
+def test_paper_form_is_round_sigmoid():
+    levels = (8, 5)
+    y = jnp.asarray([[0.0, 0.0], [10.0, -10.0], [0.3, 0.7]])
+    _, digits = Q.quantize(y, levels, "paper")
+    sig = 1 / (1 + np.exp(-np.asarray(y)))
+    np.testing.assert_array_equal(digits, np.round(sig * (np.asarray(levels) - 1)))
+
+
+def _clip(T=16):
+    """A left/right pair whose fingers bend and wrists travel and turn over time."""
+    frames = []
+    for t in range(T):
+        r = hh.right_hand({("index", 1): 3 * t, ("middle", 2): 2 * t})
+        a = np.radians(4 * t)
+        rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+        r = r @ rz.T + np.array([0.01 * t, 0.0, 0.002 * t])
+        frames.append(hh.pair(hh.mirror(r), r))
+    return np.stack(frames)
+
+
+def test_tokenizer_shapes_and_encode_decode_agree():
+    cfg = Q.PRESETS["tiny"]
+    model, params = Q.init_tokenizer(cfg, jax.random.PRNGKey(0))
+    x = jnp.asarray(np.random.default_rng(0).normal(size=(2, 60, 288)), jnp.float32)
+    xhat, digits = model.apply(params, x)
+    assert xhat.shape == x.shape and digits.shape == (2, 30, 3)  # 60 frames → 30 tokens
+    idx = model.apply(params, x, method=model.encode)
+    np.testing.assert_array_equal(idx, Q.digits_to_index(digits, cfg.levels))
+    np.testing.assert_allclose(model.apply(params, idx, method=model.decode), xhat, atol=1e-5)
+    assert model.apply(params, x[:, :48], method=model.encode).shape == (2, 24)  # 48-frame windows (§4.3)
+
+
+def test_rotation_row_convention_and_losses_known_values():
+    f = R.to_ar(_clip())[None].astype(np.float32)  # (1, T, 288)
+    rot = R.rotation_6d_to_matrix(f[..., 6:18].reshape(1, -1, 2, 6))
+    np.testing.assert_allclose(Q.rot6d_to_matrix(jnp.asarray(f[..., 6:18].reshape(1, -1, 2, 6))), rot, atol=1e-5)
+    mean, std = np.zeros(288, np.float32), np.ones(288, np.float32)
+    total, aux = Q.tokenizer_loss(jnp.asarray(f), jnp.asarray(f), mean, std)
+    floor = float(np.arccos(np.float32(1 - 1e-7)))  # the reference's clamp: identical rotations give this
+    for k, v in aux.items():
+        assert float(v) == pytest.approx(floor if k.startswith("l_geo") else 0.0, abs=2e-4), k
+    # Turning the predicted left wrist frame by θ about its first local axis: geo = θ/2 (half the
+    # hand-frames change), and the relative (frame-to-frame) term stays at its floor.
+    theta = 0.3
+    rx = np.array([[1, 0, 0], [0, np.cos(theta), -np.sin(theta)], [0, np.sin(theta), np.cos(theta)]])
+    turned = rot.copy()
+    turned[..., 0, :, :] = rx @ rot[..., 0, :, :]
+    g = f.copy()
+    g[..., 6:18] = R.matrix_to_rotation_6d(turned).reshape(1, -1, 12)
+    _, aux = Q.tokenizer_loss(jnp.asarray(g), jnp.asarray(f), mean, std)
+    assert float(aux["l_geo"]) == pytest.approx(theta / 2, abs=1e-3)
+    assert float(aux["l_geo_rel"]) == pytest.approx(floor, abs=1e-3)
+    # A constant shift of one local coordinate: SmoothL1 of 0.1 on 1/288 of "all" and 1/120 of "pos".
+    h = f.copy()
+    h[..., 50] += 0.1
+    _, aux = Q.tokenizer_loss(jnp.asarray(h), jnp.asarray(f), mean, std)
+    assert float(aux["l_all"]) == pytest.approx(0.005 / 288, rel=1e-3)
+    assert float(aux["l_pos"]) == pytest.approx(0.005 / 120, rel=1e-3)
+    assert float(aux["l_pos_acc"]) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_mpjpe_matches_recovered_joints():
+    f = R.to_ar(_clip())
+    rng = np.random.default_rng(0)
+    g = f + rng.normal(scale=0.01, size=f.shape)
+    ours = float(Q.mpjpe_mm(jnp.asarray(g[None], jnp.float32), jnp.asarray(f[None], jnp.float32)))
+    jp, jg = R.ar_to_joints(g), R.ar_to_joints(f)
+    rel = lambda j: j - j[..., :1, :]  # noqa: E731  per hand, relative to its wrist
+    ref = 1000 * np.linalg.norm(rel(jp) - rel(jg), axis=-1).mean()
+    assert ours == pytest.approx(ref, rel=1e-4)
+    assert float(Q.mpjpe_mm(jnp.asarray(f[None]), jnp.asarray(f[None]))) == pytest.approx(0.0, abs=1e-4)
+
+
+def test_codebook_stats_known_values():
+    s = Q.codebook_stats(np.array([0, 1, 2, 3] * 5), 8)
+    assert s == {"usage": 0.5, "perplexity": pytest.approx(4.0), "codes_used": 4}
+    assert Q.codebook_stats(np.zeros(10, int), 512)["perplexity"] == pytest.approx(1.0)
+
+
+def test_analytic_flops_match_xla():
+    cfg = Q.FSQConfig(width=64)
+    model, params = Q.init_tokenizer(cfg, jax.random.PRNGKey(0))
+    x = jnp.zeros((1, 60, 288))
+    cost = jax.jit(lambda p, x: model.apply(p, x)[0]).lower(params, x).compile().cost_analysis()
+    xla = (cost[0] if isinstance(cost, list) else cost)["flops"]
+    assert abs(Q.forward_flops(cfg) - xla) / xla < 0.10, (Q.forward_flops(cfg), xla)
