@@ -34,15 +34,20 @@ def parse_amount(text: str) -> float:
     return v
 
 
-def load_inputs(specs: Sequence[str], family: str | None = None) -> list[dict[str, Any]]:
-    """Load RESULTS arguments (files, run folders, ``paper:B``...) and optionally keep one family."""
+def load_inputs(specs: Sequence[str], family: str | None = None, strict: bool = True) -> list[dict[str, Any]]:
+    """Load RESULTS arguments (files, run folders, ``paper:B``...) and optionally keep one family.
+
+    ``strict=False`` (fit, plot, extrapolate) accepts any CSV/JSON-lines table with the named
+    columns; tables and the launcher keep the full schema check.
+    """
     from analysis import paper
     from analysis.schema import GROUND_TRUTH, load_results
 
     rows: list[dict[str, Any]] = []
     seen: dict[str, str] = {}
     for spec in specs:
-        part = paper.load_table(spec.split(":", 1)[1]) if spec.startswith("paper:") else load_results(spec)
+        part = (paper.load_table(spec.split(":", 1)[1]) if spec.startswith("paper:")
+                else load_results(spec, strict=strict))
         for r in part:
             if r["run_id"] in seen:
                 raise DataError(f"run_id {r['run_id']!r} appears in both {seen[r['run_id']]} and {spec}")
@@ -112,13 +117,16 @@ def _cmd_paper(args: argparse.Namespace) -> int:
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
-    from analysis.fits import compare_models, fit_rows, select_xy
+    from analysis.fits import FLOPS_CONVENTIONS, compare_models, fit_rows, resolve_column, select_xy
 
-    rows = load_inputs(args.results, args.family)
+    rows = load_inputs(args.results, args.family, strict=False)
     fit = fit_rows(rows, args.x, args.y, level=args.level, n_boot=args.n_boot, seed=args.seed, method=args.method)
+    xcol = resolve_column(args.x, rows)
+    convention = FLOPS_CONVENTIONS.get(xcol)
     if args.json:
-        _emit_json(fit.to_dict())
+        _emit_json({**fit.to_dict(), "x_column": xcol, "flops_convention": convention})
     else:
+        print(f"x = {xcol}" + (f" ({convention})" if convention else ""))
         print(fit.summary())
         xs, ys, _ = select_xy(rows, args.x, args.y)
         if xs.size >= 4:
@@ -149,7 +157,7 @@ def _cmd_table(args: argparse.Namespace) -> int:
 def _cmd_extrapolate(args: argparse.Namespace) -> int:
     from analysis.fits import extrapolate
 
-    rows = load_inputs(args.results, args.family)
+    rows = load_inputs(args.results, args.family, strict=False)
     ext = extrapolate(rows, args.cut, x=args.x, y=args.y, level=args.level, n_boot=args.n_boot, seed=args.seed)
     if args.json:
         _emit_json(ext.to_dict())
@@ -165,9 +173,9 @@ def _cmd_extrapolate(args: argparse.Namespace) -> int:
 def _cmd_plot(args: argparse.Namespace) -> int:
     from analysis import plots
 
-    rows = load_inputs(args.results, args.family)
+    rows = load_inputs(args.results, args.family, strict=False)
     if args.kind == "scaling":
-        overlay = {spec: load_inputs([spec], args.family) for spec in args.overlay or []}
+        overlay = {spec: load_inputs([spec], args.family, strict=False) for spec in args.overlay or []}
         fig = plots.plot_scaling(rows, args.x, args.y, overlay=overlay, name=args.name or "runs")
     elif args.kind == "grid":
         fig = plots.plot_axis_grid(rows, args.metrics.split(","))
@@ -183,8 +191,10 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 def _add_fit_options(p: argparse.ArgumentParser, *, xy: bool = True) -> None:
     if xy:
         p.add_argument("--x", default="flops",
-                       help="x column or alias: flops (flops_per_sample), compute (train_flops), params, "
-                            "data (data_fraction), samples (samples_seen) (default: flops)")
+                       help="x column or alias: flops (the paper's convention, flops_per_sample_paper, when every "
+                            "run has it, else the analytic flops_per_sample; the output names which), flops_paper, "
+                            "flops_analytic, compute (train_flops), params, data (data_fraction), samples "
+                            "(samples_seen) (default: flops)")
         p.add_argument("--y", default="rprec_top3", help="metric column (default: rprec_top3)")
     p.add_argument("--level", type=float, default=0.95, help="confidence level of CIs and intervals (default: 0.95)")
     p.add_argument("--n-boot", type=int, default=2000, help="bootstrap resamples (default: 2000)")

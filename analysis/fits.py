@@ -177,7 +177,9 @@ def t_ppf(p: float, df: float) -> float:
 # Column selection
 
 X_ALIASES: dict[str, str] = {
-    "flops": "flops_per_sample",
+    "flops": "flops_per_sample",  # or flops_per_sample_paper when every run has it (resolve_column)
+    "flops_analytic": "flops_per_sample",
+    "flops_paper": "flops_per_sample_paper",
     "compute": "train_flops",
     "train_compute": "train_flops",
     "data": "data_fraction",
@@ -185,9 +187,30 @@ X_ALIASES: dict[str, str] = {
 }
 
 
-def resolve_column(name: str) -> str:
-    """Map a short name (``flops``, ``compute``, ``params``, ``data``) to a numeric schema column."""
+FLOPS_CONVENTIONS: dict[str, str] = {
+    "flops_per_sample": "analytic convention: 2 FLOPs per multiply-add of every matmul of the trainable model, "
+                        "text encoder excluded",
+    "flops_per_sample_paper": "paper convention (Table B / Fig. 4): multiply-adds of the Linear layers, as "
+                              "fvcore/thop count them, plus the frozen text encoder",
+}
+
+
+def resolve_column(name: str, rows: Sequence[Mapping[str, Any]] | None = None) -> str:
+    """Map a short name (``flops``, ``compute``, ``params``, ``data``) to a numeric column.
+
+    ``flops`` means the paper's convention (``flops_per_sample_paper``) when every run in ``rows``
+    carries it, so that slopes compare with the paper's 0.4391; otherwise the analytic
+    ``flops_per_sample``. ``flops_paper`` / ``flops_analytic`` pick one explicitly. With ``rows``, any
+    column the rows carry as numbers is accepted too (an analyst's own table).
+    """
     col = X_ALIASES.get(name, name)
+    if name == "flops" and rows is not None:
+        runs = [r for r in rows if r.get("family") != GROUND_TRUTH]
+        if runs and all(r.get("flops_per_sample_paper") is not None for r in runs):
+            col = "flops_per_sample_paper"
+    if rows is not None and col not in COLUMN_BY_NAME and any(
+            isinstance(r.get(col), (int, float)) and not isinstance(r.get(col), bool) for r in rows):
+        return col
     if col not in COLUMN_BY_NAME or COLUMN_BY_NAME[col].kind is str:
         raise ValueError(f"unknown column {name!r}; use one of {', '.join(sorted(X_ALIASES))} or a numeric "
                          f"column: {', '.join(NUMERIC_COLUMNS)}")
@@ -196,7 +219,7 @@ def resolve_column(name: str) -> str:
 
 def select_xy(rows: Sequence[Mapping[str, Any]], x: str, y: str) -> tuple[np.ndarray, np.ndarray, list]:
     """The (x, y) pairs of the rows that have both, ground-truth rows excluded."""
-    xc, yc = resolve_column(x), resolve_column(y)
+    xc, yc = resolve_column(x, rows), resolve_column(y, rows)
     used = [r for r in rows if r.get("family") != GROUND_TRUTH and r.get(xc) is not None
             and r.get(yc) is not None]
     xs = np.array([float(r[xc]) for r in used], dtype=np.float64)
@@ -375,7 +398,7 @@ def fit_rows(rows: Sequence[Mapping[str, Any]], x: str = "flops", y: str = "rpre
              **kwargs: Any) -> LogLinearFit:
     """Log-linear fit of column ``y`` against column ``x`` over the rows that have both."""
     xs, ys, _ = select_xy(rows, x, y)
-    return fit_log_linear(xs, ys, x_name=resolve_column(x), y_name=resolve_column(y), **kwargs)
+    return fit_log_linear(xs, ys, x_name=resolve_column(x, rows), y_name=resolve_column(y, rows), **kwargs)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -570,7 +593,7 @@ def extrapolate(rows: Sequence[Mapping[str, Any]], cut: float, *, x: str = "flop
         raise ValueError(f"need at least 3 runs below the cut {cut:g} to fit, got {int(below.sum())}")
     if not above.any():
         raise ValueError(f"no runs at or above the cut {cut:g} to predict")
-    xc, yc = resolve_column(x), resolve_column(y)
+    xc, yc = resolve_column(x, rows), resolve_column(y, rows)
     fit = fit_log_linear(xs[below], ys[below], level=level, n_boot=n_boot, seed=seed, x_name=xc, y_name=yc)
     sat = fit_saturating(xs[below], ys[below]) if below.sum() >= 4 else None
     lo, hi = fit.prediction_interval(xs[above])

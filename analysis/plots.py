@@ -72,7 +72,8 @@ LABELS: dict[str, str] = {
     "contact_precision_inter": "Inter-hand $C_\\mathrm{prec}$",
     "contact_recall_inter": "Inter-hand $C_\\mathrm{rec}$",
     "contact_f1_inter": "Inter-hand $C_\\mathrm{F1}$",
-    "flops_per_sample": "FLOPs per sample",
+    "flops_per_sample": "FLOPs per sample (analytic: 2/MAC, denoiser)",
+    "flops_per_sample_paper": "FLOPs per sample (paper convention: MACs + text encoder)",
     "train_flops": "Training compute (FLOPs)",
     "params": "Parameters",
     "params_non_embedding": "Non-embedding parameters",
@@ -106,9 +107,30 @@ def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = DPI) -> Path
     return atomic_write_bytes(path, buf.getvalue())
 
 
+def chance_level(y: str, rows: Sequence[Mapping[str, Any]] = (), block: int | None = None) -> float | None:
+    """Chance value of an R-Precision column: top-k of a block of B candidates is k/B (3/32 for top-3
+    at block 32). The block comes from ``block``, else the rows' ``rprec_block``, else 32 (Table 2)."""
+    if not y.startswith("rprec_top"):
+        return None
+    k = int(y[len("rprec_top"):])
+    if block is None:
+        blocks = {r.get("rprec_block") for r in rows if r.get("rprec_block") is not None}
+        block = blocks.pop() if len(blocks) == 1 else 32
+    return k / block
+
+
+def _draw_chance(ax: Any, y: str, rows: Sequence[Mapping[str, Any]], block: int | None) -> None:
+    c = chance_level(y, rows, block)
+    if c is None:
+        return
+    b = round(int(y[len("rprec_top"):]) / c)
+    ax.axhline(c, color="0.45", lw=1.0, ls=(0, (1, 2)), zorder=1,
+               label=f"chance ({y[len('rprec_top'):]}/{b} = {c:.3f})")
+
+
 def _ci(rows: Sequence[Mapping[str, Any]], y: str) -> np.ndarray | None:
     """The rows' ± values of ``y`` for error bars (None when no row has one)."""
-    if f"{y}_ci" not in COLUMN_BY_NAME or not rows:
+    if not rows or (f"{y}_ci" not in COLUMN_BY_NAME and not any(r.get(f"{y}_ci") is not None for r in rows)):
         return None
     ci = column(rows, f"{y}_ci")
     return None if np.all(np.isnan(ci)) else np.nan_to_num(ci)
@@ -152,7 +174,7 @@ def _label_points(ax: Any, xs: np.ndarray, ys: np.ndarray, texts: Sequence[str],
                     bbox=dict(boxstyle="round,pad=0.1", fc="white", ec="none", alpha=0.75))
 
 
-_ENG_COLUMNS = ("flops_per_sample", "train_flops", "params", "params_non_embedding", "samples_seen")
+_ENG_COLUMNS = ("flops_per_sample", "flops_per_sample_paper", "train_flops", "params", "params_non_embedding", "samples_seen")
 
 
 def _format_log_x(ax: Any, col: str) -> None:
@@ -180,10 +202,16 @@ def plot_scaling(rows: Sequence[Mapping[str, Any]], x: str = "flops", y: str = "
                  name: str = "runs", overlay: Mapping[str, Sequence[Mapping[str, Any]]] | None = None,
                  fit: bool | LogLinearFit = True, band: bool = True, pi: bool = True,
                  label_points: bool = True, title: str | None = None, level: float = 0.95,
-                 n_boot: int = 1000, figsize: tuple[float, float] = (6.0, 4.2)) -> Figure:
-    """``y`` against ``x`` on a log axis with the log-linear fit, its CI band and labelled points."""
-    xc, yc = resolve_column(x), resolve_column(y)
+                 n_boot: int = 1000, figsize: tuple[float, float] = (6.0, 4.2), chance: bool = True,
+                 block: int | None = None) -> Figure:
+    """``y`` against ``x`` on a log axis with the log-linear fit, its CI band and labelled points.
+
+    ``x="flops"`` uses one FLOPs convention for every series (the paper's only when all have it).
+    R-Precision plots draw the chance level k/block (``chance``).
+    """
     series = [(name, rows)] + list((overlay or {}).items())
+    every = [r for _, srows in series for r in srows]
+    xc, yc = resolve_column(x, every), resolve_column(y, every)
     with mpl.rc_context(STYLE):
         fig = _new_figure(*figsize)
         ax = fig.add_subplot()
@@ -207,6 +235,8 @@ def plot_scaling(rows: Sequence[Mapping[str, Any]], x: str = "flops", y: str = "
                 f = fit_log_linear(xs, ys, level=level, n_boot=n_boot, x_name=xc, y_name=yc)
             if f is not None:
                 _draw_fit(ax, f, xs, color, band and k == 0, pi and k == 0, None if k == 0 else sname)
+        if chance:
+            _draw_chance(ax, yc, every, block)
         ax.set_xscale("log")
         ax.set_xlabel(label(xc))
         ax.set_ylabel(label(yc))
@@ -270,6 +300,7 @@ def _trend_panel(ax: Any, rows: Sequence[Mapping[str, Any]], metric: str, x: str
         ci = _ci(sel, metric)
         ax.errorbar(xs, ys, yerr=ci, fmt="-" + MARKERS[k % len(MARKERS)], color=OKABE_ITO[k % len(OKABE_ITO)],
                     elinewidth=0.8, label=hue_fmt(h))
+    _draw_chance(ax, metric, rows, None)
     gt = next((r[metric] for r in rows if r.get("family") == GROUND_TRUTH and r.get(metric) is not None), None)
     if gt is not None and show_gt:
         ax.axhline(gt, color="0.4", lw=1.0, ls=":", label="ground truth")

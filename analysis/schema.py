@@ -25,7 +25,16 @@ Columns (see :data:`COLUMNS` for the full list and units):
   ``steps``, ``samples_seen``;
 * metrics: each name in :data:`METRICS` as ``<name>`` (the point value) and ``<name>_ci`` (its
   half-width: whatever the evaluator reports as the ± value; the paper's ± values are kept as
-  printed).
+  printed); ``rprec_block`` (R-Precision block size, so chance top-k = k/block);
+* the paper's FLOPs convention: ``flops_per_sample_paper`` (multiply-adds of the Linear layers plus the
+  frozen text encoder, which reproduces Table B; ``handx_jax/flops.py``) and its text-encoder part
+  ``text_flops_per_sample_paper``, beside the analytic ``flops_per_sample``;
+* launcher provenance (``sweeps/launcher.py``): ``sweep``, ``status`` (done | failed | running |
+  pending), ``error``, ``data_sampling`` (clips | pairs), ``wall_time_s``, ``device_kind``,
+  ``git_commit``.
+
+``load_results(..., strict=False)`` (what ``handx analyze fit/plot/extrapolate`` use) accepts any
+table with the columns an analysis names: unknown columns are kept, only schema columns are checked.
 
 Run-folder contract
 -------------------
@@ -116,13 +125,28 @@ COLUMNS: tuple[Column, ...] = (
     Column("data_fraction", float, "fraction of the training split used, in (0, 1]", positive=True),
     Column("params", int, "trainable parameters (frozen text encoder excluded)", positive=True),
     Column("params_non_embedding", int, "trainable parameters without embeddings", positive=True),
-    Column("flops_per_sample", float, "forward FLOPs of the trainable model per sample", positive=True),
+    Column("flops_per_sample", float, "forward FLOPs of the trainable model per sample (analytic convention: "
+           "2 per multiply-add of every matmul, text encoder excluded)", positive=True),
     Column("text_flops_per_sample", float, "forward FLOPs of the frozen text encoder per sample",
+           nonnegative=True),
+    Column("flops_per_sample_paper", float, "per-sample FLOPs in the paper's Table B convention: multiply-adds of "
+           "the denoiser's Linear layers plus the frozen text encoder's (handx_jax/flops.py)", positive=True),
+    Column("text_flops_per_sample_paper", float, "the text-encoder part of flops_per_sample_paper (MACs)",
            nonnegative=True),
     Column("train_flops", float, "total training compute (FLOPs)", nonnegative=True),
     Column("steps", int, "optimizer steps run", nonnegative=True),
     Column("samples_seen", int, "training samples processed", nonnegative=True),
+    Column("rprec_block", int, "R-Precision block size (32: Tables 2/3, 16: Table B); chance top-k = k/block",
+           positive=True),
     *_metric_columns(),
+    # Provenance of a launcher row (sweeps/launcher.py).
+    Column("sweep", str, "sweep name"),
+    Column("status", str, "launcher status: done | trained | failed | running | pending"),
+    Column("error", str, "why the run failed (launcher rows)"),
+    Column("data_sampling", str, "how training items are drawn: clips (nested clip subsets) | pairs"),
+    Column("wall_time_s", float, "wall-clock seconds the run's stages took", nonnegative=True),
+    Column("device_kind", str, "accelerator the run trained on (jax.devices()[0].device_kind)"),
+    Column("git_commit", str, "git commit of the code that trained the run"),
 )
 COLUMN_BY_NAME: dict[str, Column] = {c.name: c for c in COLUMNS}
 COLUMN_NAMES: tuple[str, ...] = tuple(c.name for c in COLUMNS)
@@ -216,6 +240,32 @@ def validate_row(raw: Mapping[str, Any], *, path: Any = None, row: Any = None) -
     return out
 
 
+def lenient_row(raw: Mapping[str, Any], *, path: Any = None, row: Any = None) -> dict[str, Any]:
+    """An analyst's row: schema columns are type-checked, other columns kept (numbers parsed).
+
+    For ``handx analyze fit/plot`` on any table with the named columns: no required columns beyond
+    what the command uses (``run_id`` defaults to the row number, ``family`` to None = a run).
+    """
+    if not isinstance(raw, Mapping):
+        raise _error(f"expected an object, got {type(raw).__name__}", path=path, row=row)
+    out: dict[str, Any] = {c.name: None for c in COLUMNS}
+    for k, v in raw.items():
+        k = str(k).strip()
+        if k in COLUMN_BY_NAME:
+            out[k] = _coerce(COLUMN_BY_NAME[k], v, path=path, row=row)
+        elif isinstance(v, str):
+            try:
+                num = float(v.replace("_", "")) if v.strip() else None
+            except ValueError:
+                num = v
+            out[k] = num
+        else:
+            out[k] = v
+    if out["run_id"] is None:
+        out["run_id"] = f"{Path(path).name if path is not None else 'row'}:{row}"
+    return out
+
+
 def make_row(**values: Any) -> dict[str, Any]:
     """Build a validated row from keyword arguments (handy in code and tests)."""
     return validate_row(values)
@@ -225,19 +275,20 @@ def make_row(**values: Any) -> dict[str, Any]:
 # Loading and saving
 
 
-def _load_jsonl(path: Path) -> list[dict[str, Any]]:
+def _load_jsonl(path: Path, strict: bool = True) -> list[dict[str, Any]]:
     raws = read_jsonl(path)
-    return [validate_row(r, path=path, row=i + 1) for i, r in enumerate(raws)]
+    check = validate_row if strict else lenient_row
+    return [check(r, path=path, row=i + 1) for i, r in enumerate(raws)]
 
 
-def _load_csv(path: Path) -> list[dict[str, Any]]:
+def _load_csv(path: Path, strict: bool = True) -> list[dict[str, Any]]:
     text = path.read_text(encoding="utf-8")
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         return []
     reader = csv.reader(lines)
     header = [h.strip() for h in next(reader)]
-    for h in header:
+    for h in header if strict else ():
         if h not in COLUMN_BY_NAME:
             raise _unknown_column(h, path=path, row="header")
     if len(set(header)) != len(header):
@@ -246,14 +297,16 @@ def _load_csv(path: Path) -> list[dict[str, Any]]:
     for i, cells in enumerate(reader):
         if len(cells) != len(header):
             raise _error(f"has {len(cells)} cells but the header has {len(header)}", path=path, row=i + 1)
-        rows.append(validate_row(dict(zip(header, cells)), path=path, row=i + 1))
+        rows.append((validate_row if strict else lenient_row)(dict(zip(header, cells)), path=path, row=i + 1))
     return rows
 
 
-def load_results(*paths: str | os.PathLike) -> list[dict[str, Any]]:
+def load_results(*paths: str | os.PathLike, strict: bool = True) -> list[dict[str, Any]]:
     """Load and concatenate results tables (.jsonl, .csv, run folders or sweep folders).
 
-    ``run_id`` must be unique over everything loaded together.
+    ``run_id`` must be unique over everything loaded together. ``strict=False`` accepts any table
+    with the columns an analysis needs (an analyst's own numbers): unknown columns are kept, and
+    only schema columns are type-checked (:func:`lenient_row`).
     """
     rows: list[dict[str, Any]] = []
     seen: dict[str, str] = {}
@@ -264,9 +317,9 @@ def load_results(*paths: str | os.PathLike) -> list[dict[str, Any]]:
         elif not path.exists():
             raise DataError("no such file or directory", path=path)
         elif path.suffix == ".jsonl":
-            part = _load_jsonl(path)
+            part = _load_jsonl(path, strict)
         elif path.suffix == ".csv":
-            part = _load_csv(path)
+            part = _load_csv(path, strict)
         else:
             raise DataError("unsupported results file; expected .jsonl, .csv or a run folder", path=path)
         for r in part:
@@ -326,8 +379,9 @@ def save_results(path: str | os.PathLike, rows: Iterable[Mapping[str, Any]]) -> 
 
 
 def column(rows: Sequence[Mapping[str, Any]], name: str) -> np.ndarray:
-    """One numeric column as float64, NaN where missing."""
-    if name not in COLUMN_BY_NAME or COLUMN_BY_NAME[name].kind is str:
+    """One numeric column as float64, NaN where missing (schema columns, or any column the rows carry)."""
+    extra = name not in COLUMN_BY_NAME and any(isinstance(r.get(name), (int, float)) for r in rows)
+    if not extra and (name not in COLUMN_BY_NAME or COLUMN_BY_NAME[name].kind is str):
         raise KeyError(f"{name!r} is not a numeric column; numeric columns: {', '.join(NUMERIC_COLUMNS)}")
     return np.array([np.nan if r.get(name) is None else float(r[name]) for r in rows], dtype=np.float64)
 
@@ -353,9 +407,11 @@ def config_label(row: Mapping[str, Any]) -> str:
 # Run folders
 
 _CONFIG_KEYS = ("run_id", "family", "label", "layers", "dim", "heads", "ff", "codebook", "data_fraction",
-                "params", "params_non_embedding", "flops_per_sample", "text_flops_per_sample")
+                "params", "params_non_embedding", "flops_per_sample", "text_flops_per_sample",
+                "flops_per_sample_paper", "text_flops_per_sample_paper", "data_sampling", "device_kind", "git_commit")
 _LOGGED_LAST = ("steps", "samples_seen", "train_flops")
-_LOGGED_STATIC = ("params", "params_non_embedding", "flops_per_sample", "text_flops_per_sample")
+_LOGGED_STATIC = ("params", "params_non_embedding", "flops_per_sample", "text_flops_per_sample",
+                  "flops_per_sample_paper", "text_flops_per_sample_paper")
 
 
 def _read_json_object(path: Path) -> dict[str, Any]:
@@ -412,6 +468,18 @@ def _eval_values(ev: Mapping[str, Any], path: Path) -> dict[str, Any]:
     return out
 
 
+def _find_key(obj: Any, key: str) -> Any:
+    """The first value of ``key`` anywhere in nested dicts (eval.json's ``_meta``), else None."""
+    if isinstance(obj, Mapping):
+        if key in obj:
+            return obj[key]
+        for v in obj.values():
+            found = _find_key(v, key)
+            if found is not None:
+                return found
+    return None
+
+
 def row_from_run_dir(run_dir: str | os.PathLike) -> dict[str, Any]:
     """Turn a training run folder (see the module docstring) into one validated results row."""
     run_dir = Path(run_dir)
@@ -449,5 +517,9 @@ def row_from_run_dir(run_dir: str | os.PathLike) -> dict[str, Any]:
         values["train_flops"] = 3.0 * float(values["flops_per_sample"]) * float(values["samples_seen"])
 
     if eval_path.exists():
-        values.update(_eval_values(_read_json_object(eval_path), eval_path))
+        ev = _read_json_object(eval_path)
+        values.update(_eval_values(ev, eval_path))
+        block = _find_key(ev.get("_meta"), "rprec_block")
+        if isinstance(block, int) and not isinstance(block, bool):
+            values["rprec_block"] = block
     return validate_row(values, path=run_dir, row=values["run_id"])

@@ -18,10 +18,17 @@ import jax.numpy as jnp
 import numpy as np
 
 
+BLENDS = ("x0", "x0_renoise", "xt")
+
+
 @dataclass(frozen=True)
 class DiffusionConfig:
     steps: int = 1000
     cond_drop: float = 0.1  # per-branch, independent (reference §3.2)
+    # All three branches dropped at once (the null input classifier-free guidance extrapolates from).
+    # The reference only drops branches independently, so all-three-null appears in cond_drop³ = 0.1%
+    # of samples; MDM drops the whole condition with p = 0.1 (issue 14.3). See cond_drop_mask.
+    joint_drop: float = 0.1
     guidance: float = 2.5
     # Loss weights (reference §3.5): xyz, all channels, velocity, predicted acceleration → 0.
     w_pos: float = 1.0
@@ -29,12 +36,25 @@ class DiffusionConfig:
     w_vel: float = 0.2
     w_acc: float = 0.1
     # Masked partial denoising (paper App. D): γ = p_hard at constrained frames, decaying linearly
-    # to p_soft over k_trans frames. "x0" blends the clean prediction and re-noises (paper Eq. K–L);
-    # "xt" blends x_{t−1} with the re-noised target using the same ε (the code, reference §3.8).
+    # to p_soft over k_trans frames. The blend (see ``sample``):
+    #   "x0"         blend the clean prediction with the target (Eq. K), then the sampler's ordinary
+    #                step from (x_t, blended x̂0): the DDPM posterior or the DDIM update;
+    #   "x0_renoise" Eq. K, then Eq. L read literally: x_{t−1} = √ᾱ_{t−1}·x̂0 + √(1−ᾱ_{t−1})·ε with a
+    #                fresh ε. It discards x_t, so free joints lose variance (0.12 vs 0.25 on the
+    #                Gaussian toy of tests/test_diffusion_sampler.py); kept for comparison;
+    #   "xt"         blend x_{t−1} with the target re-noised to t−1 using the same ε (the code, §3.8).
     p_hard: float = 0.85
     p_soft: float = 0.10
     k_trans: int = 5
     blend: str = "x0"
+
+    def __post_init__(self):
+        if self.blend not in BLENDS:
+            raise ValueError(f"diffusion.blend must be one of {', '.join(BLENDS)}; got {self.blend!r}")
+        for name in ("cond_drop", "joint_drop"):
+            v = getattr(self, name)
+            if not 0 <= v < 1:
+                raise ValueError(f"diffusion.{name} must be in [0, 1), got {v}")
 
 
 @dataclass(frozen=True)
@@ -89,6 +109,19 @@ def diffusion_loss(x0, x0_hat, cfg: DiffusionConfig):
     l_acc = jnp.mean(jnp.diff(ph, n=2, axis=1) ** 2)
     total = cfg.w_pos * l_pos + cfg.w_repr * l_repr + cfg.w_vel * l_vel + cfg.w_acc * l_acc
     return total, {"l_pos": l_pos, "l_repr": l_repr, "l_vel": l_vel, "l_acc": l_acc}
+
+
+def cond_drop_mask(rng: jax.Array, B: int, cfg: DiffusionConfig) -> jax.Array:
+    """Training-time text dropout (B, 3) bool, True = the branch sees the null embedding.
+
+    A joint drop nulls all three branches with p = ``joint_drop``; otherwise each branch is dropped
+    independently with p = ``cond_drop`` (reference §3.2). Classifier-free guidance extrapolates from
+    the all-three-null input, which the per-branch drops alone give with p = cond_drop³ (0.1%); with
+    the joint drop it has p = joint_drop + (1 − joint_drop)·cond_drop³ (10.09% at the defaults).
+    """
+    k_joint, k_branch = jax.random.split(rng)
+    joint_Bx1 = jax.random.bernoulli(k_joint, cfg.joint_drop, (B, 1))
+    return joint_Bx1 | jax.random.bernoulli(k_branch, cfg.cond_drop, (B, 3))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -168,7 +201,13 @@ def sample(denoise: DenoiseFn, sched: Schedule, shape, rng, cfg: DiffusionConfig
 
     ``sampler``: "ddpm" (ancestral over all T steps, FIXED_SMALL variance, reference §3.4) or "ddim"
     (deterministic DDIM on ``steps`` respaced timesteps). ``target`` (B, F, J, C) and ``gamma_FxJ``
-    enable masked partial denoising; γ = 0 everywhere is plain text-to-motion.
+    enable masked partial denoising (``cfg.blend``, see :class:`DiffusionConfig`); γ = 0 everywhere
+    gives exactly the unmasked sampler's output with the default blend "x0".
+
+    With blend "x0", each step blends x̂0 with the target (paper Eq. K) and then takes the sampler's
+    ordinary step from (x_t, blended x̂0). Where γ = 0 that is the unmasked step, so free joints keep
+    the exact sampler's statistics; Eq. L read literally ("x0_renoise") re-noises the blended x̂0 with
+    fresh noise and forgets x_t, which shrinks their variance.
     """
     s = cfg.guidance if guidance is None else guidance
     model = guided(denoise, s)
@@ -180,6 +219,8 @@ def sample(denoise: DenoiseFn, sched: Schedule, shape, rng, cfg: DiffusionConfig
         ts = respaced_timesteps(T, steps or 50)
     else:
         raise ValueError(f"unknown sampler {sampler!r}")
+    if cfg.blend not in BLENDS:
+        raise ValueError(f"unknown blend {cfg.blend!r}; choose from {BLENDS}")
     ts_prev = np.append(ts[1:], -1)
     masked = target is not None and gamma_FxJ is not None
     g = jnp.asarray(gamma_FxJ, jnp.float32)[None, :, :, None] if masked else None
@@ -193,14 +234,13 @@ def sample(denoise: DenoiseFn, sched: Schedule, shape, rng, cfg: DiffusionConfig
         x0_hat = model(x, t_B)
         eps = jax.random.normal(key, x.shape)
         ac_prev = jnp.where(t_prev >= 0, ac[jnp.maximum(t_prev, 0)], 1.0)
-        if masked and cfg.blend == "x0":
-            # Paper Eq. K–L: blend the clean prediction with the target, then re-noise to t−1.
-            x0_b = (1 - g) * x0_hat + g * target
-            if sampler == "ddpm":
-                x_prev = jnp.sqrt(ac_prev) * x0_b + jnp.where(t_prev >= 0, jnp.sqrt(1 - ac_prev), 0.0) * eps
-                return x_prev, None
-            x0_hat = x0_b
+        if masked and cfg.blend in ("x0", "x0_renoise"):
+            x0_hat = (1 - g) * x0_hat + g * target  # paper Eq. K
+            if cfg.blend == "x0_renoise":
+                # Paper Eq. L read literally: re-noise the blended x̂0 to t−1 with fresh noise (x_t unused).
+                return jnp.sqrt(ac_prev) * x0_hat + jnp.where(t_prev >= 0, jnp.sqrt(1 - ac_prev), 0.0) * eps, None
         if sampler == "ddpm":
+            # Posterior q(x_{t−1} | x_t, x̂0) (reference §3.4); at t = 0, coef_x0 = 1 and coef_xt = 0.
             mean = (jnp.asarray(sched.coef_x0, jnp.float32)[t] * x0_hat
                     + jnp.asarray(sched.coef_xt, jnp.float32)[t] * x)
             sigma = jnp.exp(0.5 * jnp.asarray(sched.posterior_logvar_clipped, jnp.float32)[t])

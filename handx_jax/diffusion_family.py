@@ -45,6 +45,11 @@ class DataConfig:
     path: str = ""  # dataset directory
     encoder: str = ""  # frozen T5 encoder folder (its text cache must exist in the dataset)
     fraction: float = 1.0  # nested train subset (0.05 / 0.2 / 1.0 in the default build)
+    # How ``fraction`` picks training items (reference §1.2). "clips": the nested clip subsets
+    # (5% ⊂ 20% ⊂ 100% of clips), each clip with all its caption levels. "pairs": the reference's
+    # rule: a fraction of all (clip, caption level) items, np.random.RandomState(42).choice without
+    # replacement (= the first k of one permutation, so also nested); a clip may keep only some levels.
+    sampling: str = "clips"
     text_max_len: int = 128  # the text cache's max_len
     cache_dtype: str = "float16"
 
@@ -134,10 +139,8 @@ def validate(cfg: DiffusionRunConfig) -> None:
     m, d = cfg.model, cfg.diffusion
     if m.dim % m.heads:
         raise ValueError(f"model.dim {m.dim} is not divisible by model.heads {m.heads}")
-    if d.blend not in ("x0", "xt"):
-        raise ValueError(f"diffusion.blend must be 'x0' or 'xt', got {d.blend!r}")
-    if not 0 <= d.cond_drop < 1:
-        raise ValueError(f"diffusion.cond_drop must be in [0, 1), got {d.cond_drop}")
+    if cfg.data.sampling not in ("clips", "pairs"):
+        raise ValueError(f"data.sampling must be 'clips' or 'pairs', got {cfg.data.sampling!r}")
     if not 0 < cfg.data.fraction <= 1:
         raise ValueError(f"data.fraction must be in (0, 1], got {cfg.data.fraction}")
     if not 0 <= d.p_soft <= d.p_hard <= 1:
@@ -187,13 +190,15 @@ class TrainData:
     x_NxFx42x4: np.ndarray  # normalised diffusion features of ``clips``
     cache: Any  # TextCache
     norm: Any  # NormStats
+    items: np.ndarray | None = None  # data.sampling="pairs": the chosen item ids (clip position × levels + level)
 
     @property
     def num_items(self) -> int:
-        return len(self.clips) * self.levels
+        return len(self.clips) * self.levels if self.items is None else len(self.items)
 
     def batch(self, idx: np.ndarray) -> dict:
-        ci, lv = np.asarray(idx) // self.levels, np.asarray(idx) % self.levels
+        idx = np.asarray(idx) if self.items is None else self.items[np.asarray(idx)]
+        ci, lv = idx // self.levels, idx % self.levels
         clip = self.clips[ci]
         hs, ms = zip(*(self.cache.lookup(clip, f, lv) for f in FIELDS))
         return {"x0": self.x_NxFx42x4[ci], "text": np.stack(hs, 1), "mask": np.stack(ms, 1)}
@@ -206,14 +211,20 @@ def load_train_data(cfg: DiffusionRunConfig) -> TrainData:
 
     ds = Dataset.open(cfg.data.path)
     cache = open_cache(cfg.data.path, cfg.data.encoder, max_len=cfg.data.text_max_len, dtype=cfg.data.cache_dtype)
-    clips = np.asarray(ds.split("train", cfg.data.fraction))
+    pairs = cfg.data.sampling == "pairs"
+    clips = np.asarray(ds.split("train", 1.0 if pairs else cfg.data.fraction))
     if not len(clips):
         raise DataError("the train split is empty", path=cfg.data.path)
     norm = rep.NormStats.from_npz_dict(ds.stats, "diffusion")
     xs = [norm.normalize(rep.to_diffusion(np.asarray(ds.motion[clips[s:s + 1024]], np.float64)))
           for s in range(0, len(clips), 1024)]
     x = np.concatenate(xs).astype(np.float32)
-    return TrainData(clips=clips, levels=int(ds.meta["levels"]), x_NxFx42x4=x, cache=cache, norm=norm)
+    levels = int(ds.meta["levels"])
+    items = None
+    if pairs:  # reference §1.2: np.random.seed(42); np.random.choice(n_items, k, replace=False)
+        n = len(clips) * levels
+        items = np.sort(np.random.RandomState(42).permutation(n)[:max(1, round(cfg.data.fraction * n))])
+    return TrainData(clips=clips, levels=levels, x_NxFx42x4=x, cache=cache, norm=norm, items=items)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -229,8 +240,8 @@ def make_loss(model: TrebleDenoiser, dcfg: D.DiffusionConfig):
         B = x0.shape[0]
         t = jax.random.randint(k_t, (B,), 0, sched.T)  # uniform t (reference §3.4)
         x_t = D.q_sample(sched, x0, t, jax.random.normal(k_n, x0.shape))
-        # Independent per-branch conditioning dropout (reference §3.2).
-        drop = jax.random.bernoulli(k_drop, dcfg.cond_drop, (B, 3)) if train else jnp.zeros((B, 3), bool)
+        # Per-branch (reference §3.2) and joint (all three, for guidance) conditioning dropout.
+        drop = D.cond_drop_mask(k_drop, B, dcfg) if train else jnp.zeros((B, 3), bool)
         x0_hat = model.apply(params, x_t, t, jnp.swapaxes(batch["text"], 0, 1), jnp.swapaxes(batch["mask"], 0, 1),
                              drop, deterministic=not train, rngs={"dropout": k_do})
         return D.diffusion_loss(x0, x0_hat, dcfg)

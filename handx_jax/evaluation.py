@@ -50,8 +50,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from handx_jax import representation as rep
-from handx_jax.io import DataError, atomic_write_bytes, atomic_write_json, read_format_meta
-from handx_jax.metrics import MetricConfig, replicate_embedding_metrics, replicate_motion_metrics
+from handx_jax.io import (DataError, atomic_write_bytes, atomic_write_json, read_format_meta, read_params_msgpack,
+                          write_params_msgpack)
+from handx_jax.metrics import MetricConfig, ci_method, replicate_embedding_metrics, replicate_motion_metrics
 from handx_jax.models.evaluator import PRESETS, Evaluator, EvaluatorConfig, evaluator_loss
 from handx_jax.text.cache import bucket_length
 
@@ -224,14 +225,18 @@ class TrainedEvaluator:
         return self.meta.get("dataset", {}).get("fingerprint")
 
     def check_dataset(self, ds) -> None:
-        """Refuse a reference dataset other than the one this evaluator was trained on."""
-        want = self.dataset_fingerprint
-        if want is not None and ds.fingerprint != want:
-            raise DataError(
-                f"dataset fingerprint mismatch: this evaluator was trained on dataset {want} "
-                f"({self.meta.get('dataset', {}).get('path')}), but the reference dataset has fingerprint "
-                f"{ds.fingerprint}; evaluate against the dataset the evaluator was trained on, or train a new "
-                f"evaluator with `handx eval train-evaluator --data {ds.root}`", path=ds.root)
+        """Refuse a reference dataset other than the one this evaluator was trained on; a rebuild of its
+        recipe that differs only by float rounding is accepted and reported (data.dataset.check_compatible)."""
+        import sys
+
+        from handx_jax.data.dataset import check_compatible
+
+        c = check_compatible(self.meta.get("dataset"), ds, what="this evaluator",
+                             fix=f"evaluate against the dataset the evaluator was trained on "
+                                 f"({self.meta.get('dataset', {}).get('path')}), or train a new evaluator with "
+                                 f"`handx eval train-evaluator --data {ds.root}`")
+        if c.message:
+            print(c.message, file=sys.stderr)
 
     def embed_motion(self, joints_NxTx2x21x3: np.ndarray) -> np.ndarray:
         """(N, latent) μ-embeddings of joint sequences in metres."""
@@ -306,8 +311,6 @@ def load_evaluator(root: str | os.PathLike, *, encoder: str | os.PathLike | None
                    batch_size: int = 256) -> TrainedEvaluator:
     """Open an evaluator folder. The encoder folder recorded in it (or ``encoder``, e.g. after a move)
     is loaded and must have the recorded weight fingerprint; anything else is refused."""
-    from flax import serialization
-
     from handx_jax.text.t5 import load_hf_t5_encoder
 
     root = Path(root)
@@ -332,7 +335,7 @@ def load_evaluator(root: str | os.PathLike, *, encoder: str | os.PathLike | None
     with np.load(root / STATS_FILE, allow_pickle=False) as z:
         stats = rep.NormStats.from_npz_dict({k: z[k] for k in z.files}, "evaluator")
     template = _init_params(cfg, policy.max_len)
-    params = serialization.from_bytes(template, (root / PARAMS_FILE).read_bytes())
+    params = read_params_msgpack(root / PARAMS_FILE, template)  # checksum verified; bad files name themselves
     return TrainedEvaluator(cfg=cfg, params=params, stats=stats, encoder=enc, policy=policy, meta=meta, root=root,
                             batch_size=batch_size)
 
@@ -348,11 +351,9 @@ def _init_params(cfg: EvaluatorConfig, text_len: int, rng: jax.Array | None = No
 
 def save_evaluator(root: str | os.PathLike, ev: TrainedEvaluator) -> Path:
     """Write params, stats and (last, marking completeness) evaluator.json into ``root``."""
-    from flax import serialization
-
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(root / PARAMS_FILE, serialization.to_bytes(jax.device_get(ev.params)))
+    write_params_msgpack(root / PARAMS_FILE, ev.params)  # with params.msgpack.sha256
     buf = io.BytesIO()
     np.savez(buf, **ev.stats.to_npz_dict("evaluator"))
     atomic_write_bytes(root / STATS_FILE, buf.getvalue())
@@ -393,7 +394,7 @@ def train_evaluator(data: str | os.PathLike, encoder: str | os.PathLike, out: st
     """
     import shutil
 
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.data.dataset import Dataset, dataset_record
     from handx_jax.models.layers import count_params
     from handx_jax.text.cache import build_cache, open_cache
     from handx_jax.text.t5 import load_hf_t5_encoder
@@ -459,7 +460,7 @@ def train_evaluator(data: str | os.PathLike, encoder: str | os.PathLike, out: st
         "evaluator_config": dataclasses.asdict(cfg), "params": n_params,
         "text": {**dataclasses.asdict(policy), "train_levels": list(train_levels), "levels": levels,
                  "Lmax": Lmax, "truncated_fraction": truncated, "joined_format": joined_caption("L", "R", "I")},
-        "dataset": {"fingerprint": ds.fingerprint, "path": str(Path(data).absolute()), "train_clips": len(clips)},
+        "dataset": {**dataset_record(ds), "path": str(Path(data).absolute()), "train_clips": len(clips)},
         "encoder": {"path": str(Path(encoder).absolute()), "fingerprint": enc.fingerprint,
                     "tokenizer_fingerprint": enc.tokenizer.fingerprint, "d_model": enc.cfg.d_model},
         "text_cache": {"fingerprint": cache.fingerprint, "dtype": policy.cache_dtype},
@@ -677,6 +678,7 @@ def evaluate_embeddings_and_motion(ev: TrainedEvaluator, text_NxD: np.ndarray, g
     m = {"prompts": int(N), "groups": int(G), "replications": cfg.replications, "rprec_block": cfg.rprec_block,
          "seed": cfg.seed, "mpjpe_root": cfg.mpjpe_root, "evaluator": str(ev.root) if ev.root else None,
          "eval_level": ev.policy.eval_level, "seconds": {"motion_embedding": t1 - t0, "metrics": t2 - t1},
+         "ci_method": {k: ci_method(k, G) for k in metrics}, "bootstrap": cfg.bootstrap,
          **(meta or {})}
     return EvalResult(metrics, m)
 

@@ -5,9 +5,25 @@ joints ``(N, 60, 2, 21, 3)`` in metres. Every randomised quantity (block order, 
 MultiModality groups, palm samples) is drawn from an explicit seed: the reference's unseeded draws
 (§9.17) are not ported.
 
-Replications (issue 4): replication r evaluates generation group ``r mod G`` with its own random
-prompt order (seed, r), so R-Precision blocks, Diversity pairs and MultiModality picks differ per
-replication. Results are mean ± 1.96·σ/√n over the n replications.
+Replications and confidence intervals (issues 4 and 14.2). Every ± is a 95% interval computed over
+values that are independent of each other, and the output says which (:func:`ci_method`):
+
+* "groups": with G > 1 generation groups (samples per prompt), each metric is computed per group and
+  the interval is the Student-t one over the G group values, t_{0.975, G−1}·s/√G (s with ddof 1).
+  Groups are independent draws from the generator for the same prompts, so the interval covers the
+  generation randomness, not the choice of prompts.
+* "bootstrap_prompts": with one group (the Ground Truth row, or G = 1), and for MultiModality (which
+  is a between-group quantity), the prompts are resampled with replacement ``cfg.bootstrap`` times
+  and the interval is 1.96 × the standard deviation of the statistic over the resamples.
+
+R-Precision blocks, Diversity pairs and MultiModality picks are still re-drawn ``replications`` times
+(replication r uses its own prompt order and pairs, seeded by (seed, r)) and averaged: the
+re-blockings reduce the variance of the point value, but they reuse the same samples, so their
+spread is not an interval (it shrinks with R and is 0 when nothing is random: FID's old "CI" over
+replications was 3e-15 for one group). In particular R-Precision's ± here is *not* the paper's: the
+reference reports the standard deviation of the per-block scores over all blocks of all groups
+(reference §5.4; ≈ √(p(1−p)/32) ≈ 0.08 for block 32 whatever N is), a spread of single-block
+scores, while this ± is an interval for the mean and shrinks as 1/√G (groups) or 1/√N (bootstrap).
 """
 
 from __future__ import annotations
@@ -29,7 +45,8 @@ class MetricConfig:
     top_k: int = 3
     diversity_pairs: int = 300
     multimodality_pairs: int = 20
-    replications: int = 20
+    replications: int = 20  # re-blockings / re-drawn pairs averaged into each point value
+    bootstrap: int = 200  # prompt resamples for the "bootstrap_prompts" intervals
     seed: int = 0
     intra_contact_m: float = 0.020  # thumb tip vs other tips (reference §5.4)
     inter_contact_m: float = 0.025  # tips vs the other hand's palm cloud
@@ -212,78 +229,210 @@ def contact_prf(pred_NxK, gt_NxK) -> dict[str, float]:
 
 
 # ------------------------------------------------------------------------------------------------
-# Replications
+# Replications and confidence intervals
+
+CI_GROUPS = "groups"
+CI_BOOTSTRAP = "bootstrap_prompts"
+
+
+def ci_method(metric: str, groups: int) -> str:
+    """How the ± of ``metric`` is computed for ``groups`` generation groups (see the module docstring)."""
+    return CI_GROUPS if groups > 1 and metric != "multimodality" else CI_BOOTSTRAP
 
 
 def mean_ci(values) -> tuple[float, float]:
-    """Mean and the 95% half-width 1.96·σ/√n (σ: population std, as the T2M convention)."""
+    """Mean and the 95% Student-t half-width t_{0.975, n−1}·s/√n over n independent values (0 for n = 1)."""
+    from scipy.stats import t as student_t
+
     v = np.asarray(values, np.float64)
-    return float(v.mean()), float(1.96 * v.std() / math.sqrt(len(v))) if len(v) > 1 else 0.0
+    if len(v) < 2:
+        return float(v.mean()), 0.0
+    return float(v.mean()), float(student_t.ppf(0.975, len(v) - 1) * v.std(ddof=1) / math.sqrt(len(v)))
 
 
-@partial(jax.jit, static_argnames=("block", "top_k"))
-def _replicated_r_precision(text_NxD, gen_GxNxD, perms_RxN, groups_R, *, block: int, top_k: int):
-    """R-Precision and MM-Dist for every replication r: group groups_R[r], prompt order perms_RxN[r]."""
-    def one(perm, g):
-        return r_precision(text_NxD[perm], gen_GxNxD[g][perm], block=block, top_k=top_k)
-    return jax.vmap(one)(perms_RxN, groups_R)
+def bootstrap_indices(n: int, cfg: MetricConfig) -> np.ndarray:
+    """(cfg.bootstrap, n) prompt indices drawn with replacement, fixed by the seed."""
+    return np.random.default_rng([cfg.seed, 0xB0]).integers(0, n, size=(cfg.bootstrap, n))
+
+
+def _counts(idx_BxN: np.ndarray, n: int) -> np.ndarray:
+    """Multiplicity of each prompt in each resample (B, n): a per-prompt mean over a resample is counts @ v / n."""
+    B = idx_BxN.shape[0]
+    c = np.zeros((B, n), np.float64)
+    np.add.at(c, (np.repeat(np.arange(B), idx_BxN.shape[1]), idx_BxN.reshape(-1)), 1.0)
+    return c
+
+
+def bootstrap_half_width(stats_B) -> float:
+    """1.96 × the standard deviation of a statistic over its bootstrap resamples."""
+    return float(1.96 * np.std(np.asarray(stats_B, np.float64), ddof=1)) if len(stats_B) > 1 else 0.0
+
+
+@partial(jax.jit, static_argnames=("block",))
+def _block_ranks(text_NxD, motion_NxD, perm_N, *, block: int):
+    """Per prompt (in the original order): rank of its motion among its block's (R-Precision), the
+    matched distance, and whether the prompt was in a complete block (the N mod block rest is dropped)."""
+    n = text_NxD.shape[0]
+    b = block if n >= block else n
+    used = perm_N[: (n // b) * b]
+    t = text_NxD[used].reshape(n // b, b, -1)
+    m = motion_NxD[used].reshape(n // b, b, -1)
+    d = jax.vmap(pairwise_dist)(t, m)
+    diag = jnp.diagonal(d, axis1=1, axis2=2)
+    rank = jnp.sum(d < diag[..., None], axis=-1)
+    rank_N = jnp.zeros(n, jnp.int32).at[used].set(rank.reshape(-1).astype(jnp.int32))
+    dist_N = jnp.zeros(n, d.dtype).at[used].set(diag.reshape(-1))
+    valid_N = jnp.zeros(n, bool).at[used].set(True)
+    return rank_N, dist_N, valid_N
+
+
+@partial(jax.jit, static_argnames=("block",))
+def _replicated_ranks(text_NxD, gen_GxNxD, perms_RxN, *, block: int):
+    """:func:`_block_ranks` for every replication (prompt order) and every group: (R, G, N) each."""
+    per_group = jax.vmap(lambda m, p: _block_ranks(text_NxD, m, p, block=block), in_axes=(0, None))
+    return jax.vmap(lambda p: per_group(gen_GxNxD, p))(perms_RxN)
+
+
+@jax.jit
+def _fid_resampled(a_NxD, b_NxD, idx_BxN):
+    return jax.lax.map(lambda i: _fid(a_NxD[i], b_NxD[i]), idx_BxN)
+
+
+@jax.jit
+def _pair_dist(emb_NxD, i1_P, i2_P):
+    """Distances of the pairs (P,): the summands of Diversity."""
+    return jnp.linalg.norm(emb_NxD[i1_P] - emb_NxD[i2_P], axis=-1)
+
+
+@jax.jit
+def _resampled_pair_mean(emb_NxD, i1_P, i2_P, idx_BxN):
+    """Diversity of each resample: pair positions (i1, i2) point into the resampled prompt list."""
+    return jax.lax.map(lambda idx: jnp.mean(_pair_dist(emb_NxD, idx[i1_P], idx[i2_P])), idx_BxN)
+
+
+def _per_prompt_ci(values_N, counts_BxN) -> float:
+    """Bootstrap half-width of the mean of a per-prompt quantity (NaN = no value for that prompt)."""
+    v = np.asarray(values_N, np.float64)
+    ok = np.isfinite(v)
+    c = counts_BxN[:, ok]
+    return bootstrap_half_width((c @ v[ok]) / np.maximum(c.sum(1), 1.0))
 
 
 def replicate_embedding_metrics(text_NxD, gen_GxNxD, gt_NxD, cfg: MetricConfig = MetricConfig()) -> dict:
-    """R-Precision, MM-Dist, FID, Diversity (and MultiModality if G > 1), mean ± CI over replications.
+    """R-Precision, MM-Dist, FID, Diversity (and MultiModality if G > 1) as (point value, 95% half-width).
 
     ``gen_GxNxD`` holds G generation groups for the same N prompts; pass the GT embeddings as the
-    single group to get the "Ground Truth" row.
+    single group to get the "Ground Truth" row. Point values average the ``replications`` re-blockings
+    (R-Precision, MM-Dist) and re-drawn pairs (Diversity, MultiModality) over all groups; intervals
+    are over groups or a prompt bootstrap, as :func:`ci_method` says (module docstring).
     """
     text = jnp.asarray(text_NxD, jnp.float32)
     gen = jnp.asarray(gen_GxNxD, jnp.float32)
     gt = np.asarray(gt_NxD, np.float64)
     G, N, _ = gen.shape
     R = cfg.replications
+    if R < 1:
+        raise ValueError(f"replications must be >= 1, got {R}")
     rng = np.random.default_rng([cfg.seed, 0x4E])
     perms = np.stack([rng.permutation(N) for _ in range(R)])  # (R, N)
-    groups = np.arange(R) % G
+    boot = bootstrap_indices(N, cfg)
+    counts = _counts(boot, N)
 
-    hits_RxK, mm_R = _replicated_r_precision(text, gen, jnp.asarray(perms), jnp.asarray(groups),
-                                             block=cfg.rprec_block, top_k=cfg.top_k)
-    hits_RxK, mm_R = np.asarray(hits_RxK), np.asarray(mm_R)
+    def summarise(name, per_group_G, per_prompt_N=None, resampled_B=None):
+        """Point value = mean over groups; the ± from the groups or the prompt bootstrap."""
+        point = float(np.mean(per_group_G))
+        if ci_method(name, G) == CI_GROUPS:
+            return point, mean_ci(per_group_G)[1]
+        if resampled_B is not None:
+            return point, bootstrap_half_width(resampled_B)
+        return point, _per_prompt_ci(per_prompt_N, counts)
+
+    rank_RxGxN, dist_RxGxN, valid_RxGxN = map(np.asarray, _replicated_ranks(text, gen, jnp.asarray(perms),
+                                                                             block=cfg.rprec_block))
+    n_valid_GxN = valid_RxGxN.sum(0).astype(np.float64)
+    out = {}
+    for k in range(1, cfg.top_k + 1):
+        hit_RxGxN = (rank_RxGxN < k) & valid_RxGxN
+        per_group = hit_RxGxN.sum((0, 2)) / valid_RxGxN.sum((0, 2))
+        per_prompt = np.where(n_valid_GxN[0] > 0, hit_RxGxN[:, 0].sum(0) / np.maximum(n_valid_GxN[0], 1), np.nan)
+        out[f"rprec_top{k}"] = summarise(f"rprec_top{k}", per_group, per_prompt)
+    mm_group = (dist_RxGxN * valid_RxGxN).sum((0, 2)) / valid_RxGxN.sum((0, 2))
+    mm_prompt = np.where(n_valid_GxN[0] > 0, (dist_RxGxN[:, 0] * valid_RxGxN[:, 0]).sum(0)
+                         / np.maximum(n_valid_GxN[0], 1), np.nan)
+    out["mm_dist"] = summarise("mm_dist", mm_group, mm_prompt)
+
     fids_G = [fid(gt, np.asarray(gen[g])) for g in range(G)]
-    div = []
-    for r in range(R):
-        i1, i2 = diversity_indices(N, cfg.diversity_pairs, cfg.seed + r)
-        div.append(float(diversity(gen[groups[r]], jnp.asarray(i1), jnp.asarray(i2))))
-    out = {f"rprec_top{k + 1}": mean_ci(hits_RxK[:, k]) for k in range(cfg.top_k)}
-    out["mm_dist"] = mean_ci(mm_R)
-    out["fid"] = mean_ci([fids_G[g] for g in groups])
-    out["diversity"] = mean_ci(div)
+    fid_boot = None
+    if ci_method("fid", G) == CI_BOOTSTRAP:
+        with jax.enable_x64(True):
+            fid_boot = np.maximum(np.asarray(_fid_resampled(jnp.asarray(gt), jnp.asarray(np.asarray(gen[0]), jnp.float64),
+                                                            jnp.asarray(boot))), 0.0)
+    out["fid"] = summarise("fid", fids_G, resampled_B=fid_boot)
+
+    pairs = [diversity_indices(N, cfg.diversity_pairs, cfg.seed + r) for r in range(R)]
+    i1, i2 = (jnp.asarray(np.concatenate(p)) for p in zip(*pairs))  # the R pair sets, (R·k,) each
+    div_G = [float(jnp.mean(_pair_dist(gen[g], i1, i2))) for g in range(G)]
+    div_boot = None
+    if ci_method("diversity", G) == CI_BOOTSTRAP:
+        div_boot = np.asarray(_resampled_pair_mean(gen[0], i1, i2, jnp.asarray(boot)))
+    out["diversity"] = summarise("diversity", div_G, resampled_B=div_boot)
+
     if G > 1:
         m = min(G - 1, cfg.multimodality_pairs)
-        mm = []
+        per_prompt = np.zeros(N)
         for r in range(R):
             rr = np.random.default_rng([cfg.seed, 0x33, r])
             g1, g2 = rr.choice(G, m, replace=False), rr.choice(G, m, replace=False)
-            mm.append(float(multimodality(jnp.transpose(gen, (1, 0, 2)), jnp.asarray(g1), jnp.asarray(g2))))
-        out["multimodality"] = mean_ci(mm)
+            per_prompt += np.asarray(jnp.linalg.norm(gen[g1] - gen[g2], axis=-1)).mean(0) / R  # (N,)
+        out["multimodality"] = (float(per_prompt.mean()), _per_prompt_ci(per_prompt, counts))
     return out
 
 
 def replicate_motion_metrics(gen_GxNxTx2x21x3, gt_NxTx2x21x3, cfg: MetricConfig = MetricConfig()) -> dict:
-    """MPJPE, acceleration, jitter and contact P/R/F1 per generation group, mean ± CI over groups."""
+    """MPJPE, acceleration, jitter and contact P/R/F1 as (point value, 95% half-width): the point is the
+    mean over generation groups; the ± is over groups (G > 1) or a bootstrap over clips (G = 1)."""
     gen = np.asarray(gen_GxNxTx2x21x3, np.float32)
     gt = jnp.asarray(gt_NxTx2x21x3, jnp.float32)
+    G, N = gen.shape[:2]
     W = jnp.asarray(palm_barycentric(cfg.palm_points, cfg.seed))
-    gt_intra, gt_inter = contact_labels(gt, W, cfg.intra_contact_m, cfg.inter_contact_m)
-    rows = []
-    for g in range(gen.shape[0]):
+    gt_intra, gt_inter = (np.asarray(a, bool) for a in contact_labels(gt, W, cfg.intra_contact_m,
+                                                                     cfg.inter_contact_m))
+    rows, per_clip = [], []
+    for g in range(G):
         x = jnp.asarray(gen[g])
-        intra, inter = contact_labels(x, W, cfg.intra_contact_m, cfg.inter_contact_m)
+        intra, inter = (np.asarray(a, bool) for a in contact_labels(x, W, cfg.intra_contact_m, cfg.inter_contact_m))
         acc, jit_ = acceleration_jitter(x)
-        ci, ce = contact_prf(intra, gt_intra), contact_prf(inter, gt_inter)
-        rows.append({
-            "mpjpe": float(jnp.mean(mpjpe_mm(x, gt, cfg.mpjpe_root))),
-            "acceleration": float(jnp.mean(acc)),
-            "jitter": float(jnp.mean(jit_)),
-            **{f"contact_{k}_intra": v for k, v in ci.items()},
-            **{f"contact_{k}_inter": v for k, v in ce.items()},
-        })
-    return {k: mean_ci([r[k] for r in rows]) for k in rows[0]}
+        clip = {"mpjpe": np.asarray(mpjpe_mm(x, gt, cfg.mpjpe_root), np.float64),
+                "acceleration": np.asarray(acc, np.float64), "jitter": np.asarray(jit_, np.float64)}
+        # Per-clip TP/FP/FN: contact P/R/F1 are micro-averaged, so a resample sums its clips' counts.
+        for scope, p, q in (("intra", intra, gt_intra), ("inter", inter, gt_inter)):
+            clip[f"tp_{scope}"] = (p & q).sum(1).astype(np.float64)
+            clip[f"fp_{scope}"] = (p & ~q).sum(1).astype(np.float64)
+            clip[f"fn_{scope}"] = (~p & q).sum(1).astype(np.float64)
+        per_clip.append(clip)
+        rows.append(_motion_row({k: v.sum() if _is_count(k) else v.mean() for k, v in clip.items()}))
+    if G > 1:
+        return {k: mean_ci([r[k] for r in rows]) for k in rows[0]}
+    counts = _counts(bootstrap_indices(N, cfg), N)  # (B, N)
+    resampled = _motion_row({k: counts @ v / (1.0 if _is_count(k) else N) for k, v in per_clip[0].items()})
+    return {k: (float(rows[0][k]), bootstrap_half_width(resampled[k])) for k in rows[0]}
+
+
+def _is_count(key: str) -> bool:
+    return key[:3] in ("tp_", "fp_", "fn_")
+
+
+def _prf(tp, fp, fn):
+    """Micro-averaged precision/recall/F1 from summed counts (reference §5.4, as :func:`contact_prf`)."""
+    prec = tp / (tp + fp + 1e-8)
+    rec = tp / (tp + fn + 1e-8)
+    return prec, rec, 2 * prec * rec / (prec + rec + 1e-8)
+
+
+def _motion_row(m: dict) -> dict:
+    """Metric values from per-group means (mpjpe, acceleration, jitter) and summed contact counts."""
+    row = {"mpjpe": m["mpjpe"], "acceleration": m["acceleration"], "jitter": m["jitter"]}
+    for scope in ("intra", "inter"):
+        p, r, f = _prf(m[f"tp_{scope}"], m[f"fp_{scope}"], m[f"fn_{scope}"])
+        row.update({f"contact_precision_{scope}": p, f"contact_recall_{scope}": r, f"contact_f1_{scope}": f})
+    return {k: (float(v) if np.ndim(v) == 0 else v) for k, v in row.items()}

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
+import sys
 
 
 def _kv(items):
@@ -19,29 +21,75 @@ def _kv(items):
     return out
 
 
-def _run(a: argparse.Namespace) -> int:
-    from sweeps.launcher import SweepConfig, launch, load_sweep
+def _sweep_kwargs(a: argparse.Namespace) -> dict:
+    from sweeps.launcher import _import
 
-    specs = load_sweep(a.sweep, **_kv(a.arg))
+    kw = _kv(a.arg)
+    params = inspect.signature(_import(a.sweep).runs).parameters
+    if a.preset is not None:
+        if "preset" not in params:
+            raise SystemExit(f"handx: error: {a.sweep} has no presets (its runs() takes no 'preset')")
+        kw["preset"] = a.preset
+    return kw
+
+
+def _run(a: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from sweeps.launcher import SweepConfig, launch, load_resources, load_sweep
+
+    kw = _sweep_kwargs(a)
+    specs = load_sweep(a.sweep, **kw)
     if a.only:
         keep = set(a.only.split(","))
+        unknown = keep - {s.name for s in specs}
+        if unknown:
+            raise SystemExit(f"handx: error: --only names runs the sweep does not have: {', '.join(sorted(unknown))}")
         specs = [s for s in specs if s.name in keep]
+    preset = kw.get("preset", "")
+    resources = {**load_resources(a.sweep, preset), **_kv(a.slurm)}
     if a.dry_run:
         for s in specs:
-            print(json.dumps({"name": s.name, "family": s.family, "preset": s.preset, "overrides": list(s.overrides)}))
+            print(json.dumps({"name": s.name, "family": s.family, "preset": s.preset, "axes": s.axes,
+                              "overrides": list(s.overrides), "needs": [st.key for st in s.needs]}))
+        if a.executor == "slurm":
+            print(json.dumps({"slurm": resources}))
         return 0
-    cfg = SweepConfig(data=a.data, encoder=a.encoder, out=a.out, evaluator=a.evaluator, eval_limit=a.eval_limit,
-                      eval_samples=a.eval_samples, executor=a.executor, slurm=_kv(a.slurm), name=a.name or "")
-    print(f"results: {launch(specs, cfg)}")
+    if not a.data or (not a.encoder and any(s.family == "diffusion" and not s.command for s in specs)):
+        raise SystemExit("handx sweep run: error: --data (and --encoder for diffusion runs) are required")
+    cfg = SweepConfig(data=str(Path(a.data).absolute()), encoder=str(Path(a.encoder).absolute()) if a.encoder else "",
+                      out=a.out, evaluator=str(Path(a.evaluator).absolute()) if a.evaluator else None,
+                      eval_limit=a.eval_limit, eval_samples=a.eval_samples, executor=a.executor, slurm=resources,
+                      name=a.name or "", preset=preset, max_parallel=a.max_parallel, existing=a.existing)
+    try:
+        res = launch(specs, cfg)
+    except ValueError as e:
+        print(f"handx sweep run: error: {e}", file=sys.stderr)
+        return 2
+    print(f"results: {res.results} (and {res.results.with_suffix('.csv')})")
+    if res.failed:
+        for name, err in res.failed.items():
+            print(f"FAILED {name}: {err.splitlines()[0] if err else ''}", file=sys.stderr)
+        print(f"handx sweep run: {len(res.failed)} of {len(specs)} run(s) failed (see their logs/ and status.json)",
+              file=sys.stderr)
+        return 1
     return 0
 
 
 def _status(a: argparse.Namespace) -> int:
     from sweeps.launcher import status
 
-    for row in status(a.out):
-        print(f"{row['name']:<24} train {'done' if row['train'] else '-':<5} generate "
-              f"{'done' if row['generate'] else '-':<5} evaluate {'done' if row['evaluate'] else '-'}")
+    rows = status(a.out)
+    if a.json:
+        for r in rows:
+            print(json.dumps(r))
+        return 0
+    for r in rows:
+        stages = " ".join(f"{k} {'done' if r[k] else '-':<4}" for k in ("train", "generate", "evaluate"))
+        err = f"  {r['error'].splitlines()[0][:100]}" if r.get("error") else ""
+        print(f"{r['name']:<28} {r['status']:<8} {stages}{err}")
+    counts = {k: sum(r["status"] == k for r in rows) for k in ("done", "running", "failed", "pending")}
+    print(", ".join(f"{v} {k}" for k, v in counts.items()))
     return 0
 
 
@@ -54,29 +102,40 @@ def _collect(a: argparse.Namespace) -> int:
 
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser("sweep", help="launch sweeps (local or SLURM), status, results",
-                              description="Run every point of a sweep file through train → generate → evaluate; "
-                                          "re-running the same command resumes where it stopped.")
+                              description="Run every point of a sweep file through its shared steps and "
+                                          "train → generate → evaluate; re-running the same command resumes "
+                                          "where it stopped.")
     sub = p.add_subparsers(dest="sweep_command", metavar="SUBCOMMAND")
     sub.required = True
-    r = sub.add_parser("run", help="launch (or resume) a sweep")
-    r.add_argument("sweep", help="sweep file with runs(**kw), e.g. sweeps/diffusion_scaling.py")
-    r.add_argument("--arg", action="append", metavar="KEY=VALUE", help="keyword for runs(), e.g. grid=paper")
-    r.add_argument("--data", required=True, help="dataset directory")
-    r.add_argument("--encoder", required=True, help="frozen T5 encoder folder")
-    r.add_argument("--out", required=True, help="sweep folder (runs/, results.jsonl)")
+    r = sub.add_parser("run", help="launch (or resume) a sweep",
+                       description="Launch (or resume) a sweep. A run that fails is recorded and the others go "
+                                   "on; the exit status is 1 if any failed. Results: OUT/results.jsonl and "
+                                   "OUT/results.csv.")
+    r.add_argument("sweep", help="sweep file with runs(preset=..., **kw), e.g. sweeps/diffusion_depth_data.py")
+    r.add_argument("--preset", help="the sweep's preset: tiny (CPU) or paper (the paper's sizes)")
+    r.add_argument("--arg", action="append", metavar="KEY=VALUE", help="other keyword for runs(), e.g. steps=500")
+    r.add_argument("--data", help="dataset directory")
+    r.add_argument("--encoder", help="frozen T5 encoder folder")
+    r.add_argument("--out", required=True, help="sweep folder (runs/, steps/, results.jsonl, results.csv)")
     r.add_argument("--evaluator", help="evaluator checkpoint; without it runs are trained but not scored")
     r.add_argument("--eval-limit", type=int, default=512, help="test clips generated per run")
     r.add_argument("--eval-samples", type=int, default=1, help="generations per prompt")
     r.add_argument("--executor", choices=("local", "slurm", "debug"), default="local")
+    r.add_argument("--max-parallel", type=int, default=1,
+                   help="runs at once (local: worker threads; SLURM: the array's parallelism)")
     r.add_argument("--slurm", action="append", metavar="KEY=VALUE",
-                   help="submitit parameter, e.g. slurm_partition=gpu, timeout_min=600, gpus_per_node=1")
+                   help="submitit parameter over the preset's RESOURCES, e.g. slurm_partition=gpu, timeout_min=600")
+    r.add_argument("--existing", choices=("adopt", "cancel"), default="adopt",
+                   help="SLURM jobs of an earlier launch of this sweep that still run: wait for them (adopt, "
+                        "default) or cancel and resubmit them")
     r.add_argument("--name", help="sweep name (wandb group); default: the --out folder name")
     r.add_argument("--only", help="comma-separated run names")
-    r.add_argument("--dry-run", action="store_true", help="print the runs and exit")
+    r.add_argument("--dry-run", action="store_true", help="print the runs (and SLURM resources) and exit")
     r.set_defaults(func=_run)
-    s = sub.add_parser("status", help="which stages of each run are done")
+    s = sub.add_parser("status", help="done, running, failed and pending runs")
     s.add_argument("out", help="sweep folder")
+    s.add_argument("--json", action="store_true", help="one JSON object per run")
     s.set_defaults(func=_status)
-    c = sub.add_parser("collect", help="rebuild OUT/results.jsonl from the run folders")
-    c.add_argument("out", help="sweep folder")
+    c = sub.add_parser("collect", help="rebuild OUT/results.jsonl and OUT/results.csv from the run folders")
+    c.add_argument("out", help="sweep folder (must exist)")
     c.set_defaults(func=_collect)

@@ -40,7 +40,7 @@ def test_paper_tables_load():
     t2, t3, tb = paper.load_table("2"), paper.load_table("3"), paper.load_table("tableB")
     assert len(t2) == 11 and len(t3) == 18 and len(tb) == 7
     assert t2[0]["family"] == GROUND_TRUTH and t3[0]["family"] == GROUND_TRUTH
-    assert [r["flops_per_sample"] for r in tb] == pytest.approx(
+    assert [r["flops_per_sample_paper"] for r in tb] == pytest.approx(
         [g * 1e9 for g in (3.83, 4.22, 5.22, 6.98, 9.74, 12.87, 24.62)], rel=1e-15)
     assert {r["data_fraction"] for r in tb} == {0.05}
     with pytest.raises(ValueError):
@@ -100,7 +100,11 @@ def test_cli_fit_table_extrapolate(capsys, tmp_path):
     rc, out = run_cli(["analyze", "fit", "paper:B", "--x", "flops", "--y", "rprec_top3", "--json",
                        "--n-boot", "200"], capsys)
     d = json.loads(out)
-    assert list(d) == ["slope", "intercept", "r", "n", "slope_ci", "intercept_ci"]
+    assert list(d) == ["slope", "intercept", "r", "n", "slope_ci", "intercept_ci", "x_column", "flops_convention"]
+    # --x flops on Table B uses the paper's convention (every row has it) and says so.
+    assert d["x_column"] == "flops_per_sample_paper" and d["flops_convention"].startswith("paper convention")
+    rc, out_a = run_cli(["analyze", "fit", "paper:B", "--x", "flops_analytic", "--json", "--n-boot", "200"], capsys)
+    assert json.loads(out_a)["flops_convention"].startswith("analytic")
     assert round(d["slope"], 4) == 0.4391 and d["n"] == 7 and len(d["slope_ci"]) == 2
     # The same from the CSV file itself.
     rc, out2 = run_cli(["analyze", "fit", str(paper.table_path("B")), "--json", "--n-boot", "200"], capsys)

@@ -42,3 +42,43 @@ def test_other_plots(tmp_path, table_b):
     _check(plots.save_figure(plots.plot_heatmap(paper.load_table("3"), "fid"), tmp_path / "h.png"), "png")
     with pytest.raises(ValueError, match="unsupported figure format"):
         plots.save_figure(plots.plot_heatmap(paper.load_table("3")), tmp_path / "h.jpg")
+
+
+def _chance_lines(fig):
+    return [ln for ax in fig.axes for ln in ax.get_lines() if str(ln.get_label()).startswith("chance")]
+
+
+def test_plots_draw_the_chance_level(table_b):
+    # Table B scores R-Precision in blocks of 16: chance top-3 = 3/16; our rows default to block 32.
+    (line,) = _chance_lines(plots.plot_scaling(table_b, n_boot=100))
+    assert line.get_label() == "chance (3/16 = 0.188)" and line.get_ydata()[0] == pytest.approx(3 / 16)
+    (line,) = _chance_lines(plots.plot_scaling(_ours(), y="rprec_top3", n_boot=100))
+    assert line.get_ydata()[0] == pytest.approx(3 / 32)
+    assert plots.chance_level("rprec_top1", [], block=32) == pytest.approx(1 / 32)
+    assert plots.chance_level("fid") is None
+    grid = plots.plot_axis_grid(paper.load_table("2"), ["rprec_top3", "fid"])
+    assert [ln.get_ydata()[0] for ln in _chance_lines(grid)] == pytest.approx([3 / 32, 3 / 32])
+
+
+def test_fit_and_plot_any_table_with_the_named_columns(tmp_path, capsys):
+    """An analyst's own numbers: columns outside the results schema, no family or run_id columns."""
+    import json
+
+    from handx_jax.cli import main
+
+    rng = np.random.default_rng(1)
+    x = np.geomspace(1e8, 1e11, 6)
+    lines = ["model,my_gflops,top3,notes"] + [f"m{i},{v:.6g},{0.1 * np.log10(v) - 0.5 + rng.normal(0, 0.005):.5f},"
+                                              f"run {i}" for i, v in enumerate(x)]
+    csv = tmp_path / "mine.csv"
+    csv.write_text("\n".join(lines) + "\n")
+    assert main(["analyze", "fit", str(csv), "--x", "my_gflops", "--y", "top3", "--json", "--n-boot", "100"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["n"] == 6 and d["slope"] == pytest.approx(0.1, abs=0.01) and d["flops_convention"] is None
+    jl = tmp_path / "mine.jsonl"
+    jl.write_text("".join(json.dumps({"x": float(v), "rprec_top3": 0.05 * np.log10(v)}) + "\n" for v in x))
+    assert main(["analyze", "plot", str(jl), "--x", "x", "--y", "rprec_top3", "--out", str(tmp_path / "p.png")]) == 0
+    _check(tmp_path / "p.png", "png")
+    # Launcher tables keep the schema check: the table command refuses an unknown column.
+    with pytest.raises(SystemExit, match="unknown column"):
+        main(["analyze", "table", str(csv)])

@@ -150,8 +150,59 @@ def test_replications_ground_truth_row_and_ci():
     motion = text + 0.05 * rng.normal(size=text.shape).astype(np.float32)
     cfg = M.MetricConfig(replications=5)
     gt = M.replicate_embedding_metrics(text, motion[None], motion, cfg)
-    assert gt["rprec_top1"][0] > 0.95 and gt["fid"] == (pytest.approx(0.0, abs=1e-5), 0.0)
+    assert gt["rprec_top1"][0] > 0.95 and gt["fid"] == (pytest.approx(0.0, abs=1e-5), pytest.approx(0.0, abs=1e-5))
     noisy = M.replicate_embedding_metrics(text, (motion + rng.normal(size=text.shape))[None], motion, cfg)
     assert noisy["rprec_top1"][0] < gt["rprec_top1"][0] and noisy["fid"][0] > 1.0
-    assert noisy["rprec_top1"][1] > 0  # CI from differing block orders
-    assert M.mean_ci([1.0, 3.0]) == (2.0, pytest.approx(1.96 * 1.0 / math.sqrt(2)))
+    # Student-t 95% half-width over independent values: t_{0.975, 1} = 12.706 for two values
+    assert M.mean_ci([1.0, 3.0]) == (2.0, pytest.approx(12.7062047 * math.sqrt(2) / math.sqrt(2)))
+    assert M.mean_ci([4.0]) == (4.0, 0.0)
+
+
+def test_ci_is_over_independent_values_and_named():
+    """Issue 14.2: FID's ± was computed over the G group values repeated R/G times (0 for one group,
+    shrinking with R). Now: over the groups themselves when G > 1, else a prompt bootstrap; neither
+    depends on the number of re-blockings R."""
+    rng = np.random.default_rng(1)
+    N, G = 300, 4
+    text = rng.normal(size=(N, 8)).astype(np.float32)
+    gen = (text[None] + 0.7 * rng.normal(size=(G, N, 8))).astype(np.float32)
+    few, many = (M.replicate_embedding_metrics(text, gen, text, M.MetricConfig(replications=R)) for R in (4, 20))
+    fids = [M.fid(text, gen[g]) for g in range(G)]
+    assert few["fid"] == pytest.approx(M.mean_ci(fids)) and many["fid"] == pytest.approx(M.mean_ci(fids))
+    one = [M.replicate_embedding_metrics(text, gen[:1], text, M.MetricConfig(replications=R)) for R in (1, 20)]
+    assert one[0]["fid"][1] > 0.05 and one[0]["fid"] == one[1]["fid"]  # bootstrap over prompts, not re-blockings
+    assert M.ci_method("fid", 1) == M.ci_method("rprec_top1", 1) == "bootstrap_prompts"
+    assert M.ci_method("fid", G) == M.ci_method("mpjpe", G) == "groups"
+    assert M.ci_method("multimodality", G) == "bootstrap_prompts"  # a between-group quantity
+
+
+def test_one_group_ci_matches_the_spread_over_independent_prompt_sets():
+    """The ± of one group (prompt bootstrap) is 1.96 × the standard deviation the point value really has
+    across independent draws of the prompts: R-Precision, MM-Dist, FID and Diversity. Ratio bounds allow
+    for the ~12% error of a standard deviation estimated from 40 draws."""
+    rng = np.random.default_rng(2)
+    cfg = M.MetricConfig(replications=5, rprec_block=32, bootstrap=200)
+    points, widths = [], []
+    for _ in range(40):
+        text = rng.normal(size=(256, 8)).astype(np.float32)
+        gen = (text + 1.0 * rng.normal(size=text.shape)).astype(np.float32)
+        out = M.replicate_embedding_metrics(text, gen[None], text, cfg)
+        keys = ("rprec_top1", "rprec_top3", "mm_dist", "fid", "diversity")
+        points.append([out[k][0] for k in keys])
+        widths.append([out[k][1] for k in keys])
+    ratio = np.mean(widths, 0) / (1.96 * np.std(points, 0, ddof=1))
+    assert np.all((ratio > 0.65) & (ratio < 1.5)), dict(zip(keys, ratio.round(2)))
+
+
+def test_motion_metric_ci_groups_and_bootstrap():
+    rng = np.random.default_rng(3)
+    gt = (0.05 * rng.normal(size=(40, 12, 2, 21, 3))).astype(np.float32)
+    gen = gt[None] + (0.01 * rng.normal(size=(3, 40, 12, 2, 21, 3))).astype(np.float32)
+    per_group = [float(np.mean(M.mpjpe_mm(gen[g], gt))) for g in range(3)]
+    out = M.replicate_motion_metrics(gen, gt, M.MetricConfig())
+    assert out["mpjpe"] == pytest.approx(M.mean_ci(per_group), rel=1e-4)
+    one = M.replicate_motion_metrics(gen[:1], gt, M.MetricConfig())
+    per_clip = np.asarray(M.mpjpe_mm(gen[0], gt))
+    assert one["mpjpe"][0] == pytest.approx(per_clip.mean(), rel=1e-5)
+    # bootstrap of a mean ≈ the standard error 1.96·σ/√N (200 resamples: within 25%)
+    assert one["mpjpe"][1] == pytest.approx(1.96 * per_clip.std() / math.sqrt(40), rel=0.25)

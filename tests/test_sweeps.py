@@ -1,42 +1,339 @@
-"""The sweep launcher: runs every spec, skips finished stages on re-run, collects a results table."""
+"""The sweep launcher: sweep files, shared steps, failures, locks, kill -9 and relaunch, results tables.
+
+Most tests use a light fake stage (tests/sweep_fake_stage.py) instead of JAX training, so they take
+about a second each; one slow test runs the real diffusion stages.
+"""
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 
-from sweeps.launcher import RunSpec, SweepConfig, launch, load_sweep, stage_state, status
+from handx_jax.io import DataError
+from handx_jax.runlock import RunLock, RunLocked, is_locked, pid_alive
+from sweeps.launcher import RunSpec, Step, SweepConfig, collect_results, launch, load_sweep, stage_state, status
 
-from diffusion_fixtures import ENCODER, make_dataset
-
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+FAKE = str(HERE / "sweep_fake_stage.py")
 TINY = ("model.layers=1", "model.dim=32", "model.heads=4", "model.ff=64", "train.steps=4", "train.batch_size=8",
         "train.log_every=2", "train.ckpt_every=2", "train.wandb=disabled")
 
 
+def fake(name, *args, size=1, needs=(), **axes):
+    cmd = (sys.executable, FAKE, "--out", "{run}", "--size", str(size), *args)
+    return RunSpec(name, command=cmd, needs=needs, axes={"layers": size, **axes})
+
+
+def cfg_for(tmp_path, **kw):
+    return SweepConfig(data=str(tmp_path / "data"), encoder="", out=str(tmp_path / "sweep"), **kw)
+
+
+def rows_of(path):
+    return [json.loads(line) for line in Path(path).read_text().splitlines()]
+
+
+def invocations(run):
+    p = Path(run) / "invocations.log"
+    return [json.loads(line) for line in p.read_text().splitlines()] if p.exists() else []
+
+
+# ------------------------------------------------------------------------------------------------
+# Sweep files
+
+
 def test_sweep_files_define_the_grids(tmp_path):
-    cpu = load_sweep("sweeps/diffusion_scaling.py")
-    paper = load_sweep("sweeps/diffusion_scaling.py", grid="paper")
-    assert len(cpu) == 4 and len({s.name for s in cpu}) == 4
-    assert [s.overrides[:2] for s in paper][0] == ("model.layers=2", "model.dim=256")
-    assert all("data.fraction=0.05" in s.overrides for s in paper)  # Table B uses the 5% split
+    dd = load_sweep("sweeps/diffusion_depth_data.py", preset="paper")
+    assert len(dd) == 12 and len({s.name for s in dd}) == 12
+    assert {(s.axes["layers"], s.axes["data_fraction"]) for s in dd} == {
+        (L, f) for L in (4, 8, 12, 16) for f in (0.05, 0.2, 1.0)}
+    # Run ids are a deterministic function of the overrides (same call, same ids; any change, new id).
+    assert [s.name for s in dd] == [s.name for s in load_sweep("sweeps/diffusion_depth_data.py", preset="paper")]
+    assert {s.name for s in load_sweep("sweeps/diffusion_depth_data.py", preset="paper", steps=10)}.isdisjoint(
+        {s.name for s in dd})
+    pairs = load_sweep("sweeps/diffusion_depth_data.py", preset="tiny", sampling="pairs")
+    assert all("data.sampling=pairs" in s.overrides for s in pairs) and len(pairs) == 12
+
+    ladder = load_sweep("sweeps/diffusion_flops_ladder.py", preset="paper")
+    assert [s.overrides[:4] for s in ladder][0] == ("model.layers=2", "model.dim=256", "model.heads=4", "model.ff=1024")
+    assert all("data.fraction=0.05" in s.overrides for s in ladder) and len(ladder) == 7
+    from handx_jax import flops
+    from handx_jax.models.dit import DiTConfig
+
+    g = [flops.paper_flops(DiTConfig(layers=s.axes["layers"], dim=s.axes["dim"], heads=s.axes["heads"],
+                                     ff=s.axes["ff"]))["flops_per_sample_paper"] / 1e9 for s in ladder]
+    assert [round(x, 2) for x in g] == [3.83, 4.22, 5.22, 6.98, 9.74, 12.86, 24.63]
+    assert len(load_sweep("sweeps/diffusion_flops_ladder.py", preset="tiny")) == 7
+    width = load_sweep("sweeps/diffusion_width.py", preset="paper")
+    assert {s.axes["layers"] for s in width} == {8} and [s.axes["dim"] for s in width] == [256, 384, 512, 768]
+
+    ar = load_sweep("sweeps/ar_size_codebook.py", preset="paper")
+    assert len(ar) == 12 and all(s.family == "ar" for s in ar)
+    # One tokenizer step per codebook, shared by the three LM sizes; one joined text cache for all.
+    keys = {}
+    for s in ar:
+        text, tok = s.needs
+        assert text.name == "text-joined" and tok.name == f"tokenizer-K{s.axes['codebook']}"
+        keys.setdefault(s.axes["codebook"], set()).add(tok.key)
+        assert s.args == ("--tokenizer", f"{{step:{tok.name}}}")
+    assert sorted(keys) == [512, 1024, 2048, 4096] and all(len(v) == 1 for v in keys.values())
+    assert len({k for v in keys.values() for k in v}) == 4
+    assert {s.preset for s in ar} == {"8L-512", "12L-768", "16L-1024"}
+
     bad = tmp_path / "bad.py"
     bad.write_text("from sweeps.launcher import RunSpec\ndef runs():\n    return [RunSpec('a'), RunSpec('a')]\n")
     with pytest.raises(ValueError, match="unique"):
         load_sweep(bad)
 
 
+def test_run_names_cannot_leave_out(tmp_path):
+    bad = tmp_path / "evil.py"
+    bad.write_text("from sweeps.launcher import RunSpec\ndef runs():\n    return [RunSpec('../../escape')]\n")
+    with pytest.raises(DataError, match="not allowed"):
+        load_sweep(bad)
+    cfg = cfg_for(tmp_path)
+    for name in ("../x", "a/b", "..", ".hidden", "x/../../y"):
+        with pytest.raises(DataError, match="not allowed"):
+            launch([RunSpec(name, command=("true",))], cfg)
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+    f = tmp_path / "step.py"
+    f.write_text("from sweeps.launcher import RunSpec, Step\n"
+                 "def runs():\n    return [RunSpec('a', needs=(Step('../tok', (('true',),)),))]\n")
+    with pytest.raises(DataError, match="step name"):
+        load_sweep(f)
+
+
+def test_collect_refuses_a_mistyped_path(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "handx_jax", "sweep", "collect", str(tmp_path / "no-such-sweep")],
+                       capture_output=True, text=True, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert r.returncode != 0 and "no sweep folder" in r.stderr and r.stdout == ""
+    assert not (tmp_path / "no-such-sweep").exists()
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DataError, match="not a sweep folder"):
+        collect_results(tmp_path / "empty")
+
+
+# ------------------------------------------------------------------------------------------------
+# Launch, failures, shared steps, results
+
+
+def test_failure_is_recorded_and_the_sweep_goes_on(tmp_path):
+    cfg = cfg_for(tmp_path)
+    specs = [fake("a", size=1), fake("b", "--fail", size=2), fake("c", size=3)]
+    res = launch(specs, cfg)
+    assert list(res.failed) == ["b"] and "exit 3" in res.failed["b"] and "failing on purpose" in res.failed["b"]
+    rows = rows_of(res.results)
+    assert [r["run_id"] for r in rows] == ["a", "b", "c"]
+    assert [r["status"] for r in rows] == ["done", "failed", "done"]
+    assert "failing on purpose" in rows[1]["error"]
+    a = rows[0]
+    # Provenance columns of a launcher row.
+    assert a["sweep"] == "sweep" and a["device_kind"] == "cpu" and a["wall_time_s"] > 0 and a["git_commit"]
+    assert a["params"] == 1000 and a["flops_per_sample"] == 1e6 and a["layers"] == 1
+    csv = (tmp_path / "sweep/results.csv").read_text().splitlines()
+    assert csv[0].startswith("run_id,family") and len(csv) == 4 and "status" in csv[0]
+    # Every run shares one persistent JAX compilation cache under the sweep folder.
+    assert invocations(tmp_path / "sweep/runs/a")[0]["cache"] == str(tmp_path / "sweep/jax_cache")
+    st = {r["name"]: r["status"] for r in status(tmp_path / "sweep")}
+    assert st == {"a": "done", "b": "failed", "c": "done"}
+    # The CLI exits non-zero at the end, after running every run.
+    sweep = tmp_path / "s.py"
+    sweep.write_text(f"import sys\nfrom sweeps.launcher import RunSpec\nF = {FAKE!r}\n"
+                     "def runs(preset='tiny'):\n"
+                     "    return [RunSpec(n, command=(sys.executable, F, '--out', '{run}') + x)"
+                     " for n, x in (('p', ('--fail',)), ('q', ()))]\n")
+    r = subprocess.run([sys.executable, "-m", "handx_jax", "sweep", "run", str(sweep), "--preset", "tiny",
+                        "--data", str(tmp_path), "--out", str(tmp_path / "cli")], capture_output=True, text=True,
+                       cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert r.returncode == 1 and "1 of 2 run(s) failed" in r.stderr
+    assert (tmp_path / "cli/runs/q/train_done.json").exists()
+    r = subprocess.run([sys.executable, "-m", "handx_jax", "sweep", "status", str(tmp_path / "cli")],
+                       capture_output=True, text=True, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert r.returncode == 0 and "1 done, 0 running, 1 failed, 0 pending" in r.stdout
+
+
+def test_shared_steps_run_once_and_are_recorded(tmp_path):
+    cfg = cfg_for(tmp_path, max_parallel=2)
+    tok = lambda k: Step(f"tok-K{k}", ((sys.executable, FAKE, "--out", "{out}", "--seconds", "0.3"),  # noqa: E731
+                                       (sys.executable, "-c", f"open('{{out}}/codebook','w').write('{k}')")))
+    specs = [fake(f"r{i}-K{k}", "--tokenizer", f"{{step:tok-K{k}}}", size=i, needs=(tok(k),), codebook=k)
+             for k in (8, 16) for i in (1, 2, 3)]
+    res = launch(specs, cfg)
+    assert not res.failed
+    steps = sorted((tmp_path / "sweep/steps").iterdir())
+    assert [p.name.rsplit("-", 1)[0] for p in steps] == ["tok-K16", "tok-K8"]
+    for p in steps:  # each step ran once although three runs (two at a time) needed it
+        assert len(invocations(p)) == 1 and (p / "step_done.json").exists()
+    for s in specs:
+        d = tmp_path / "sweep/runs" / s.name
+        prov = json.loads((d / "provenance.json").read_text())
+        k = s.axes["codebook"]
+        assert prov["steps"][f"tok-K{k}"]["dir"] == str(tmp_path / "sweep/steps" / tok(k).key)
+        assert json.loads((d / "config.json").read_text())["tokenizer"] == prov["steps"][f"tok-K{k}"]["dir"]
+    assert {r["codebook"] for r in rows_of(res.results)} == {8, 16}
+    # A relaunch redoes nothing.
+    launch(specs, cfg)
+    assert all(len(invocations(p)) == 1 for p in steps)
+    assert all(len(invocations(tmp_path / "sweep/runs" / s.name)) == 1 for s in specs)
+
+
+# ------------------------------------------------------------------------------------------------
+# Run-folder lock
+
+
+def test_runlock_excludes_recovers_and_is_inherited(tmp_path):
+    d = tmp_path / "run"
+    with RunLock(d):
+        assert is_locked(d)["pid"] == os.getpid()
+        # Another process (not our child: a grandchild) is refused with a message naming the holder.
+        code = (f"from handx_jax.runlock import RunLock, RunLocked\ntry:\n    RunLock({str(d)!r}).acquire()\n"
+                "except RunLocked as e:\n    print('LOCKED', e)\n")
+        outer = f"import subprocess, sys; subprocess.run([sys.executable, '-c', {code!r}])"
+        r = subprocess.run([sys.executable, "-c", outer], capture_output=True, text=True,
+                           env={**os.environ, "PYTHONPATH": str(REPO)})
+        assert f"LOCKED {d} is in use by pid {os.getpid()}" in r.stdout
+        # ... but a child this process started to work in the folder inherits it.
+        code = (f"from handx_jax.runlock import RunLock\nl = RunLock({str(d)!r}).acquire()\n"
+                "print('INHERITED', l.inherited)\nl.release()\n")
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           env={**os.environ, "PYTHONPATH": str(REPO)})
+        assert "INHERITED True" in r.stdout
+        with RunLock(d):  # re-entrant in one thread
+            pass
+        assert is_locked(d)
+    assert not (d / ".lock").exists()
+    # A lock left by a dead process is recovered.
+    p = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    (d / ".lock").write_text(json.dumps({"pid": p.pid, "host": os.uname().nodename, "started": time.time()}))
+    with pytest.raises(RunLocked):
+        RunLock(d).acquire()
+    p.kill()
+    p.wait()
+    assert not pid_alive(p.pid) and is_locked(d) is None
+    with RunLock(d):
+        assert is_locked(d)["pid"] == os.getpid()
+
+
+def test_kill9_of_the_launcher_ends_its_child_and_the_relaunch_finishes(tmp_path):
+    """Issue 14.8: a launcher killed with -9 must not leave a trainer running, and the relaunch must
+    finish every run exactly once without redoing finished ones."""
+    sweep = tmp_path / "slow.py"
+    sweep.write_text(f"import sys\nfrom sweeps.launcher import RunSpec\nF = {FAKE!r}\n"
+                     "def runs(seconds=0.2):\n"
+                     "    return [RunSpec(n, command=(sys.executable, F, '--out', '{run}', '--seconds', str(s)),"
+                     " axes={'layers': i + 1}) for i, (n, s) in enumerate((('a', 0.2), ('b', 30), ('c', 0.2)))]\n")
+    out = tmp_path / "sweep"
+    cmd = [sys.executable, "-m", "handx_jax", "sweep", "run", str(sweep), "--data", str(tmp_path), "--out", str(out)]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    launcher = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    pid_file = out / "runs/b/pid"
+    deadline = time.time() + 60
+    while not pid_file.exists() and time.time() < deadline:
+        time.sleep(0.05)
+    assert pid_file.exists(), "run b never started"
+    child = int(pid_file.read_text())
+    assert pid_alive(child)
+    assert {r["name"]: r["status"] for r in status(out)} == {"a": "done", "b": "running", "c": "pending"}
+    launcher.send_signal(signal.SIGKILL)
+    launcher.wait()
+    deadline = time.time() + 10
+    while pid_alive(child) and time.time() < deadline:
+        time.sleep(0.05)
+    assert not pid_alive(child), "the training child outlived its launcher"
+    st = {r["name"]: r["status"] for r in status(out)}
+    assert st == {"a": "done", "b": "failed", "c": "pending"}  # b's holder died mid-run
+    # Relaunch (b fast this time): the stale lock is recovered, a is not redone, b and c finish.
+    sweep.write_text(sweep.read_text().replace("('b', 30)", "('b', 0.2)"))
+    r = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert [len(invocations(out / "runs" / n)) for n in "abc"] == [1, 2, 1]
+    rows = rows_of(out / "results.jsonl")
+    assert [x["run_id"] for x in rows] == ["a", "b", "c"] and {x["status"] for x in rows} == {"done"}
+
+
+# ------------------------------------------------------------------------------------------------
+# The real diffusion stages
+
+
 @pytest.mark.slow
 def test_launch_resume_and_results(tmp_path):
+    from diffusion_fixtures import ENCODER, make_dataset
+
     data = make_dataset(tmp_path)
-    specs = [RunSpec("a", overrides=TINY), RunSpec("b", overrides=TINY + ("data.fraction=0.2",))]
+    specs = [RunSpec("a", overrides=TINY, axes={"layers": 1}),
+             RunSpec("b", overrides=TINY + ("data.fraction=0.5", "data.sampling=pairs"))]
     cfg = SweepConfig(data=str(data), encoder=str(ENCODER), out=str(tmp_path / "sweep"))
     # "Killed" after the first run: only it finished.
     launch(specs[:1], cfg)
     assert stage_state(cfg, specs[0])["train"] and not stage_state(cfg, specs[1])["train"]
     mtime = (tmp_path / "sweep/runs/a/metrics.jsonl").stat().st_mtime_ns
     # Re-running the whole sweep skips the finished run and completes the other (debug = submitit path).
-    out = launch(specs, SweepConfig(**{**cfg.__dict__, "executor": "debug"}))
+    res = launch(specs, SweepConfig(**{**cfg.__dict__, "executor": "debug"}))
+    assert not res.failed
     assert (tmp_path / "sweep/runs/a/metrics.jsonl").stat().st_mtime_ns == mtime
-    rows = [json.loads(l) for l in out.read_text().splitlines()]
+    rows = rows_of(res.results)
     assert [r["run_id"] for r in rows] == ["a", "b"]
-    assert rows[1]["data_fraction"] == 0.2 and rows[0]["params"] > 0 and rows[0]["flops_per_sample"] > 0
-    assert [s["train"] for s in status(tmp_path / "sweep")] == [True, True]
+    assert rows[1]["data_fraction"] == 0.5 and rows[1]["data_sampling"] == "pairs"
+    assert rows[0]["data_sampling"] == "clips" and rows[0]["params"] > 0
+    # Both FLOPs conventions on every row.
+    assert rows[0]["flops_per_sample"] > 0 and rows[0]["flops_per_sample_paper"] > rows[0]["flops_per_sample"] / 2
+    assert [s["status"] for s in status(tmp_path / "sweep")] == ["done", "done"]
+    assert any((tmp_path / "sweep/jax_cache").iterdir())  # the runs' shared persistent compilation cache
+    # data.sampling=pairs draws (clip, level) items as the reference does: RandomState(42).choice without
+    # replacement over all train items, nested across fractions; "clips" keeps every level of each clip.
+    import numpy as np
+
+    from handx_jax.diffusion_family import config_from_dict, load_train_data
+
+    td = load_train_data(config_from_dict(json.loads((tmp_path / "sweep/runs/b/config.json").read_text())))
+    n = len(td.clips) * td.levels
+    k = round(0.5 * n)
+    assert np.array_equal(td.items, np.sort(np.random.RandomState(42).choice(n, k, replace=False)))
+    small = np.sort(np.random.RandomState(42).permutation(n)[:round(0.05 * n)])
+    assert set(small) <= set(td.items) and td.num_items == k
+    b = td.batch(np.arange(3))
+    assert np.array_equal(b["x0"], td.x_NxFx42x4[td.items[:3] // td.levels])
+
+
+def test_dry_run_and_slurm_time_limit(tmp_path, capsys):
+    from handx_jax.cli import main
+
+    for f, n in (("diffusion_depth_data", 12), ("diffusion_flops_ladder", 7), ("diffusion_width", 4),
+                 ("ar_size_codebook", 12)):
+        assert main(["sweep", "run", f"sweeps/{f}.py", "--preset", "paper", "--executor", "slurm", "--dry-run",
+                     "--out", str(tmp_path / f)]) == 0
+        lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+        assert len(lines) == n + 1 and lines[-1]["slurm"]["timeout_min"] == 48 * 60  # the preset's time limit
+        assert not (tmp_path / f).exists()
+    # Without a time limit, SLURM is refused rather than left to submitit's 5-minute default.
+    with pytest.raises(ValueError, match="time limit"):
+        launch([fake("a")], cfg_for(tmp_path, executor="slurm"))
+    assert not (tmp_path / "sweep").exists()
+
+
+def test_diffusion_sweep_overrides_are_valid_configs():
+    """Every run of the diffusion sweep files, both presets, is a valid diffusion config of its axes."""
+    try:  # after the family restructuring (issue 12): handx_jax/families/diffusion.py
+        from handx_jax.families.diffusion import make_config as mk
+
+        def build(s):
+            return mk(s.preset, list(s.overrides), data="", encoder="")
+    except ImportError:
+        from handx_jax.diffusion_family import make_config as mk
+
+        def build(s):
+            return mk(s.preset, "", "", s.overrides)
+
+    for f in ("diffusion_depth_data", "diffusion_flops_ladder", "diffusion_width"):
+        for preset in ("tiny", "paper"):
+            for s in load_sweep(f"sweeps/{f}.py", preset=preset, sampling="pairs"):
+                c = build(s)
+                assert (c.model.layers, c.model.dim) == (s.axes["layers"], s.axes["dim"])
+                assert c.data.fraction == s.axes["data_fraction"] and c.data.sampling == "pairs"
+                assert c.model.dim % c.model.heads == 0
+                assert c.train.bf16 == (preset == "paper")

@@ -30,10 +30,33 @@ def diffusion_numbers(layers: int, dim: int, heads: int, ff: int, text_dim: int,
             "text_flops_per_sample": 3 * int(encoder_flops(enc_cfg, text_len))}
 
 
+def paper_numbers(layers: int, dim: int, heads: int, ff: int, text_dim: int, text_tokens: int | None,
+                  encoder_tokens: int | None) -> dict:
+    """Table B's convention (handx_jax.flops): MACs of the denoiser's Linear layers + the T5 encoder's."""
+    from handx_jax import flops
+    from handx_jax.models.dit import DiTConfig, param_count
+
+    cfg = DiTConfig(layers=layers, dim=dim, heads=heads, ff=ff, text_dim=text_dim)
+    mem = flops.PAPER_MEM_TOKENS if text_tokens is None else text_tokens
+    enc = flops.PAPER_ENCODER_TOKENS if encoder_tokens is None else encoder_tokens
+    return {"params": param_count(cfg), "convention": "paper", **flops.paper_flops(cfg, mem, enc)}
+
+
 def _diffusion(args: argparse.Namespace) -> int:
     if args.dim % args.heads:
         print(f"handx params diffusion: error: --dim {args.dim} is not divisible by --heads {args.heads}")
         return 2
+    if args.convention == "paper":
+        out = paper_numbers(args.layers, args.dim, args.heads, args.ff, args.text_dim, args.text_tokens,
+                            args.encoder_tokens)
+        if args.json:
+            print(json.dumps(out))
+        else:
+            print(f"diffusion L{args.layers} d{args.dim} H{args.heads} FF{args.ff}: {out['params']:,} params; "
+                  f"{out['flops_per_sample_paper'] / 1e9:.3f} G (paper convention: Linear-layer MACs of the denoiser "
+                  f"with {out['mem_tokens']} text tokens per branch, {out['denoiser_macs'] / 1e9:.3f} G, + T5-base on "
+                  f"{out['encoder_tokens']} tokens, {out['text_encoder_macs'] / 1e9:.3f} G)")
+        return 0
     out = diffusion_numbers(args.layers, args.dim, args.heads, args.ff, args.text_dim, args.text_len, args.encoder)
     if args.json:
         print(json.dumps(out))
@@ -57,6 +80,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     d.add_argument("--text-dim", type=int, default=768, help="text feature width (768 for T5-base)")
     d.add_argument("--text-len", type=int, default=32, help="tokens per prompt for the FLOPs count")
     d.add_argument("--encoder", help="encoder folder for text_flops_per_sample (default: T5-base)")
+    d.add_argument("--convention", choices=("analytic", "paper"), default="analytic",
+                   help="analytic: 2 FLOPs per multiply-add of every matmul, denoiser only (default); paper: "
+                        "multiply-adds of the Linear layers (as fvcore/thop count them) plus the frozen T5-base "
+                        "encoder, which reproduces the paper's Table B FLOPs column (handx_jax/flops.py)")
+    d.add_argument("--text-tokens", type=int, default=None,
+                   help="paper convention: text tokens per branch the denoiser attends to (default 63, fitted to "
+                        "Table B)")
+    d.add_argument("--encoder-tokens", type=int, default=None,
+                   help="paper convention: tokens through the T5 encoder per sample (default 40, fitted to Table B)")
     d.add_argument("--json", action="store_true", help="print {params, flops_per_sample, text_flops_per_sample}")
     d.set_defaults(func=_diffusion)
     return p

@@ -12,6 +12,7 @@ official loaders; export → import reproduces motion and texts exactly.
 
 from __future__ import annotations
 
+import hashlib
 import os
 from pathlib import Path
 from typing import Sequence
@@ -38,6 +39,7 @@ def import_handx(files: Sequence[str | os.PathLike], out: str | os.PathLike, *, 
     motions, texts, split_of = [], [], []
     dropped: dict[str, list[str]] = {}
     seen_ids: set[str] = set()
+    levels: tuple[int, str] | None = None  # (caption levels, "file:key" of the first clip)
     for f in map(Path, files):
         s = split or split_from_filename(f)
         for c in read_handx_npz(f, allow_nonfinite=True):
@@ -45,6 +47,13 @@ def import_handx(files: Sequence[str | os.PathLike], out: str | os.PathLike, *, 
             if cid in seen_ids:
                 raise DataError(f"duplicate clip key {c.key!r}", path=f, clip=c.key)
             seen_ids.add(cid)
+            # Level k must mean the same on every clip (training samples a level index, `data stats` counts
+            # per level): a clip with another count is refused here, naming it, not an IndexError later.
+            if levels is None:
+                levels = (len(c.left), f"{f.name}:{c.key}")
+            elif len(c.left) != levels[0]:
+                raise DataError(f"{len(c.left)} caption levels, but clip {levels[1]} has {levels[0]}; every clip "
+                                "needs the same number of levels", path=f, clip=c.key)
             if not np.isfinite(c.motion).all():
                 dropped.setdefault(str(f), []).append(c.key)
                 continue
@@ -71,8 +80,19 @@ def import_handx(files: Sequence[str | os.PathLike], out: str | os.PathLike, *, 
               "dropped_keys": dropped, "imported": len(motion)}
     source = {"kind": "handx-npz", "files": [str(Path(f).resolve()) for f in files],
               "val_is_test": splits_val_is_test}
+    # The recipe names the archives by content, not path: the same files imported anywhere are one dataset.
+    recipe = {"kind": "handx-npz", "files": [{"name": Path(f).name, "sha256": _file_sha256(Path(f))} for f in files],
+              "split": split, "events": bool(annotate_events), "fractions": list(fractions), "seed": seed}
     return write_dataset(out, motion, texts, splits=splits, events=events, source=source, report=report,
-                         fractions=fractions, seed=seed, overwrite=overwrite)
+                         fractions=fractions, seed=seed, overwrite=overwrite, recipe=recipe)
+
+
+def _file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 22), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def export_handx(data_dir: str | os.PathLike, out: str | os.PathLike, *, split: str | None = None) -> Path:

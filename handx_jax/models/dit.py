@@ -8,8 +8,13 @@
     x̂0   = Out(z + o_L + o_R + o_I)      the model predicts x0
 
 The three passes share weights, so they run as one decoder call on a 3B batch. Classifier-free
-guidance uses a learned null text embedding per branch (reference: one (1,1,D) null embedding);
-``drop_BxK`` selects, per sample and branch, whether the text is replaced by it.
+guidance uses one learned null text embedding (D,) shared by the three branches, as the reference's
+single (1,1,D) null (§3.1); ``drop_BxK`` selects, per sample and branch, whether that branch's text
+tokens are all replaced by it (the branch's CLS token still tells the branches apart).
+
+Initialisation follows reference §3.1: every Linear N(0, 0.02) with zero bias (decoder layers
+included; q/k/v keep PyTorch's packed in_proj xavier init, see ``layers.REFERENCE_LINEAR_INIT``);
+CLS tokens and the null embedding N(0, 1).
 
 Parameter counts with 768-wide text features reproduce paper Table C (tests/test_dit.py).
 """
@@ -22,7 +27,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from handx_jax.models.layers import DecoderLayer, Dropout, sinusoidal_table
+from handx_jax.models.layers import (REFERENCE_LINEAR_INIT, DecoderLayer, Dropout, packed_in_proj_init,
+                                     sinusoidal_table)
 
 NUM_BRANCHES = 3  # left, right, interaction
 
@@ -66,7 +72,7 @@ class TrebleDenoiser(nn.Module):
 
     def setup(self):
         c = self.cfg
-        dense = lambda n: nn.Dense(n, dtype=self.dtype, kernel_init=nn.initializers.normal(0.02))  # noqa: E731
+        dense = lambda n: nn.Dense(n, dtype=self.dtype, kernel_init=REFERENCE_LINEAR_INIT)  # noqa: E731
         self.input_proj = dense(c.dim)
         self.time_mlp_1 = dense(c.dim)
         self.time_mlp_2 = dense(c.dim)
@@ -76,7 +82,8 @@ class TrebleDenoiser(nn.Module):
         self.null_text = self.param("null_text", nn.initializers.normal(1.0), (c.dim,))
         self.embed_drop = Dropout(c.dropout)
         for i in range(c.layers):  # names layer0..: the parameter tree of the original compact module
-            setattr(self, f"layer{i}", DecoderLayer(c.dim, c.heads, c.ff, c.dropout, self.dtype))
+            setattr(self, f"layer{i}", DecoderLayer(c.dim, c.heads, c.ff, c.dropout, self.dtype,
+                                                     kernel_init=REFERENCE_LINEAR_INIT, qkv_init=packed_in_proj_init))
         self.pe = jnp.asarray(sinusoidal_table(c.max_len, c.dim))
 
     def _layers(self):

@@ -18,10 +18,27 @@ module's ``dropout`` rng stream, so masks are a pure function of (rng, call, ele
 
 from __future__ import annotations
 
+from typing import Callable
+
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+Initializer = Callable
+FLAX_KERNEL_INIT = nn.linear.default_kernel_init  # lecun_normal: what Dense and attention use by default
+# Reference §3.1: every nn.Linear of the denoiser gets N(0, 0.02) weights and zero bias (flax biases start
+# at zero already). PyTorch's MultiheadAttention keeps q/k/v in one packed (3D, D) in_proj_weight, a plain
+# Parameter rather than an nn.Linear, so that init pass leaves it at its own xavier_uniform_ init
+# (fan_in D, fan_out 3D); its out_proj is an nn.Linear and gets N(0, 0.02).
+REFERENCE_LINEAR_INIT = nn.initializers.normal(0.02)
+
+
+def packed_in_proj_init(key, shape, dtype=jnp.float32):
+    """xavier_uniform_ of PyTorch's packed (3D, D) in_proj_weight, for one of q/k/v shaped (D, H, D/H)."""
+    d = shape[0]
+    bound = float(np.sqrt(6.0 / (d + 3 * d)))
+    return jax.random.uniform(key, shape, dtype, -bound, bound)
 
 
 def sinusoidal_table(max_len: int, dim: int) -> np.ndarray:
@@ -87,13 +104,15 @@ class Attention(nn.Module):
     heads: int
     dropout: float = 0.1
     dtype: jnp.dtype = jnp.float32
+    qkv_init: Initializer = FLAX_KERNEL_INIT
+    out_init: Initializer = FLAX_KERNEL_INIT
 
     def setup(self):
         hd = (self.heads, self.dim // self.heads)
-        self.query = nn.DenseGeneral(hd, dtype=self.dtype)
-        self.key = nn.DenseGeneral(hd, dtype=self.dtype)
-        self.value = nn.DenseGeneral(hd, dtype=self.dtype)
-        self.out = nn.DenseGeneral(self.dim, axis=(-2, -1), dtype=self.dtype)
+        self.query = nn.DenseGeneral(hd, dtype=self.dtype, kernel_init=self.qkv_init)
+        self.key = nn.DenseGeneral(hd, dtype=self.dtype, kernel_init=self.qkv_init)
+        self.value = nn.DenseGeneral(hd, dtype=self.dtype, kernel_init=self.qkv_init)
+        self.out = nn.DenseGeneral(self.dim, axis=(-2, -1), dtype=self.dtype, kernel_init=self.out_init)
         self.weight_drop = Dropout(self.dropout, broadcast_dims=(0, 1))
 
     def kv(self, mem_BxMxD):
@@ -122,12 +141,14 @@ class FeedForward(nn.Module):
     ff: int
     dropout: float = 0.1
     dtype: jnp.dtype = jnp.float32
+    kernel_init: Initializer = FLAX_KERNEL_INIT
 
     @nn.compact
     def __call__(self, x, *, deterministic: bool):
-        h = nn.gelu(nn.Dense(self.ff, dtype=self.dtype, name="lin1")(x), approximate=False)
+        h = nn.gelu(nn.Dense(self.ff, dtype=self.dtype, kernel_init=self.kernel_init, name="lin1")(x),
+                    approximate=False)
         h = Dropout(self.dropout)(h, deterministic=deterministic)
-        return nn.Dense(self.dim, dtype=self.dtype, name="lin2")(h)
+        return nn.Dense(self.dim, dtype=self.dtype, kernel_init=self.kernel_init, name="lin2")(h)
 
 
 class EncoderLayer(nn.Module):
@@ -157,6 +178,9 @@ class DecoderLayer(nn.Module):
     fixed memory is projected once. The last ``null_rows`` rows of x attend to the one-token memory
     ``null_mem_D`` (the classifier-free-guidance null text): their cross-attention output is one
     vector, computed without queries or scores.
+
+    ``kernel_init`` initialises the feed-forward and attention-output kernels, ``qkv_init`` the q/k/v
+    kernels (flax defaults; the denoiser passes the reference's, see ``REFERENCE_LINEAR_INIT``).
     """
 
     dim: int
@@ -164,11 +188,14 @@ class DecoderLayer(nn.Module):
     ff_dim: int
     dropout: float = 0.1
     dtype: jnp.dtype = jnp.float32
+    kernel_init: Initializer = FLAX_KERNEL_INIT
+    qkv_init: Initializer = FLAX_KERNEL_INIT
 
     def setup(self):
-        self.self_attn = Attention(self.dim, self.heads, self.dropout, self.dtype)
-        self.cross_attn = Attention(self.dim, self.heads, self.dropout, self.dtype)
-        self.ff = FeedForward(self.dim, self.ff_dim, self.dropout, self.dtype)
+        attn = lambda: Attention(self.dim, self.heads, self.dropout, self.dtype, self.qkv_init,  # noqa: E731
+                                 self.kernel_init)
+        self.self_attn, self.cross_attn = attn(), attn()
+        self.ff = FeedForward(self.dim, self.ff_dim, self.dropout, self.dtype, self.kernel_init)
         self.norm1, self.norm2, self.norm3 = (nn.LayerNorm(epsilon=1e-5, dtype=self.dtype) for _ in range(3))
         self.drop1, self.drop2, self.drop3 = (Dropout(self.dropout) for _ in range(3))
 

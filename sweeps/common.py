@@ -1,0 +1,42 @@
+"""Pieces shared by the sweep files: dotted overrides for a model size and a training budget."""
+
+from __future__ import annotations
+
+# Table B (L, d, H, FFN), the paper's FLOPs ladder at 5% data (App. C; the reference's default head
+# count differs, §9.16).
+TABLE_B = ((2, 256, 4, 1024), (4, 256, 4, 1024), (4, 384, 6, 1536), (8, 384, 6, 1536), (8, 512, 8, 2048),
+           (12, 512, 8, 2048), (12, 768, 12, 3072))
+# Table C's diffusion sizes by depth (L -> d, FFN); heads are not printed: d / 64 as in Table B.
+TABLE_C = {4: (256, 1024), 8: (512, 1024), 12: (512, 1024), 16: (768, 3072)}
+FRACTIONS = (0.05, 0.2, 1.0)  # the nested clip subsets of Table 2 (5% ⊂ 20% ⊂ 100%)
+
+# SLURM resources per preset (submitit parameters). Every preset names its time limit: submitit's
+# default of 5 minutes would otherwise end paper-size runs silently.
+RESOURCES = {
+    "tiny": {"timeout_min": 60, "cpus_per_task": 2, "mem_gb": 8},
+    "paper": {"timeout_min": 48 * 60, "gpus_per_node": 1, "cpus_per_task": 8, "mem_gb": 64},
+}
+
+
+def model(L: int, d: int, H: int, F: int) -> tuple[str, ...]:
+    return (f"model.layers={L}", f"model.dim={d}", f"model.heads={H}", f"model.ff={F}")
+
+
+def budget(preset: str, steps: int | None, batch: int | None = None) -> tuple[str, ...]:
+    """Training length: ``tiny`` trains in minutes on a CPU, ``paper`` for the paper's ~100k steps."""
+    if preset == "tiny":
+        st, bs = steps or 300, batch or 32
+        return (f"train.steps={st}", f"train.batch_size={bs}", f"train.log_every={max(st // 12, 1)}",
+                f"train.ckpt_every={max(st // 2, 1)}")
+    if preset == "paper":
+        st, bs = steps or 100_000, batch or 256
+        return (f"train.steps={st}", f"train.batch_size={bs}", "train.log_every=100", "train.ckpt_every=5000",
+                "train.bf16=true")
+    raise ValueError(f"unknown preset {preset!r} (tiny | paper)")
+
+
+def data(fraction: float, sampling: str = "clips") -> tuple[str, ...]:
+    """Data fraction as nested clip subsets (default) or the reference's (clip, caption level) pairs."""
+    if sampling not in ("clips", "pairs"):
+        raise ValueError(f"unknown sampling {sampling!r} (clips | pairs)")
+    return (f"data.fraction={fraction}",) + (("data.sampling=pairs",) if sampling == "pairs" else ())

@@ -1,0 +1,26 @@
+"""Diffusion FLOPs ladder at 5% data (paper Table B / Fig. 4).
+
+``paper``: Table B's seven (L, d, H, FFN) sizes, 3.83 → 24.62 GFLOPs in the paper's convention
+(``handx params diffusion --convention paper``). ``tiny``: a seven-step CPU ladder with the same
+shape (depth and width grow in turn), for checking train → evaluate → fit end to end.
+"""
+
+from __future__ import annotations
+
+from sweeps.common import RESOURCES, TABLE_B, budget, data, model  # noqa: F401 (RESOURCES)
+from sweeps.launcher import RunSpec, run_id
+
+TINY_LADDER = ((1, 32, 4, 64), (2, 32, 4, 64), (2, 48, 4, 96), (3, 48, 4, 96), (3, 64, 4, 128), (4, 64, 4, 128),
+               (4, 96, 4, 192))
+
+
+def runs(preset: str = "tiny", steps: int | None = None, fraction: float = 0.05,
+         sampling: str = "clips") -> list[RunSpec]:
+    ladder = TABLE_B if preset == "paper" else TINY_LADDER
+    out = []
+    for L, d, H, F in ladder:
+        ov = (*model(L, d, H, F), *data(fraction, sampling), *budget(preset, steps))
+        axes = {"layers": L, "dim": d, "heads": H, "ff": F, "data_fraction": fraction}
+        out.append(RunSpec(run_id(axes, ov), preset="tiny" if preset == "tiny" else "paper-4L", overrides=ov,
+                           axes=axes))
+    return out
