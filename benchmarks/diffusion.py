@@ -14,6 +14,11 @@
 - **MFU** (GPU only): analytic FLOPs (``models.dit.forward_flops`` at ``--text-len``; ×3 for a training
   step, ×2 per sampling step for CFG) per second over the device's peak dense bf16 FLOP/s (table below).
   Training runs in bf16 on a GPU (``--bf16`` to force either way).
+- **Fraction of the measured peak** (every device): the same analytic FLOP/s over the machine's own
+  jitted-matmul peak, measured at start-up (``benchmarks/_peak.py``: float32 2048² on CPU, bf16 on a
+  GPU). Sampling FLOPs are counted as the full CFG work (two complete forward passes per step, as the
+  PyTorch reference does); the sampler skips the text keys/values of every step after the first and
+  the null pass's cross-attention, so this is "useful work per second", comparable across versions.
 
 Prints one JSON document.
 """
@@ -48,6 +53,14 @@ PEAK_BF16 = {
     "A100": 312.0e12,
     "L4": 121.0e12,
 }
+
+
+def measured_peak() -> dict:
+    try:
+        from benchmarks._peak import matmul_peak
+    except ImportError:  # run as a script: benchmarks/ is sys.path[0]
+        from _peak import matmul_peak
+    return matmul_peak()
 
 
 def device_peak(kind: str) -> float | None:
@@ -104,6 +117,18 @@ def bench_sample(cfg: DiffusionRunConfig, params, text_len: int, batch: int, sam
             "estimated_from_steps": None if n_timed == n_steps else n_timed}
 
 
+def add_peak_fractions(res: dict, fwd: float, peak_flops: float) -> None:
+    """Analytic FLOP/s (3 × forward per training sample; 2 × forward per sampling step and clip) and
+    their fraction of the measured matmul peak, beside samples/s."""
+    tr = res["train"]
+    tr["flops_per_s"] = 3 * fwd * tr["samples_per_s"]
+    tr["fraction_of_peak"] = tr["flops_per_s"] / peak_flops
+    for s in res["sample"]:
+        n = int(s["sampler"].split("-")[1])
+        s["flops_per_s"] = 2 * fwd * n * s["clips_per_s"]
+        s["fraction_of_peak"] = s["flops_per_s"] / peak_flops
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--presets", default="tiny,small")
@@ -114,6 +139,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sample-batch", type=int, default=32)
     ap.add_argument("--ddim-steps", type=int, default=50)
     ap.add_argument("--ddpm-estimate", action="store_true", help="time 50 steps and scale to DDPM-1000")
+    ap.add_argument("--samplers", default="ddpm,ddim", help="which samplers to time (comma list)")
     ap.add_argument("--bf16", choices=["auto", "on", "off"], default="auto", help="training compute (auto: on for GPU)")
     ap.add_argument("--out", help="also write the JSON here")
     args = ap.parse_args(argv)
@@ -122,9 +148,12 @@ def main(argv=None) -> int:
     on_gpu = dev.platform == "gpu"
     bf16 = on_gpu if args.bf16 == "auto" else args.bf16 == "on"
     peak = device_peak(dev.device_kind) if on_gpu else None
+    measured = measured_peak()
+    print(f"[peak] {measured['dtype']} {measured['n']}² matmul: {measured['flops_per_s'] / 1e9:.1f} GFLOP/s",
+          file=sys.stderr, flush=True)
     doc = {"device": dev.device_kind, "platform": dev.platform, "num_devices": jax.device_count(),
            "host": platform.node(), "jax": jax.__version__, "text_len": args.text_len, "text_dim": args.text_dim,
-           "peak_bf16_flops": peak, "peak_table": PEAK_BF16, "results": []}
+           "measured_peak": measured, "peak_bf16_flops": peak, "peak_table": PEAK_BF16, "results": []}
     with tempfile.TemporaryDirectory() as tmp:
         for preset in args.presets.split(","):
             m = PRESETS[preset]
@@ -136,18 +165,23 @@ def main(argv=None) -> int:
                    "flops_per_sample": fwd}
             res["train"] = bench_train(preset, cfg, args.text_len, args.batch_size, args.train_steps, bf16, Path(tmp))
             params = init_denoiser(m, jax.random.PRNGKey(0), args.text_len)[1]
+            samplers = args.samplers.split(",")
             res["sample"] = [bench_sample(cfg, params, args.text_len, args.sample_batch, "ddpm", 1000,
-                                          args.ddpm_estimate),
-                             bench_sample(cfg, params, args.text_len, args.sample_batch, "ddim", args.ddim_steps,
-                                          False)]
+                                          args.ddpm_estimate)] if "ddpm" in samplers else []
+            if "ddim" in samplers:
+                res["sample"].append(bench_sample(cfg, params, args.text_len, args.sample_batch, "ddim",
+                                                  args.ddim_steps, False))
+            add_peak_fractions(res, fwd, measured["flops_per_s"])
             if peak:
                 res["train"]["mfu"] = 3 * fwd * res["train"]["samples_per_s"] / peak
                 for s in res["sample"]:
                     n = int(s["sampler"].split("-")[1])
                     s["mfu"] = 2 * fwd * n * s["clips_per_s"] / peak  # 2 passes per step (CFG)
             doc["results"].append(res)
-            print(f"[{preset}] train {res['train']['samples_per_s']:.1f} samples/s; "
-                  + "; ".join(f"{s['sampler']} {s['clips_per_s']:.2f} clips/s" for s in res["sample"]),
+            print(f"[{preset}] train {res['train']['samples_per_s']:.1f} samples/s "
+                  f"({res['train']['fraction_of_peak']:.0%} of peak); "
+                  + "; ".join(f"{s['sampler']} {s['clips_per_s']:.2f} clips/s ({s['fraction_of_peak']:.0%} of peak)"
+                              for s in res["sample"]),
                   file=sys.stderr, flush=True)
     text = json.dumps(doc, indent=2)
     print(text)

@@ -54,7 +54,18 @@ def synthetic(n: int, seed: int = 0):
         [t["interaction"][0] for t in texts]
 
 
-def main() -> None:
+def input_stats(preset: str, text_dim: int, gt_NxTx2x21x3: np.ndarray):
+    """The preset's evaluator config and normalisation statistics of its own motion input, fitted on
+    ``gt`` ("positions": 126 features per frame, "hand_frames": 307)."""
+    from handx_jax.representation import EVALUATOR_INPUTS, NormStats
+
+    cfg = model_config(preset, text_dim)
+    to_input, dim = EVALUATOR_INPUTS[cfg.motion_input]
+    feats = to_input(gt_NxTx2x21x3).reshape(-1, dim)
+    return cfg, NormStats(feats.mean(0), feats.std(0) + 1e-3)
+
+
+def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--clips", type=int, default=2000)
     p.add_argument("--groups", type=int, default=1, help="generation groups (clips = prompts × groups)")
@@ -63,7 +74,8 @@ def main() -> None:
     p.add_argument("--reference")
     p.add_argument("--preset", default="small")
     p.add_argument("--encoder", default=str(ROOT / "tests" / "fixtures" / "t5_tiny_gated"))
-    a = p.parse_args()
+    p.add_argument("--bootstrap", type=int, default=MetricConfig.bootstrap, help="prompt resamples for the ±")
+    a = p.parse_args(argv)
     N = a.clips // a.groups
     if a.evaluator:
         from handx_jax.data.dataset import Dataset
@@ -77,24 +89,18 @@ def main() -> None:
         source = {"evaluator": a.evaluator, "reference": str(ds.root)}
         provenance = {"dataset": ds.fingerprint, "eval_level": ev.policy.eval_level, "clips": f"first {N}"}
     else:
-        from handx_jax.representation import NormStats
         from handx_jax.text.t5 import load_hf_t5_encoder
 
         enc = load_hf_t5_encoder(a.encoder)
         gt, *prompts = synthetic(N)
-        from handx_jax.representation import to_evaluator
-
-        cfg = model_config(a.preset, enc.cfg.d_model)
-
-        feats = to_evaluator(gt).reshape(-1, 126)
-        stats = NormStats(feats.mean(0), feats.std(0) + 1e-3)
+        cfg, stats = input_stats(a.preset, enc.cfg.d_model, gt)
         ev = TrainedEvaluator(cfg=cfg, params=_init_params(cfg, 256, jax.random.PRNGKey(0)), stats=stats,
                               encoder=enc, policy=TextPolicy(max_len=256))
         source = {"evaluator": f"random-init {a.preset}", "encoder": a.encoder}
         provenance = {"dataset": "synthetic", "clips": f"first {N}"}
     rng = np.random.default_rng(1)
     gen = gt[None] + rng.normal(scale=0.005, size=(a.groups,) + gt.shape).astype(np.float32)
-    mcfg = MetricConfig(replications=a.replications)
+    mcfg = MetricConfig(replications=a.replications, bootstrap=a.bootstrap)
 
     def run(cache):
         t0 = time.perf_counter()
@@ -121,6 +127,7 @@ def main() -> None:
                     "loadavg_1m": os.getloadavg()[0]},
     }
     print(json.dumps(out, indent=1))
+    return out
 
 
 if __name__ == "__main__":

@@ -109,13 +109,15 @@ def task_gamma(task: str, dcfg: D.DiffusionConfig, frames: int = 60, *, keyframe
 def _sample_impl(params, text_KxBxLxD, mask_KxBxL, rng, target, gamma, *, model, sched, dcfg, sampler, steps,
                  guidance):
     B = text_KxBxLxD.shape[1]
+    # The text memory is the same at every step: project it and compute each layer's cross-attention
+    # keys/values once, outside the scan (issue 15).
+    memory = model.apply(params, text_KxBxLxD, mask_KxBxL, method=model.encode)
 
     def denoise(x, t_B, uncond_B):
-        reps = x.shape[0] // B  # CFG stacks [conditional; unconditional] on the batch axis
-        te = jnp.tile(text_KxBxLxD, (1, reps, 1, 1))
-        ma = jnp.tile(mask_KxBxL, (1, reps, 1))
-        drop = jnp.broadcast_to(uncond_B[:, None], (x.shape[0], 3))
-        return model.apply(params, x, t_B, te, ma, drop, deterministic=True)
+        # ``diffusion.guided`` stacks [conditional; unconditional] on the batch axis (uncond_B says so),
+        # so the rows past B are the null-text pass: one memory token, no text keys/values.
+        del uncond_B
+        return model.apply(params, x, t_B, memory, x.shape[0] - B, method=model.denoise)
 
     shape = (B, model.cfg.frames, model.cfg.joints, model.cfg.channels)
     return D.sample(denoise, sched, shape, rng, dcfg, sampler=sampler, steps=steps, guidance=guidance,

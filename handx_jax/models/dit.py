@@ -27,7 +27,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from handx_jax.models.layers import (REFERENCE_LINEAR_INIT, DecoderLayer, attention_mask, packed_in_proj_init,
+from handx_jax.models.layers import (REFERENCE_LINEAR_INIT, DecoderLayer, Dropout, packed_in_proj_init,
                                      sinusoidal_table)
 
 NUM_BRANCHES = 3  # left, right, interaction
@@ -80,48 +80,89 @@ def size_name(cfg: DiTConfig, preset: str | None = None) -> str:
 
 
 class TrebleDenoiser(nn.Module):
+    """``__call__`` is the training/reference forward. Sampling splits it (issue 15): the text memory
+    is fixed across denoising steps, so :meth:`encode` projects it and computes every layer's
+    cross-attention keys/values once per sample, and :meth:`denoise` runs one step from them; its
+    last ``null_rows`` samples are unconditional (null text on all branches, a one-token memory)."""
+
     cfg: DiTConfig
     dtype: jnp.dtype = jnp.float32
 
-    @nn.compact
-    def __call__(self, x_BxFxJxC, t_B, text_KxBxLxDt, text_mask_KxBxL, drop_BxK, *, deterministic: bool = True):
+    def setup(self):
+        c = self.cfg
+        dense = lambda n: nn.Dense(n, dtype=self.dtype, kernel_init=REFERENCE_LINEAR_INIT)  # noqa: E731
+        self.input_proj = dense(c.dim)
+        self.time_mlp_1 = dense(c.dim)
+        self.time_mlp_2 = dense(c.dim)
+        self.text_proj = dense(c.dim)
+        self.output_proj = dense(c.motion_features)
+        self.cls = self.param("cls", nn.initializers.normal(1.0), (NUM_BRANCHES, c.dim))
+        self.null_text = self.param("null_text", nn.initializers.normal(1.0), (c.dim,))
+        self.embed_drop = Dropout(c.dropout)
+        for i in range(c.layers):  # names layer0..: the parameter tree of the original compact module
+            setattr(self, f"layer{i}", DecoderLayer(c.dim, c.heads, c.ff, c.dropout, self.dtype,
+                                                     kernel_init=REFERENCE_LINEAR_INIT, qkv_init=packed_in_proj_init))
+        self.pe = jnp.asarray(sinusoidal_table(c.max_len, c.dim))
+
+    def _layers(self):
+        return [getattr(self, f"layer{i}") for i in range(self.cfg.layers)]
+
+    def _memory(self, text_KxBxLxDt, text_mask_KxBxL, drop_BxK):
+        """Projected text (K·B, L, D) and its key mask (K·B, 1, 1, L); dropped texts become the null
+        embedding, all valid."""
+        K, B, L = text_mask_KxBxL.shape
+        mem = self.text_proj(text_KxBxLxDt)  # (K, B, L, D)
+        drop_KxB = jnp.transpose(drop_BxK).astype(bool)
+        mem = jnp.where(drop_KxB[..., None, None], self.null_text.astype(mem.dtype), mem)
+        valid = jnp.where(drop_KxB[..., None], True, text_mask_KxBxL.astype(bool))
+        return mem.reshape(K * B, L, -1), valid.reshape(K * B, 1, 1, L)
+
+    def _decode(self, x_BxFxJxC, t_B, kvs, key_mask, *, deterministic, null_rows=0):
+        """The treble-residual stack. Sequences are branch-major per group: the B − null_rows
+        conditional samples' K branches, then the null rows' (so each group is one slice)."""
         c = self.cfg
         B, F = x_BxFxJxC.shape[:2]
-        pe = jnp.asarray(sinusoidal_table(c.max_len, c.dim))
-        dense = lambda n, name: nn.Dense(n, dtype=self.dtype, kernel_init=REFERENCE_LINEAR_INIT,  # noqa: E731
-                                         name=name)
-        z_BxFxD = dense(c.dim, "input_proj")(x_BxFxJxC.reshape(B, F, c.motion_features))
-        t_tok = dense(c.dim, "time_mlp_1")(pe[t_B])
-        t_tok = dense(c.dim, "time_mlp_2")(nn.silu(t_tok))[:, None]  # (B, 1, D)
-        cls_KxD = self.param("cls", nn.initializers.normal(1.0), (NUM_BRANCHES, c.dim))
-        null_D = self.param("null_text", nn.initializers.normal(1.0), (c.dim,))
-
-        # Text memory per branch, with dropped samples replaced by the null embedding (all valid).
-        mem = dense(c.dim, "text_proj")(text_KxBxLxDt)  # (K, B, L, D)
-        drop_KxB = jnp.transpose(drop_BxK).astype(bool)
-        mem = jnp.where(drop_KxB[..., None, None], null_D.astype(mem.dtype), mem)
-        mem_valid = jnp.where(drop_KxB[..., None], True, text_mask_KxBxL.astype(bool))
-
-        # Three branch sequences, stacked on the batch axis: (K·B, F+2, D).
+        z_BxFxD = self.input_proj(x_BxFxJxC.reshape(B, F, c.motion_features))
+        t_tok = self.time_mlp_2(nn.silu(self.time_mlp_1(self.pe[t_B])))[:, None]  # (B, 1, D)
+        # Three branch sequences, stacked on the batch axis: (K, B, F+2, D).
         seq = jnp.concatenate([
             jnp.broadcast_to(t_tok[None], (NUM_BRANCHES, B, 1, c.dim)),
-            jnp.broadcast_to(cls_KxD[:, None, None], (NUM_BRANCHES, B, 1, c.dim)).astype(z_BxFxD.dtype),
+            jnp.broadcast_to(self.cls[:, None, None], (NUM_BRANCHES, B, 1, c.dim)).astype(z_BxFxD.dtype),
             jnp.broadcast_to(z_BxFxD[None], (NUM_BRANCHES, B, F, c.dim)),
-        ], axis=2).reshape(NUM_BRANCHES * B, F + 2, c.dim)
-        seq = seq + pe[: F + 2].astype(seq.dtype)
-        seq = nn.Dropout(c.dropout)(seq, deterministic=deterministic)
-        mem = mem.reshape(NUM_BRANCHES * B, -1, c.dim)
-        mem_valid = mem_valid.reshape(NUM_BRANCHES * B, -1)
-        self_valid = jnp.ones((NUM_BRANCHES * B, F + 2), bool)
-        cross = attention_mask(self_valid, mem_valid)
-        for i in range(c.layers):
-            seq = DecoderLayer(c.dim, c.heads, c.ff, c.dropout, self.dtype, kernel_init=REFERENCE_LINEAR_INIT,
-                               qkv_init=packed_in_proj_init, name=f"layer{i}")(
-                seq, mem, None, cross, deterministic=deterministic)
-        out_KxBxFxD = seq.reshape(NUM_BRANCHES, B, F + 2, c.dim)[:, :, 2:]
+        ], axis=2)
+        seq = seq + self.pe[: F + 2].astype(seq.dtype)
+        nc = B - null_rows
+        seq = jnp.concatenate([seq[:, :nc].reshape(-1, F + 2, c.dim), seq[:, nc:].reshape(-1, F + 2, c.dim)])
+        seq = self.embed_drop(seq, deterministic=deterministic)
+        for layer, kv in zip(self._layers(), kvs):
+            seq = layer(seq, None, None, key_mask, deterministic=deterministic, kv=kv, null_mem_D=self.null_text,
+                        null_rows=NUM_BRANCHES * null_rows)
+        out_cond = seq[: NUM_BRANCHES * nc].reshape(NUM_BRANCHES, nc, F + 2, c.dim)
+        out_null = seq[NUM_BRANCHES * nc:].reshape(NUM_BRANCHES, null_rows, F + 2, c.dim)
+        out_KxBxFxD = jnp.concatenate([out_cond, out_null], axis=1)[:, :, 2:]
         h = z_BxFxD + out_KxBxFxD.sum(0)  # treble residual
-        x0 = dense(c.motion_features, "output_proj")(h)
+        x0 = self.output_proj(h)
         return x0.reshape(B, F, c.joints, c.channels).astype(jnp.float32)
+
+    def __call__(self, x_BxFxJxC, t_B, text_KxBxLxDt, text_mask_KxBxL, drop_BxK, *, deterministic: bool = True):
+        mem, key_mask = self._memory(text_KxBxLxDt, text_mask_KxBxL, drop_BxK)
+        kvs = [layer.memory_kv(mem) for layer in self._layers()]
+        return self._decode(x_BxFxJxC, t_B, kvs, key_mask, deterministic=deterministic)
+
+    def encode(self, text_KxBxLxDt, text_mask_KxBxL):
+        """What :meth:`denoise` needs of the (conditional) text, computed once per sample:
+        {"kv": per layer (keys, values) (K·B, L, H, D/H), "key_mask": (K·B, 1, 1, L)}."""
+        B = text_mask_KxBxL.shape[1]
+        mem, key_mask = self._memory(text_KxBxLxDt, text_mask_KxBxL, jnp.zeros((B, NUM_BRANCHES), bool))
+        return {"kv": [layer.memory_kv(mem) for layer in self._layers()], "key_mask": key_mask}
+
+    def denoise(self, x_NxFxJxC, t_N, memory, null_rows: int = 0):
+        """x̂0 for N = B + null_rows samples (deterministic): the first B with ``memory`` from
+        :meth:`encode` (B samples), the last ``null_rows`` unconditional (null text on all branches)."""
+        if x_NxFxJxC.shape[0] - null_rows == 0:
+            memory = {"kv": [None] * self.cfg.layers, "key_mask": None}
+        return self._decode(x_NxFxJxC, t_N, memory["kv"], memory["key_mask"], deterministic=True,
+                            null_rows=null_rows)
 
 
 def init_denoiser(cfg: DiTConfig, rng: jax.Array, text_len: int = 8):

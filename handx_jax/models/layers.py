@@ -3,6 +3,17 @@
 The reference models are PyTorch ``nn.TransformerEncoder/Decoder`` stacks with post-LN, GELU and
 dropout 0.1 (reference §3.1, §5.1); these blocks reproduce that layout so parameter counts match
 (Linear weights + biases, LayerNorm scale + bias).
+
+Attention keeps the parameter tree of ``flax.linen.MultiHeadDotProductAttention`` (``query``/``key``/
+``value`` kernels (D, H, D/H), ``out`` kernel (H, D/H, D)), so checkpoints written before this module
+existed load unchanged; it is written out here so that the key/value projections of a fixed memory
+can be computed once and reused (the denoiser's text memory across all sampling steps, issue 15).
+
+Dropout draws its masks from a counter-based hash (murmur3's 32-bit finaliser of the element index
+mixed with a per-call seed) instead of ``jax.random``: on a 2-core CPU the threefry bits of the
+denoiser's ~53 M dropout elements per training step cost ~22% of the step, the hash ~3% (measured:
+benchmarks/diffusion.py, docs/results/perf_cpu.json). The seed of each call still comes from the
+module's ``dropout`` rng stream, so masks are a pure function of (rng, call, element).
 """
 
 from __future__ import annotations
@@ -41,8 +52,88 @@ def sinusoidal_table(max_len: int, dim: int) -> np.ndarray:
 
 
 def attention_mask(q_valid_BxQ, k_valid_BxK):
-    """Boolean mask (B, 1, Q, K) for flax attention: True where a query may attend to a key."""
+    """Boolean mask (B, 1, Q, K) for attention: True where a query may attend to a key."""
     return q_valid_BxQ[:, None, :, None] & k_valid_BxK[:, None, None, :]
+
+
+def _fmix32(h):
+    """murmur3's 32-bit finaliser: a bijective avalanche mix (every output bit depends on every input bit)."""
+    h = h ^ (h >> 16)
+    h = h * jnp.uint32(0x85EBCA6B)
+    h = h ^ (h >> 13)
+    h = h * jnp.uint32(0xC2B2AE35)
+    return h ^ (h >> 16)
+
+
+def keep_mask(seed_u32, shape, rate: float):
+    """Boolean dropout mask: each element kept with probability 1 − rate (to 2⁻³² resolution).
+
+    Element i gets fmix32(fmix32(i·φ ⊕ seed)) as its 32 random bits (φ the golden-ratio constant);
+    neighbouring elements and neighbouring seeds decorrelate through the two avalanche rounds.
+    """
+    n = int(np.prod(shape))
+    if n >= 2 ** 32:
+        raise ValueError(f"dropout over {n} elements: the counter hash covers at most 2^32 per call")
+    idx = jax.lax.iota(jnp.uint32, n).reshape(shape)
+    bits = _fmix32(_fmix32((idx * jnp.uint32(0x9E3779B1)) ^ seed_u32))
+    return bits >= jnp.uint32(min(int(round(rate * 2.0 ** 32)), 2 ** 32 - 1))
+
+
+class Dropout(nn.Module):
+    """Inverted dropout (as ``nn.Dropout``) with hash-generated masks; ``broadcast_dims`` share a mask."""
+
+    rate: float
+    broadcast_dims: tuple[int, ...] = ()
+
+    @nn.compact
+    def __call__(self, x, *, deterministic: bool):
+        if deterministic or self.rate == 0.0:
+            return x
+        seed = jax.random.bits(self.make_rng("dropout"), (), jnp.uint32)
+        shape = tuple(1 if d in self.broadcast_dims or d - x.ndim in self.broadcast_dims else n
+                      for d, n in enumerate(x.shape))
+        keep = keep_mask(seed, shape, self.rate)
+        return jnp.where(keep, x / jnp.asarray(1.0 - self.rate, x.dtype), jnp.zeros((), x.dtype))
+
+
+class Attention(nn.Module):
+    """Multi-head dot-product attention with flax MultiHeadDotProductAttention's parameters and maths
+    (query scaled by 1/√(D/H), float32 softmax, attention-weight dropout shared over batch and heads)."""
+
+    dim: int
+    heads: int
+    dropout: float = 0.1
+    dtype: jnp.dtype = jnp.float32
+    qkv_init: Initializer = FLAX_KERNEL_INIT
+    out_init: Initializer = FLAX_KERNEL_INIT
+
+    def setup(self):
+        hd = (self.heads, self.dim // self.heads)
+        self.query = nn.DenseGeneral(hd, dtype=self.dtype, kernel_init=self.qkv_init)
+        self.key = nn.DenseGeneral(hd, dtype=self.dtype, kernel_init=self.qkv_init)
+        self.value = nn.DenseGeneral(hd, dtype=self.dtype, kernel_init=self.qkv_init)
+        self.out = nn.DenseGeneral(self.dim, axis=(-2, -1), dtype=self.dtype, kernel_init=self.out_init)
+        self.weight_drop = Dropout(self.dropout, broadcast_dims=(0, 1))
+
+    def kv(self, mem_BxMxD):
+        """Keys and values (B, M, H, D/H) of a memory: computed once when the memory is fixed."""
+        return self.key(mem_BxMxD), self.value(mem_BxMxD)
+
+    def single_token(self, mem_D):
+        """The output for a memory of one token (or of copies of one token): softmax weights are 1,
+        so every query gets out(value(m)), whatever the query."""
+        return self.out(self.value(mem_D))
+
+    def __call__(self, x_BxQxD, kv=None, mask_Bx1xQxK=None, *, deterministic: bool):
+        """Attend from x to ``kv`` (keys, values) or, if None, to x itself (self-attention)."""
+        q_BxQxHxK = self.query(x_BxQxD) / jnp.sqrt(self.dim // self.heads).astype(self.dtype)
+        k_BxMxHxK, v_BxMxHxK = self.kv(x_BxQxD) if kv is None else kv
+        logits = jnp.einsum("bqhd,bkhd->bhqk", q_BxQxHxK, k_BxMxHxK)
+        if mask_Bx1xQxK is not None:
+            logits = jnp.where(mask_Bx1xQxK, logits, jnp.finfo(logits.dtype).min)
+        w_BxHxQxM = jax.nn.softmax(logits.astype(jnp.float32)).astype(self.dtype)
+        w_BxHxQxM = self.weight_drop(w_BxHxQxM, deterministic=deterministic)
+        return self.out(jnp.einsum("bhqk,bkhd->bqhd", w_BxHxQxM, v_BxMxHxK))
 
 
 class FeedForward(nn.Module):
@@ -56,7 +147,7 @@ class FeedForward(nn.Module):
     def __call__(self, x, *, deterministic: bool):
         h = nn.gelu(nn.Dense(self.ff, dtype=self.dtype, kernel_init=self.kernel_init, name="lin1")(x),
                     approximate=False)
-        h = nn.Dropout(self.dropout)(h, deterministic=deterministic)
+        h = Dropout(self.dropout)(h, deterministic=deterministic)
         return nn.Dense(self.dim, dtype=self.dtype, kernel_init=self.kernel_init, name="lin2")(h)
 
 
@@ -71,17 +162,22 @@ class EncoderLayer(nn.Module):
 
     @nn.compact
     def __call__(self, x_BxLxD, mask_Bx1xLxL=None, *, deterministic: bool):
-        a = nn.MultiHeadDotProductAttention(num_heads=self.heads, dtype=self.dtype, dropout_rate=self.dropout,
-                                            deterministic=deterministic, name="self_attn")(x_BxLxD, mask=mask_Bx1xLxL)
+        a = Attention(self.dim, self.heads, self.dropout, self.dtype, name="self_attn")(
+            x_BxLxD, None, mask_Bx1xLxL, deterministic=deterministic)
         x = nn.LayerNorm(epsilon=1e-5, dtype=self.dtype, name="norm1")(
-            x_BxLxD + nn.Dropout(self.dropout)(a, deterministic=deterministic))
+            x_BxLxD + Dropout(self.dropout)(a, deterministic=deterministic))
         f = FeedForward(self.dim, self.ff, self.dropout, self.dtype, name="ff")(x, deterministic=deterministic)
         return nn.LayerNorm(epsilon=1e-5, dtype=self.dtype, name="norm2")(
-            x + nn.Dropout(self.dropout)(f, deterministic=deterministic))
+            x + Dropout(self.dropout)(f, deterministic=deterministic))
 
 
 class DecoderLayer(nn.Module):
     """Post-LN decoder block: self-attention, cross-attention to memory, feed-forward.
+
+    The memory may enter as its cross-attention keys/values ``kv`` (from :meth:`memory_kv`), so a
+    fixed memory is projected once. The last ``null_rows`` rows of x attend to the one-token memory
+    ``null_mem_D`` (the classifier-free-guidance null text): their cross-attention output is one
+    vector, computed without queries or scores.
 
     ``kernel_init`` initialises the feed-forward and attention-output kernels, ``qkv_init`` the q/k/v
     kernels (flax defaults; the denoiser passes the reference's, see ``REFERENCE_LINEAR_INIT``).
@@ -89,30 +185,40 @@ class DecoderLayer(nn.Module):
 
     dim: int
     heads: int
-    ff: int
+    ff_dim: int
     dropout: float = 0.1
     dtype: jnp.dtype = jnp.float32
     kernel_init: Initializer = FLAX_KERNEL_INIT
     qkv_init: Initializer = FLAX_KERNEL_INIT
 
-    @nn.compact
-    def __call__(self, x_BxLxD, mem_BxMxD, self_mask=None, cross_mask=None, *, deterministic: bool):
-        drop = lambda h: nn.Dropout(self.dropout)(h, deterministic=deterministic)  # noqa: E731
-        a = nn.MultiHeadDotProductAttention(num_heads=self.heads, dtype=self.dtype, dropout_rate=self.dropout,
-                                            deterministic=deterministic, kernel_init=self.qkv_init,
-                                            out_kernel_init=self.kernel_init, name="self_attn")(x_BxLxD, mask=self_mask)
-        x = nn.LayerNorm(epsilon=1e-5, dtype=self.dtype, name="norm1")(x_BxLxD + drop(a))
-        c = nn.MultiHeadDotProductAttention(num_heads=self.heads, dtype=self.dtype, dropout_rate=self.dropout,
-                                            deterministic=deterministic, kernel_init=self.qkv_init,
-                                            out_kernel_init=self.kernel_init, name="cross_attn")(x, mem_BxMxD,
-                                                                                                 mask=cross_mask)
-        x = nn.LayerNorm(epsilon=1e-5, dtype=self.dtype, name="norm2")(x + drop(c))
-        f = FeedForward(self.dim, self.ff, self.dropout, self.dtype, self.kernel_init, name="ff")(
-            x, deterministic=deterministic)
-        return nn.LayerNorm(epsilon=1e-5, dtype=self.dtype, name="norm3")(x + drop(f))
+    def setup(self):
+        attn = lambda: Attention(self.dim, self.heads, self.dropout, self.dtype, self.qkv_init,  # noqa: E731
+                                 self.kernel_init)
+        self.self_attn, self.cross_attn = attn(), attn()
+        self.ff = FeedForward(self.dim, self.ff_dim, self.dropout, self.dtype, self.kernel_init)
+        self.norm1, self.norm2, self.norm3 = (nn.LayerNorm(epsilon=1e-5, dtype=self.dtype) for _ in range(3))
+        self.drop1, self.drop2, self.drop3 = (Dropout(self.dropout) for _ in range(3))
+
+    def memory_kv(self, mem_BxMxD):
+        return self.cross_attn.kv(mem_BxMxD)
+
+    def __call__(self, x_BxSxD, mem_BxMxD=None, self_mask=None, cross_mask=None, *, deterministic: bool,
+                 kv=None, null_mem_D=None, null_rows: int = 0):
+        a = self.self_attn(x_BxSxD, None, self_mask, deterministic=deterministic)
+        x = self.norm1(x_BxSxD + self.drop1(a, deterministic=deterministic))
+        n_mem = x.shape[0] - null_rows
+        parts = []
+        if n_mem:
+            kv = self.cross_attn.kv(mem_BxMxD) if kv is None else kv
+            parts.append(self.cross_attn(x[:n_mem], kv, cross_mask, deterministic=deterministic))
+        if null_rows:
+            c_D = self.cross_attn.single_token(null_mem_D).astype(x.dtype)
+            parts.append(jnp.broadcast_to(c_D, (null_rows,) + x.shape[1:]))
+        c = parts[0] if len(parts) == 1 else jnp.concatenate(parts)
+        x = self.norm2(x + self.drop2(c, deterministic=deterministic))
+        f = self.ff(x, deterministic=deterministic)
+        return self.norm3(x + self.drop3(f, deterministic=deterministic))
 
 
 def count_params(params) -> int:
-    import jax
-
     return int(sum(np.prod(p.shape) for p in jax.tree_util.tree_leaves(params)))
