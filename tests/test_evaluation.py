@@ -45,7 +45,7 @@ def setup(tmp_path_factory):
     return root, data, E
 
 
-TRAIN_STEPS = 300  # enough for the tiny evaluator to match its training pairs well above chance (40 is not)
+TRAIN_STEPS = 600  # enough for the tiny evaluator to match its training pairs well above chance on the rigid-hand corpus (300 is not: top-3 0.625 of 10)
 
 
 def assert_beats_chance(res, block: int):
