@@ -301,12 +301,10 @@ class ARRun:
 
 
 def _encoder(encoder, default):
-    """A loaded FrozenEncoder as is; a folder (or None: ``default``) loaded (a ``str`` has ``.encode`` too)."""
-    from handx_jax.text.t5 import load_hf_t5_encoder
+    """A loaded FrozenEncoder as is; a folder (or None: ``default``) loaded."""
+    from handx_jax.text.hf import as_encoder
 
-    if encoder is None or isinstance(encoder, (str, os.PathLike)):
-        return load_hf_t5_encoder(encoder or default)
-    return encoder
+    return as_encoder(default if encoder is None else encoder)
 
 
 def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, overrides: Sequence[str] = ()) -> ARRun:
@@ -379,7 +377,7 @@ def params_from_args(args: argparse.Namespace) -> tuple[str, dict]:
     cfg = make_config(args.preset, [*sizes, *args.set])
     enc_cfg = None
     if args.encoder:
-        from handx_jax.text.t5 import load_hf_t5_encoder
+        from handx_jax.text.hf import load_hf_t5_encoder
 
         enc_cfg = load_hf_t5_encoder(args.encoder).cfg
     m = cfg.model
