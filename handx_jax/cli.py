@@ -8,6 +8,7 @@
     handx params ...    parameter counts and analytic FLOPs                      (handx_jax.commands.params)
     handx sweep ...     launch sweeps locally or on SLURM, resumable             (sweeps.cli)
     handx analyze ...   scaling fits, tables and plots                           (analysis.cli)
+    handx standard ...  the packaged standard evaluator and its corpus           (handx_jax.standard)
     handx train ...     train a model family into a run folder                   (handx_jax.commands.train)
     handx generate ...  sample motion from a trained diffusion run               (handx_jax.commands.generate)
     handx params ...    parameter count and analytic FLOPs of a configuration    (handx_jax.commands.params)
@@ -33,6 +34,7 @@ GROUPS = (
     ("generate", "handx_jax.commands.generate"),
     ("params", "handx_jax.commands.params"),
     ("sweep", "sweeps.cli"),
+    ("standard", "handx_jax.standard"),
 )
 
 
