@@ -224,14 +224,18 @@ class TrainedEvaluator:
         return self.meta.get("dataset", {}).get("fingerprint")
 
     def check_dataset(self, ds) -> None:
-        """Refuse a reference dataset other than the one this evaluator was trained on."""
-        want = self.dataset_fingerprint
-        if want is not None and ds.fingerprint != want:
-            raise DataError(
-                f"dataset fingerprint mismatch: this evaluator was trained on dataset {want} "
-                f"({self.meta.get('dataset', {}).get('path')}), but the reference dataset has fingerprint "
-                f"{ds.fingerprint}; evaluate against the dataset the evaluator was trained on, or train a new "
-                f"evaluator with `handx eval train-evaluator --data {ds.root}`", path=ds.root)
+        """Refuse a reference dataset other than the one this evaluator was trained on; a rebuild of its
+        recipe that differs only by float rounding is accepted and reported (data.dataset.check_compatible)."""
+        import sys
+
+        from handx_jax.data.dataset import check_compatible
+
+        c = check_compatible(self.meta.get("dataset"), ds, what="this evaluator",
+                             fix=f"evaluate against the dataset the evaluator was trained on "
+                                 f"({self.meta.get('dataset', {}).get('path')}), or train a new evaluator with "
+                                 f"`handx eval train-evaluator --data {ds.root}`")
+        if c.message:
+            print(c.message, file=sys.stderr)
 
     def embed_motion(self, joints_NxTx2x21x3: np.ndarray) -> np.ndarray:
         """(N, latent) μ-embeddings of joint sequences in metres."""
@@ -393,7 +397,7 @@ def train_evaluator(data: str | os.PathLike, encoder: str | os.PathLike, out: st
     """
     import shutil
 
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.data.dataset import Dataset, dataset_record
     from handx_jax.models.layers import count_params
     from handx_jax.text.cache import build_cache, open_cache
     from handx_jax.text.t5 import load_hf_t5_encoder
@@ -459,7 +463,7 @@ def train_evaluator(data: str | os.PathLike, encoder: str | os.PathLike, out: st
         "evaluator_config": dataclasses.asdict(cfg), "params": n_params,
         "text": {**dataclasses.asdict(policy), "train_levels": list(train_levels), "levels": levels,
                  "Lmax": Lmax, "truncated_fraction": truncated, "joined_format": joined_caption("L", "R", "I")},
-        "dataset": {"fingerprint": ds.fingerprint, "path": str(Path(data).absolute()), "train_clips": len(clips)},
+        "dataset": {**dataset_record(ds), "path": str(Path(data).absolute()), "train_clips": len(clips)},
         "encoder": {"path": str(Path(encoder).absolute()), "fingerprint": enc.fingerprint,
                     "tokenizer_fingerprint": enc.tokenizer.fingerprint, "d_model": enc.cfg.d_model},
         "text_cache": {"fingerprint": cache.fingerprint, "dtype": policy.cache_dtype},

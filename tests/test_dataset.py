@@ -135,3 +135,63 @@ def test_stats_npz_same_bits_for_any_worker_count(tmp_path, monkeypatch):
             np.testing.assert_allclose(z[f"{kind}_mean"], whole.mean, rtol=1e-10, atol=1e-12)
             np.testing.assert_allclose(z[f"{kind}_std"], whole.std, rtol=1e-10, atol=1e-12)
     assert dataset_stats(ds, chunk=5, workers=1) == dataset_stats(ds, chunk=5, workers=3) == dataset_stats(ds)
+
+
+def _recipe(seed=0):
+    return {"kind": "synth", "generator_version": 2, "seed": seed, "clips": 12, "options": {"noise_deg": 2.0}}
+
+
+def _build(path, motion, texts, splits, recipe):
+    write_dataset(path, motion, texts, splits=splits, recipe=recipe, stats=False)
+    return Dataset.open(path)
+
+
+def test_check_compatible_accepts_rounding_and_refuses_other_data(tmp_path, capsys):
+    """Issue 14.5: the recipe + discrete content is a dataset's identity. A rebuild whose motion differs by
+    float rounding (1e-6 m here) gets another content hash but is accepted and reported; another recipe,
+    a changed (overlapping) test split, other captions or motion beyond rounding are refused."""
+    from types import SimpleNamespace
+
+    from handx_jax.data.dataset import check_compatible, dataset_record
+    from handx_jax.evaluation import TrainedEvaluator
+
+    m, t = _motion(12), _texts(12)
+    splits = {"train": list(range(8)), "val": [8, 9], "test": [10, 11]}
+    a = _build(tmp_path / "a", m, t, splits, _recipe())
+    trained = dataset_record(a)
+    assert trained["recipe"]["seed"] == 0 and set(trained["identity"]["splits"]) == {"train", "val", "test"}
+    assert check_compatible(trained, a).status == "identical"
+
+    jitter = np.random.default_rng(1).choice([-1e-6, 1e-6], size=m.shape).astype(np.float32)
+    b = _build(tmp_path / "b", m + jitter, t, splits, _recipe())
+    assert b.fingerprint != a.fingerprint
+    c = check_compatible(trained, b, what="this evaluator")
+    assert c.status == "rounding" and 0 < c.max_motion_diff_m <= 2e-6 and "float rounding" in c.message
+    # The evaluator uses the same check: accepted, and the note goes to stderr.
+    TrainedEvaluator.check_dataset(SimpleNamespace(meta={"dataset": trained}), b)
+    assert "only by float rounding" in capsys.readouterr().err
+
+    refused = {
+        "different recipe": _build(tmp_path / "r", m + jitter, t, splits, _recipe(seed=1)),
+        "test split": _build(tmp_path / "s", m, t, {"train": list(range(7)), "val": [8, 9], "test": [7, 10, 11]},
+                             _recipe()),
+        "captions differ": _build(tmp_path / "c", m, [dict(x, left=["other"] * 5) if i == 3 else x
+                                                      for i, x in enumerate(t)], splits, _recipe()),
+        "beyond float rounding": _build(tmp_path / "m", m + np.float32(1e-3), t, splits, _recipe()),
+    }
+    for why, ds in refused.items():
+        with pytest.raises(DataError, match=why):
+            check_compatible(trained, ds)
+        with pytest.raises(DataError, match=why):
+            TrainedEvaluator.check_dataset(SimpleNamespace(meta={"dataset": trained}), ds)
+    # Without a recorded identity (artefacts made before recipes existed) only identical bytes pass.
+    with pytest.raises(DataError, match="only identical bytes"):
+        check_compatible({"fingerprint": a.fingerprint}, b)
+
+
+def test_uneven_caption_levels_are_refused_naming_the_clip(tmp_path):
+    t = _texts(4)
+    t[2] = {k: v[:3] for k, v in t[2].items() if k != "id"} | {"id": "c2"}
+    with pytest.raises(DataError, match="clip c2.*3 caption levels, but clip c0 has 5"):
+        write_dataset(tmp_path / "d", _motion(4), t, stats=False)
+    assert not (tmp_path / "d").exists()

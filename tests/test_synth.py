@@ -12,7 +12,7 @@ from handx_jax.data import clips, synth
 from handx_jax.data import synth_hand as H
 
 SMALL = synth.SynthConfig(chunk_size=16)
-CLEAN = dataclasses.replace(SMALL, noise_m=0.0, white_noise_m=0.0, defect_prob=0.0)
+CLEAN = dataclasses.replace(SMALL, noise_deg=0.0, white_noise_deg=0.0, wrist_noise_m=0.0, white_noise_m=0.0, defect_prob=0.0)
 L = synth.SynthConfig().segment_len
 
 
@@ -66,6 +66,26 @@ def test_bone_lengths_constant_and_anatomical():
     assert index_proximal.min() > 0.035 and index_proximal.max() < 0.055
     sizes = bones[:, 0, 0].sum(-1)
     assert sizes.max() / sizes.min() > 1.1                              # hand size varies
+
+
+def test_noisy_hands_stay_rigid():
+    """Issue 14.4: tracking noise lives in the angles and wrist pose, so with the default noise every
+    bone keeps its length within a sequence (MANO-like), the two hands of one person match, and
+    the noise is still there (the fingers' angles differ from the noise-free run by degrees)."""
+    cfg = dataclasses.replace(SMALL, defect_prob=0.0)
+    noisy = synth.synth_chunk(2, 0, cfg).joints
+    bones = sk.bone_lengths(noisy).astype(np.float64)                   # (N, T, 2, 20)
+    rel_std = bones.std(1) / bones.mean(1)                               # per sequence, hand and bone
+    assert rel_std.max() < 0.005
+    assert np.abs(bones[:, :, 0] / bones[:, :, 1] - 1).max() < 1e-3     # per-person bone scale kept
+    clean = synth.synth_chunk(2, 0, dataclasses.replace(CLEAN, defect_prob=0.0)).joints
+    d = clips.interior_angles_deg(noisy) - clips.interior_angles_deg(clean)
+    assert 0.5 < np.sqrt(np.mean(d ** 2)) < 5.0
+    # Clips cut from the canonicalised sequences (what the corpus stores) are rigid as well.
+    for seq in noisy[:4]:
+        c, _, _, _ = clips.extract_clips(sk.canonicalize(seq), clips.ClipConfig(tau_hand=0.0, tau_avg=0.0))
+        b = sk.bone_lengths(c).astype(np.float64)
+        assert len(c) and (b.std(1) / b.mean(1)).max() < 0.005
 
 
 def _signed_mcp_flexion_deg(joints_x2x21x3: np.ndarray) -> np.ndarray:

@@ -26,7 +26,7 @@ from handx_jax.data.dataset import DEFAULT_FRACTIONS, write_dataset
 from handx_jax.data.events import AnnotationConfig, annotate
 from handx_jax.data.parallel import map_ordered
 from handx_jax.data.caption import TemplateCaptioner
-from handx_jax.data.synth import SynthConfig, synth_chunk
+from handx_jax.data.synth import GENERATOR_VERSION, SynthConfig, synth_chunk
 
 
 @dataclass(frozen=True)
@@ -176,7 +176,17 @@ def build_corpus(out: str | os.PathLike, cfg: BuildConfig = BuildConfig(), *, ov
     source = {"kind": "synth", "seed": cfg.seed, "config": _jsonable(dataclasses.asdict(cfg))}
     return write_dataset(out, motion, texts, splits=splits, events=events, source=source,
                          report=build_report, fractions=cfg.fractions, seed=cfg.seed, overwrite=overwrite,
-                         workers=workers)
+                         workers=workers, recipe=recipe(cfg))
+
+
+def recipe(cfg: BuildConfig) -> dict:
+    """The corpus's identity (issue 14.5): generator version, seed, clip count and every option that
+    shapes the content; not ``workers`` (the result does not depend on it) nor the numpy build."""
+    options = _jsonable(dataclasses.asdict(cfg))
+    for k in ("clips", "seed", "workers"):
+        options.pop(k)
+    return {"kind": "synth", "generator_version": GENERATOR_VERSION, "seed": cfg.seed, "clips": cfg.clips,
+            "options": options}
 
 
 def _truncate(r: ChunkResult, k: int) -> ChunkResult:

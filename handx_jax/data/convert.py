@@ -12,6 +12,7 @@ official loaders; export → import reproduces motion and texts exactly.
 
 from __future__ import annotations
 
+import hashlib
 import os
 from pathlib import Path
 from typing import Sequence
@@ -71,8 +72,19 @@ def import_handx(files: Sequence[str | os.PathLike], out: str | os.PathLike, *, 
               "dropped_keys": dropped, "imported": len(motion)}
     source = {"kind": "handx-npz", "files": [str(Path(f).resolve()) for f in files],
               "val_is_test": splits_val_is_test}
+    # The recipe names the archives by content, not path: the same files imported anywhere are one dataset.
+    recipe = {"kind": "handx-npz", "files": [{"name": Path(f).name, "sha256": _file_sha256(Path(f))} for f in files],
+              "split": split, "events": bool(annotate_events), "fractions": list(fractions), "seed": seed}
     return write_dataset(out, motion, texts, splits=splits, events=events, source=source, report=report,
-                         fractions=fractions, seed=seed, overwrite=overwrite)
+                         fractions=fractions, seed=seed, overwrite=overwrite, recipe=recipe)
+
+
+def _file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 22), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def export_handx(data_dir: str | os.PathLike, out: str | os.PathLike, *, split: str | None = None) -> Path:

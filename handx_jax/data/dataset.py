@@ -12,6 +12,16 @@ A dataset is a directory (see docs/architecture.md for the table):
 
 Writers fill a temporary directory and rename it into place (``io.atomic_dir``), so a dataset on disk
 is always complete. Readers validate on open and raise ``DataError`` naming the file and clip.
+
+Identity (issue 14.5). ``fingerprint`` hashes the bytes of motion, texts and splits; a rebuild of the
+same recipe on another numpy/BLAS/CPU can move motion floats by rounding and so change it. meta.json
+therefore also records the ``recipe`` (what was built: generator version, seed, clip count, options;
+for imports the source files' hashes) and an ``identity``: hashes of the discrete content (clip ids,
+captions, the clip ids of each split and the data fractions) and per-split motion moments (float64
+mean and std of each of the 126 coordinates). :func:`check_compatible` is the one test every trained
+artefact (evaluator, text cache) applies to a dataset: identical fingerprint, or same recipe + same
+discrete content + motion moments within ``MOTION_ATOL`` (accepted, and reported as a rounding-only
+difference); anything else is refused with the reason.
 """
 
 from __future__ import annotations
@@ -32,6 +42,10 @@ from handx_jax.data.parallel import map_ordered
 from handx_jax.io import DataError, atomic_dir, atomic_write_json, read_format_meta, read_jsonl
 
 FORMAT = "handx-jax-dataset"
+IDENTITY_VERSION = 1
+# Motion moments of two builds of one recipe may differ by float rounding (~1e-7 m for float32 joints);
+# 10 µm is far above that and far below any change of the motion itself.
+MOTION_ATOL = 1e-5
 FORMAT_VERSION = 1
 TEXT_FIELDS = ("left", "right", "interaction")
 SPLITS = ("train", "val", "test")
@@ -59,6 +73,10 @@ def nested_fractions(train_idx: np.ndarray, fractions: Sequence[float], seed: in
 
 
 def validate_texts(texts: Sequence[dict], path: str | os.PathLike = "texts") -> None:
+    """Every clip has the three fields, each a list of the same number of non-empty strings, and every
+    clip has as many caption levels as the first (meta.json's ``levels``; level indices must mean
+    the same thing on every clip)."""
+    levels = None
     for i, t in enumerate(texts):
         for k in TEXT_FIELDS:
             v = t.get(k)
@@ -69,6 +87,11 @@ def validate_texts(texts: Sequence[dict], path: str | os.PathLike = "texts") -> 
         n = {k: len(t[k]) for k in TEXT_FIELDS}
         if len(set(n.values())) != 1:
             raise DataError(f"annotation lists differ in length {n}", path=path, clip=t.get("id", i))
+        if levels is None:
+            levels, first = n["left"], t.get("id", i)
+        elif n["left"] != levels:
+            raise DataError(f"{n['left']} caption levels, but clip {first} has {levels}; every clip needs the "
+                            "same number of levels", path=path, clip=t.get("id", i))
 
 
 def validate_motion(motion: np.ndarray, path: str | os.PathLike = "motion", ids: Sequence[str] | None = None) -> None:
@@ -96,6 +119,127 @@ def compute_fingerprint(root: Path) -> str:
     return h.hexdigest()[:16]
 
 
+def _digest(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()[:16]
+
+
+def _ids_digest(ids: Sequence[str]) -> str:
+    return _digest("\n".join(ids).encode("utf-8"))
+
+
+def _motion_moments(motion: np.ndarray, idx: np.ndarray) -> dict:
+    """Float64 mean and std of each of the 2·21·3 coordinates over the clips ``idx`` and their frames."""
+    s = np.zeros(motion.shape[2:], np.float64)
+    ss = np.zeros_like(s)
+    for c in range(0, len(idx), 1024):
+        m = np.asarray(motion[np.sort(idx[c:c + 1024])], np.float64)
+        s += m.sum((0, 1))
+        ss += (m * m).sum((0, 1))
+    cnt = max(len(idx) * motion.shape[1], 1)
+    mean = s / cnt
+    std = np.sqrt(np.maximum(ss / cnt - mean * mean, 0.0))
+    return {"clips": int(len(idx)), "mean": [float(f"{v:.9g}") for v in mean.ravel()],
+            "std": [float(f"{v:.9g}") for v in std.ravel()]}
+
+
+def dataset_identity(motion: np.ndarray, texts_jsonl: bytes, ids: Sequence[str], split_doc: dict) -> dict:
+    """The identity recorded in meta.json: hashes of the discrete content and the split motion moments."""
+    return {
+        "version": IDENTITY_VERSION,
+        "ids": _ids_digest(ids),
+        "captions": _digest(texts_jsonl),
+        "splits": {k: _ids_digest([ids[i] for i in split_doc[k]]) for k in SPLITS},
+        "fractions": _digest(json.dumps(split_doc.get("fractions", {}), sort_keys=True).encode()),
+        "motion": {k: _motion_moments(motion, np.asarray(split_doc[k], np.int64)) for k in SPLITS},
+    }
+
+
+def dataset_record(ds: "Dataset") -> dict:
+    """What a trained artefact (evaluator, text cache) records about its dataset for check_compatible."""
+    return {"fingerprint": ds.fingerprint, "recipe": ds.meta.get("recipe"), "identity": ds.meta.get("identity")}
+
+
+@dataclass(frozen=True)
+class Compatibility:
+    status: str   # "identical" (same bytes) or "rounding" (same recipe and discrete content, floats within tolerance)
+    message: str  # empty when identical
+    max_motion_diff_m: float = 0.0
+
+
+COMPAT_PARTS = ("recipe", "ids", "splits", "captions", "motion")
+
+
+def _flat(d: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(d, dict):
+        out: dict[str, Any] = {}
+        for k, v in d.items():
+            out.update(_flat(v, f"{prefix}{k}."))
+        return out
+    return {prefix[:-1]: d}
+
+
+def check_compatible(trained: dict | None, ds: "Dataset", *, what: str = "this model",
+                     parts: Sequence[str] = COMPAT_PARTS, fix: str = "") -> Compatibility:
+    """Is ``ds`` the dataset that ``trained`` (a :func:`dataset_record`) was made from?
+
+    Accepted: the same content fingerprint ("identical"); or, when both carry a recipe and identity,
+    the same recipe, clip ids, split membership, data fractions and captions, with per-split motion
+    moments within ``MOTION_ATOL`` ("rounding": a rebuild on another numpy/BLAS/CPU; the message says
+    by how much). Refused with a ``DataError`` naming the first difference: another recipe, other clips
+    or captions, a changed split (a test clip the artefact may have trained on), or motion beyond
+    rounding. ``parts`` restricts the comparison (the text cache needs only ids and captions).
+    """
+    trained = trained or {}
+    want, have = trained.get("fingerprint"), ds.fingerprint
+    if want is None or want == have:
+        return Compatibility("identical", "")
+    tid, did = trained.get("identity"), ds.meta.get("identity")
+    hint = f"; {fix}" if fix else ""
+
+    def refuse(reason: str) -> DataError:
+        return DataError(f"dataset mismatch: {what} was made from dataset {want}, but this dataset is {have}: "
+                         f"{reason}{hint}", path=ds.root)
+
+    if not tid or not did or tid.get("version") != did.get("version"):
+        raise refuse("the content differs and one of them records no comparable identity (built before "
+                     "recipes were recorded), so only identical bytes are accepted")
+    if "recipe" in parts:
+        tr, dr = trained.get("recipe"), ds.meta.get("recipe")
+        if not tr or not dr:
+            raise refuse("no recipe recorded, so only identical bytes are accepted")
+        a, b = _flat(tr), _flat(dr)
+        diff = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
+        if diff:
+            shown = ", ".join(f"{k}: {a.get(k)!r} -> {b.get(k)!r}" for k in diff[:4])
+            raise refuse(f"it was built from a different recipe ({shown}{' ...' if len(diff) > 4 else ''})")
+    if "ids" in parts and tid["ids"] != did["ids"]:
+        raise refuse("the clip ids differ (another clip set: a different build cut or filtered other clips)")
+    if "splits" in parts:
+        for k in ("test", "val", "train"):
+            if tid["splits"][k] != did["splits"][k]:
+                raise refuse(f"the {k} split holds other clips than when {what} was made (a changed or "
+                             "overlapping test split would score it on clips it may have trained on)")
+        if tid["fractions"] != did["fractions"]:
+            raise refuse("the data-fraction subsets of the train split differ")
+    if "captions" in parts and tid["captions"] != did["captions"]:
+        raise refuse("the captions differ")
+    worst = 0.0
+    if "motion" in parts:
+        for k in SPLITS:
+            a, b = tid["motion"][k], did["motion"][k]
+            if a["clips"] != b["clips"]:
+                raise refuse(f"the {k} split has {b['clips']} clips, expected {a['clips']}")
+            for q in ("mean", "std"):
+                if a["clips"]:
+                    worst = max(worst, float(np.max(np.abs(np.subtract(a[q], b[q])))))
+        if not worst <= MOTION_ATOL:
+            raise refuse(f"the motion differs beyond float rounding (per-split coordinate moments differ by up to "
+                         f"{worst:.3g} m, tolerance {MOTION_ATOL:g} m)")
+    return Compatibility("rounding", f"note: dataset {have} differs from {what}'s dataset {want} only by float "
+                         f"rounding (same recipe, clip ids, splits and captions; motion moments within "
+                         f"{worst:.2g} m, tolerance {MOTION_ATOL:g} m): accepted", worst)
+
+
 def write_dataset(
     out: str | os.PathLike,
     motion: np.ndarray,
@@ -110,11 +254,13 @@ def write_dataset(
     overwrite: bool = False,
     stats: bool = True,
     workers: int = 1,
+    recipe: dict | None = None,
 ) -> Path:
     """Write a complete dataset atomically. ``motion`` may be a memory-mapped array.
 
     Without ``splits`` every clip goes to train. Fractions are nested subsets of train. ``workers``
-    processes compute the normalisation statistics (the numbers do not depend on it).
+    processes compute the normalisation statistics (the numbers do not depend on it). ``recipe`` is
+    what the data was made from (check_compatible compares it); by default the content itself.
     """
     motion = np.asarray(motion) if not isinstance(motion, np.memmap) else motion
     n = motion.shape[0]
@@ -165,6 +311,8 @@ def write_dataset(
             "skeleton": {"joint_names": list(sk.JOINT_NAMES), "chains": {k: list(v) for k, v in sk.CHAINS.items()},
                          "hands": list(sk.HAND_NAMES), "units": "m"},
             "source": source or {},
+            "recipe": recipe or {"kind": "content", "fingerprint": compute_fingerprint(tmp)},
+            "identity": dataset_identity(motion, (tmp / "texts.jsonl").read_bytes(), ids, split_doc),
             "fingerprint": compute_fingerprint(tmp),
         }
         atomic_write_json(tmp / "meta.json", meta)

@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import collections
 import multiprocessing as mp
+import os
 import sys
+import threading
+import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from typing import TypeVar
@@ -31,7 +34,8 @@ def map_ordered(fn: Callable[[T], R], items: Iterable[T], workers: int, *, windo
         return
     window = window or 2 * workers
     source = iter(items)
-    with ProcessPoolExecutor(max_workers=workers, mp_context=_context()) as ex:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=_context(), initializer=end_with_parent,
+                             initargs=(os.getpid(),)) as ex:
         pending: collections.deque = collections.deque()
         try:
             while True:
@@ -49,6 +53,35 @@ def map_ordered(fn: Callable[[T], R], items: Iterable[T], workers: int, *, windo
 
 
 _END = object()
+
+
+def end_with_parent(parent_pid: int, poll_s: float = 0.5) -> None:
+    """Worker initializer: exit when the process that owns the pool dies, even by ``kill -9`` (which
+    runs no clean-up, so the pool cannot stop its workers; they would hang on forever, issue 14.8).
+
+    A daemon thread polls the owner's pid. Not ``prctl(PR_SET_PDEATHSIG)``: it fires when the *thread*
+    that forked the worker exits, and under forkserver the worker's parent is the server, not the owner.
+    """
+    def watch() -> None:
+        while _alive(parent_pid):
+            time.sleep(poll_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="end-with-parent", daemon=True).start()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by someone else (pid reused): not our owner any more
+        return False
+    try:  # a killed owner not yet reaped by its own parent is a zombie: dead for our purpose
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            return f.read().rsplit(b")", 1)[1].split()[0] != b"Z"
+    except (OSError, IndexError):
+        return True
 
 
 def _context():

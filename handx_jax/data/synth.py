@@ -9,8 +9,10 @@ come and go. Everything is vectorised over the chunk and over frames; the Python
 segments, actions and interactions only.
 
 Generation order per chunk (one rng, ``default_rng([seed, chunk_index])``):
-programs → action channels → neighbour coupling → transitions → intensity floor → FK and wrist
-rotation → translations (placement, contact alignment, transitions) → global pose → noise → defects.
+programs → action channels → neighbour coupling → transitions → intensity floor → angle noise → FK
+and wrist rotation → translations (placement, wrist noise, contact alignment, transitions) → global
+pose → defects. The tracking-like noise is in the joint angles (before FK) and the wrist translation,
+so bones stay rigid (issue 14.4).
 """
 
 from __future__ import annotations
@@ -27,6 +29,12 @@ from handx_jax.data import clips
 from handx_jax.data import synth_hand as H
 
 
+# Bumped whenever the same (seed, SynthConfig) would give different motion; part of a corpus's recipe
+# (its identity, dataset.check_compatible). 1: noise on joint positions after FK. 2: noise in the
+# joint angles and wrist pose before FK, so bones stay rigid (issue 14.4).
+GENERATOR_VERSION = 2
+
+
 @dataclass(frozen=True)
 class SynthConfig:
     chunk_size: int = 64                     # sequences per chunk
@@ -36,8 +44,12 @@ class SynthConfig:
     idle_prob: float = 0.08                  # near-static segments, for the intensity filter to drop
     interaction_prob: float = 0.5            # non-idle segments with a bimanual interaction
     defect_prob: float = 0.05                # sequences with a NaN run or a one-frame teleport
-    noise_m: float = 0.0015                  # smooth (tracking-like) joint noise, RMS metres
-    white_noise_m: float = 0.00005           # per-frame jitter on top; kept tiny, it reads as motion
+    # Tracking-like noise lives in the joint angles and the wrist pose, before FK, as in MANO fits:
+    # bones keep their length within a sequence (issue 14.4). Abduction channels get half of it.
+    noise_deg: float = 2.0                   # smooth noise on every pose channel, RMS degrees
+    white_noise_deg: float = 0.1             # per-frame jitter on top; kept small, it reads as motion
+    wrist_noise_m: float = 0.0015            # smooth noise on each wrist position, RMS metres
+    white_noise_m: float = 0.00005           # per-frame wrist position jitter
     noise_knot_frames: int = 15              # correlation length of the smooth noise
     hand_scale_range: tuple[float, float] = (0.85, 1.15)
     bone_jitter: float = 0.03                # per-bone relative length variation within a person
@@ -599,6 +611,18 @@ def _smooth_noise(rng: np.random.Generator, shape: tuple, T: int, knot_frames: i
     return np.matmul(B, coef).reshape((shape[0], T) + tuple(shape[1:]))
 
 
+def _pose_noise(rng: np.random.Generator, N: int, T: int, cfg: SynthConfig) -> np.ndarray:
+    """(N, T, 2, 16) tracking-like angle noise in degrees: smooth (B-spline) plus per-frame jitter.
+
+    Noise on joint positions after FK (the generator before version 2) changed bone lengths by a
+    median 6 % within a sequence; in the angles, FK keeps every bone rigid, as MANO-derived data does.
+    """
+    scale = np.ones(H.NUM_CHANNELS)
+    scale[H.ABD] = 0.5  # abduction has a smaller range than flexion (and is tracked as such)
+    smooth = _smooth_noise(rng, (N, 2, H.NUM_CHANNELS), T, cfg.noise_knot_frames, cfg.noise_deg)
+    return (smooth + cfg.white_noise_deg * rng.standard_normal((N, T, 2, H.NUM_CHANNELS))) * scale
+
+
 def _palm(J: np.ndarray, mirrored: bool, scale: np.ndarray):
     """Palm centroid, palm-side unit normal, and the palm surface point 1 cm out, each (..., 3)."""
     w, i, m, r, p = (J[..., j, :] for j in (0, 1, 4, 10, 7))
@@ -746,12 +770,16 @@ def synth_chunk(seed: int, chunk_index: int, cfg: SynthConfig = SynthConfig()) -
     # FK in each hand's frame, then wrist rotation (with a slow orientation drift), then mirroring
     # of the left hand: equal channels give mirror-symmetric hands about the x = 0 plane.
     rot = rot.reshape(N, T, 2, 3) + _smooth_noise(rng, (N, 2, 3), T, 20, 4.0)
+    pose = H.clip_to_limits(pose.reshape(N, T, 2, -1) + _pose_noise(rng, N, T, cfg))
     g = {k: v.reshape((N, 1, 1) + v.shape[1:]) for k, v in geom.items()}
-    local = H.hand_fk(pose.reshape(N, T, 2, -1), g)
+    local = H.hand_fk(pose, g)
     J0 = np.matmul(local, np.swapaxes(_rotation(rot), -1, -2))    # batched R·p for every joint
     J0[:, :, 0, :, 0] *= -1.0
 
     pos = pos + _smooth_noise(rng, (N, 1, 2, 3), T, 20, 0.01).reshape(N, S, L, 2, 3)
+    # Wrist tracking noise (the hand moves as one rigid body; the finger noise is in the angles above).
+    pos = pos + (_smooth_noise(rng, (N, 2, 3), T, cfg.noise_knot_frames, cfg.wrist_noise_m)
+                 + cfg.white_noise_m * rng.standard_normal((N, T, 2, 3))).reshape(N, S, L, 2, 3)
     tr = pos * np.array([[-1.0, 1.0, 1.0], [1.0, 1.0, 1.0]])          # symmetric frame → world
     J0 = J0.reshape(N, S, L, 2, sk.NUM_JOINTS, 3)
     _separate_hands(prog, J0, tr, cfg)
@@ -766,7 +794,5 @@ def synth_chunk(seed: int, chunk_index: int, cfg: SynthConfig = SynthConfig()) -
     joints = np.matmul(joints.reshape(N, -1, 3), np.swapaxes(Rg, -1, -2)).reshape(joints.shape)
     joints += off.reshape(N, 1, 1, 1, 3)
 
-    joints += _smooth_noise(rng, (N, 2, sk.NUM_JOINTS, 3), T, cfg.noise_knot_frames, cfg.noise_m)
-    joints += cfg.white_noise_m * rng.standard_normal(joints.shape, dtype=np.float32)
     _inject_defects(rng, joints, cfg)
     return SynthChunk(joints=joints.astype(np.float32), programs=prog.to_dicts())

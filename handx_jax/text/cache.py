@@ -88,7 +88,7 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
     (field name ``"joined"``) instead of one row per field. An existing cache with the same
     fingerprint is complete by construction (atomic write) and is reused unless ``overwrite``.
     """
-    from handx_jax.data.dataset import TEXT_FIELDS, Dataset
+    from handx_jax.data.dataset import TEXT_FIELDS, Dataset, dataset_record
     from handx_jax.text.t5 import load_hf_t5_encoder
 
     if dtype not in DTYPES:
@@ -154,7 +154,7 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
         flops = enc.flops(kept)
         meta = {
             "format": FORMAT, "format_version": FORMAT_VERSION, "fingerprint": fp,
-            "dataset_fingerprint": ds.fingerprint, "encoder_fingerprint": enc.fingerprint,
+            "dataset_fingerprint": ds.fingerprint, "dataset": dataset_record(ds), "encoder_fingerprint": enc.fingerprint,
             "tokenizer_fingerprint": enc.tokenizer.fingerprint, "encoder_path": str(Path(encoder_dir).absolute()),
             "encoder_config": dataclasses.asdict(enc.cfg), "max_len": int(max_len), "Lmax": L,
             "d_model": D, "dtype": dtype, "num_rows": len(texts), "num_captions": int(rows.size),
@@ -187,12 +187,24 @@ class TextCache:
 
     @classmethod
     def open(cls, root: str | os.PathLike, *, dataset_fingerprint: str | None = None,
-             encoder_fingerprint: str | None = None, tokenizer_fingerprint: str | None = None) -> "TextCache":
-        """Open a cache folder; refuse it if it was built for another dataset, encoder or tokenizer."""
+             encoder_fingerprint: str | None = None, tokenizer_fingerprint: str | None = None,
+             dataset=None) -> "TextCache":
+        """Open a cache folder; refuse it if it was built for another dataset, encoder or tokenizer.
+
+        With ``dataset`` (an open Dataset) the check is data.dataset.check_compatible on the clip ids
+        and captions, the only part of a dataset the cache depends on: a rebuild whose motion differs by
+        float rounding keeps its cache; other captions or clips are refused.
+        """
         root = Path(root)
         meta = read_format_meta(root / "meta.json", FORMAT, FORMAT_VERSION,
                                 missing="not a text cache (missing meta.json); build one with `handx text cache`",
                                 upgrade="; rebuild it with `handx text cache`")
+        if dataset is not None:
+            from handx_jax.data.dataset import check_compatible
+
+            check_compatible(meta.get("dataset", {"fingerprint": meta.get("dataset_fingerprint")}), dataset,
+                             what=f"text cache {root}", parts=("ids", "captions"),
+                             fix="rebuild it with `handx text cache`")
         for what, want in (("dataset", dataset_fingerprint), ("encoder", encoder_fingerprint),
                            ("tokenizer", tokenizer_fingerprint)):
             have = meta.get(f"{what}_fingerprint")
@@ -241,7 +253,7 @@ def open_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, m
         raise DataError(f"no text cache for this dataset + encoder {enc.fingerprint} (max_len {max_len}, {dtype}); "
                         f"existing caches {others} were built for other encoders, data or options; "
                         f"run `handx text cache --data {data_dir} --encoder {encoder_dir}`", path=root.parent)
-    return TextCache.open(root, dataset_fingerprint=ds.fingerprint, encoder_fingerprint=enc.fingerprint,
+    return TextCache.open(root, dataset=ds, encoder_fingerprint=enc.fingerprint,
                           tokenizer_fingerprint=enc.tokenizer.fingerprint)
 
 
