@@ -70,14 +70,14 @@ SWEEP = Path(__file__).resolve().parent.parent / "sweeps" / "diffusion_scaling.p
 
 
 def model_stages(out: Path, data: Path, steps: int, eval_limit: int) -> None:
-    from handx_jax.standard import encoder_dir
+    from handx_jax.standard import encoder_dir, evaluator_dir
 
     enc, sweep = str(encoder_dir()), out / "sweep"
     _handx("standard", "info")
     _handx("text", "cache", "--data", str(data), "--encoder", enc, "--nn-check", "500")
     _handx("eval", "run", "--ground-truth", "--reference", str(data), "--replications", "10")
     _handx("sweep", "run", str(SWEEP), "--arg", "grid=cpu", "--arg", f"steps={steps}", "--data", str(data),
-           "--encoder", enc, "--evaluator", "standard", "--eval-limit", str(eval_limit), "--out", str(sweep))
+           "--encoder", enc, "--evaluator", str(evaluator_dir()), "--eval-limit", str(eval_limit), "--out", str(sweep))
     _handx("analyze", "table", str(sweep / "results.jsonl"))
     _handx("analyze", "fit", str(sweep / "results.jsonl"), "--x", "flops", "--y", "rprec_top3",
            "--plot", str(sweep / "fit.png"))

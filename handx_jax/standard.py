@@ -57,9 +57,10 @@ CARD_JSON, CARD_MD, MANIFEST = "card.json", "CARD.md", "test_manifest.npz"
 ENCODER_DIR, EVALUATOR_DIR = "encoder", "evaluator"
 NAME = "standard"  # `handx eval run --evaluator standard` (the default)
 
-# Motion moments of the test clips are compared with this tolerance (metres): float rounding of another
-# numpy/jax build moves them by ~1e-7 m; any change to the generator moves them by millimetres.
-MOTION_ATOL = 1e-4
+# Per-clip motion moments of the test clips are compared with the dataset identity's tolerance
+# (data.dataset.MOTION_ATOL, 10 µm): float rounding of another numpy/jax build moves them by ~1e-7 m; any
+# change to the generator moves them by millimetres.
+from handx_jax.data.dataset import MOTION_ATOL  # noqa: E402
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,9 +80,9 @@ class Recipe:
 
 def generator_version() -> str:
     """The generator's version as the data package states it (bumped by any change to its output)."""
-    from handx_jax.data import synth
+    from handx_jax.data.synth import GENERATOR_VERSION
 
-    return str(getattr(synth, "GENERATOR_VERSION", "1"))
+    return str(GENERATOR_VERSION)
 
 
 def code_recipe() -> Recipe:
@@ -89,19 +90,12 @@ def code_recipe() -> Recipe:
     return Recipe(generator=generator_version())
 
 
-def options_of(source: Mapping[str, Any]) -> dict:
-    """Build options that change a corpus's content, from ``meta.json``'s ``source.config`` (the clip
-    count, worker count and training fractions do not change any clip, split or caption)."""
-    cfg = dict(source.get("config", {}))
-    for k in ("clips", "workers", "fractions", "seed"):
-        cfg.pop(k, None)
-    return json.loads(json.dumps(cfg))
-
-
 def build_options(recipe: Recipe) -> dict:
-    from handx_jax.data.build import _jsonable
+    """The build options of the recipe as ``meta.json``'s ``recipe.options`` records them
+    (``data.build.recipe``: everything but the clip count, seed and worker count)."""
+    from handx_jax.data.build import recipe as build_recipe
 
-    return options_of({"config": _jsonable(dataclasses.asdict(recipe.build_config()))})
+    return json.loads(json.dumps(build_recipe(recipe.build_config())["options"]))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -141,12 +135,13 @@ def read_manifest(assets: Path | None = None) -> dict[str, np.ndarray]:
 
 
 def recipe_of(ds) -> tuple[Recipe | None, dict]:
-    """(recipe, build options) of a dataset built by ``data synth``; (None, {}) for anything else."""
-    src = ds.meta.get("source", {})
-    if src.get("kind") != "synth":
+    """(recipe, build options) from ``meta.json``'s ``recipe`` of a corpus built by the generator
+    (``data synth`` / ``standard corpus``); (None, {}) for anything else (imports, older corpora)."""
+    r = ds.meta.get("recipe") or {}
+    if r.get("kind") != "synth":
         return None, {}
-    gen = str(src.get("generator_version", src.get("config", {}).get("generator_version", "1")))
-    return Recipe(clips=int(ds.meta["num_clips"]), seed=int(src.get("seed", -1)), generator=gen), options_of(src)
+    return (Recipe(clips=int(r["clips"]), seed=int(r["seed"]), generator=str(r["generator_version"])),
+            dict(r.get("options", {})))
 
 
 def check_reference(ds, card: Mapping[str, Any] | None = None, assets: Path | None = None) -> dict:
@@ -164,8 +159,8 @@ def check_reference(ds, card: Mapping[str, Any] | None = None, assets: Path | No
     fix = (f"build it with `handx standard corpus --out DIR` (or `--clips M` for a prefix), or score with "
            f"your own evaluator (`--evaluator E`)")
     if got is None:
-        raise DataError(f"not the standard corpus: source kind {ds.meta.get('source', {}).get('kind')!r} "
-                        f"is not the built-in generator; {fix}", path=ds.root)
+        raise DataError(f"not the standard corpus: its recipe {(ds.meta.get('recipe') or {}).get('kind')!r} is "
+                        f"not the built-in generator's; {fix}", path=ds.root / "meta.json")
     for name, a, b in (("generator version", got.generator, want.generator), ("seed", got.seed, want.seed)):
         if a != b:
             raise DataError(f"not the standard recipe: {name} {a} where the standard evaluator (v{card['version']}) "
@@ -188,8 +183,10 @@ def check_reference(ds, card: Mapping[str, Any] | None = None, assets: Path | No
         raise DataError(f"test split is not the standard one: test clip {bad} is {mine['ids'][min(bad, k - 1)]!r}, "
                         f"expected {man['ids'][bad] if bad < len(man['ids']) else 'none'}; {fix}",
                         path=ds.root / "splits.json")
-    if got.clips == want.clips and k != len(man["ids"]):
-        raise DataError(f"test split has {k} clips, the standard one {len(man['ids'])}", path=ds.root / "splits.json")
+    if got.clips == want.clips:  # the whole corpus: the data package's identity check (every split, caption)
+        from handx_jax.data.dataset import check_compatible
+
+        check_compatible(card["corpus"]["record"], ds, what=f"the standard evaluator v{card['version']}", fix=fix)
     cap = np.flatnonzero(mine["captions"] != man["captions"][:k])
     if cap.size:
         raise DataError(f"captions differ from the standard corpus's ({cap.size} test clips; first "
@@ -271,10 +268,22 @@ def load(assets: Path | None = None, *, verify: bool = True, batch_size: int = 2
     return __getattr__("StandardEvaluator")(**fields, card=card, assets=assets)
 
 
+def evaluator_dir(assets: Path | None = None) -> Path:
+    """The packaged evaluator folder. Passing it as ``--evaluator`` (e.g. to ``handx sweep run``, which
+    reads its ``evaluator.json`` for the caption level) selects the standard evaluator."""
+    return Path(assets or ASSETS) / EVALUATOR_DIR
+
+
+def is_standard(evaluator: str | os.PathLike | None) -> bool:
+    """``--evaluator`` omitted, ``standard``, or the packaged evaluator folder itself."""
+    if evaluator is None or str(evaluator) == NAME:
+        return True
+    return Path(evaluator).resolve() == evaluator_dir().resolve()
+
+
 def evaluator_meta(evaluator: str | os.PathLike | None) -> dict:
-    """``evaluator.json`` of an evaluator folder, or of the standard evaluator for None / ``"standard"``
-    (callers such as the sweep launcher read its text policy: the caption level to prompt with)."""
-    folder = ASSETS / EVALUATOR_DIR if evaluator in (None, NAME) else Path(evaluator)
+    """``evaluator.json`` of an evaluator folder, or of the standard evaluator (see :func:`is_standard`)."""
+    folder = evaluator_dir() if is_standard(evaluator) else Path(evaluator)
     return json.loads((folder / "evaluator.json").read_text())
 
 
@@ -374,8 +383,10 @@ def package(data: str | os.PathLike, encoder: str | os.PathLike, evaluator: str 
     atomic_write_json(tmp / EVALUATOR_DIR / META_FILE, meta)
     man = test_manifest(ds)
     np.savez_compressed(tmp / MANIFEST, **man)
+    from handx_jax.data.dataset import dataset_record
+
     card = {"version": VERSION, "recipe": dataclasses.asdict(rec), "recipe_options": opts,
-            "corpus": {"fingerprint": ds.fingerprint, "clips": len(ds), "split_sizes": ds.meta["split_sizes"],
+            "corpus": {"record": dataset_record(ds), "fingerprint": ds.fingerprint, "clips": len(ds), "split_sizes": ds.meta["split_sizes"],
                        "build_seconds": ds.report.get("seconds"), "test_clips": len(man["ids"])},
             "evaluator": {"preset": meta["preset"], "params": meta["params"], "config": meta["evaluator_config"],
                           "text": meta["text"], "training": meta["training"],
@@ -542,7 +553,7 @@ def add_parser(subparsers) -> None:
     c.add_argument("--force", action="store_true", help="replace an existing dataset directory")
     c.add_argument("--quiet", action="store_true", help="no progress bar")
     c.set_defaults(func=_corpus)
-    k = sub.add_parser("check", help="is a dataset the standard corpus (or a prefix)? exit 1 with the reason if not")
+    k = sub.add_parser("check", help="is a dataset the standard corpus (or a prefix)? if not, say why and exit 2")
     k.add_argument("data", help="dataset directory")
     k.add_argument("--json", action="store_true")
     k.set_defaults(func=_check)

@@ -105,9 +105,7 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
         if not state["generate"]:
             # Prompt at the caption level the evaluator scores (its text policy), so that the
             # generated file's captions are the ones the evaluator embeds.
-            from handx_jax.standard import evaluator_meta  # the folder's evaluator.json, or "standard"'s
-
-            level = evaluator_meta(cfg.evaluator)["text"]["eval_level"]
+            level = json.loads((Path(cfg.evaluator) / "evaluator.json").read_text())["text"]["eval_level"]
             _handx("generate", "--run", str(d), "--reference", cfg.data, "--split", cfg.eval_split, "--level", str(level),
                    "--limit", str(cfg.eval_limit), "--samples", str(cfg.eval_samples), "--sampler", cfg.sampler,
                    "--steps", str(cfg.sampler_steps), "--out", str(d / "generated.npz"), env=env)

@@ -18,7 +18,7 @@ from handx_jax.io import DataError
 from handx_jax.metrics import MetricConfig
 
 ENCODER = Path(__file__).parent / "fixtures" / "t5_tiny_gated"
-RECIPE = standard.Recipe(clips=120, seed=3, generator=standard.generator_version())
+RECIPE = standard.Recipe(clips=120, seed=48, generator=standard.generator_version())  # test sequences 0 and 3
 
 
 @pytest.fixture(scope="module")
@@ -93,13 +93,13 @@ def test_other_recipe_moved_test_clip_or_changed_caption_refused(std, tmp_path):
     root, full, prefix, assets = std
     d = _copy(prefix, tmp_path / "seed")
     meta = json.loads((d / "meta.json").read_text())
-    meta["source"]["seed"] = 4
+    meta["recipe"]["seed"] = 4
     (d / "meta.json").write_text(json.dumps(meta))
     with pytest.raises(DataError, match="seed 4"):
         standard.check_reference(Dataset.open(d), assets=assets)
     d = _copy(prefix, tmp_path / "opts")
     meta = json.loads((d / "meta.json").read_text())
-    meta["source"]["config"]["test_fraction"] = 0.1
+    meta["recipe"]["options"]["test_fraction"] = 0.1
     (d / "meta.json").write_text(json.dumps(meta))
     with pytest.raises(DataError, match="test_fraction"):
         standard.check_reference(Dataset.open(d), assets=assets)
@@ -137,7 +137,7 @@ def test_eval_run_without_evaluator_uses_the_standard_one(std, monkeypatch, tmp_
     # the same call on a corpus of another seed is refused with the reason, exit non-zero
     d = _copy(prefix, tmp_path / "other")
     meta = json.loads((d / "meta.json").read_text())
-    meta["source"]["seed"] = 9
+    meta["recipe"]["seed"] = 9
     (d / "meta.json").write_text(json.dumps(meta))
     assert main(["eval", "run", "--ground-truth", "--reference", str(d), "--json"]) != 0
     assert "not the standard recipe" in capsys.readouterr().err

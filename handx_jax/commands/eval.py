@@ -80,9 +80,9 @@ def _run(args: argparse.Namespace) -> int:
     cfg = MetricConfig(rprec_block=args.block, replications=args.replications, seed=args.seed,
                        mpjpe_root=args.mpjpe_root)
     cache = not args.no_reference_cache
-    if args.evaluator in (None, "standard"):  # the packaged standard evaluator (handx_jax/standard.py)
-        from handx_jax import standard
+    from handx_jax import standard
 
+    if standard.is_standard(args.evaluator):  # the packaged standard evaluator (handx_jax/standard.py)
         if args.encoder:
             raise SystemExit("handx: error: --encoder applies to --evaluator E; the standard evaluator carries its own")
         ev, cache = standard.load(), (standard.reference_cache_dir() if cache else False)
@@ -140,8 +140,9 @@ def add_parser(subparsers) -> None:
     t.set_defaults(func=_train)
 
     r = sub.add_parser("run", help="Table 2 metrics of generated motion (or the Ground Truth row)")
-    r.add_argument("--evaluator", help="evaluator folder E (default, or 'standard': the packaged standard evaluator, "
-                                       "which scores the standard corpus and its prefixes; `handx standard info`)")
+    r.add_argument("--evaluator", help="evaluator folder E; default (or 'standard', or the packaged folder): the "
+                                       "standard evaluator, which scores the standard corpus and its prefixes "
+                                       "(`handx standard info`)")
     r.add_argument("--generated", help="generated clips: HandX .npz (entries may carry source_clip, group)")
     r.add_argument("--ground-truth", action="store_true", help="score the reference split's GT motion itself")
     r.add_argument("--reference", required=True, help="the dataset the evaluator was trained on")
