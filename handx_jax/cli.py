@@ -57,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from handx_jax.io import DataError
+    from handx_jax.io import DataError, disk_full_message
 
     args = build_parser().parse_args(argv)
     try:
@@ -68,6 +68,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("handx: interrupted", file=sys.stderr)
         return 130
+    except Exception as e:  # a full disk, whichever library hit it, is one clear line (issue 14.8)
+        msg = disk_full_message(e)
+        if msg is None:
+            raise
+        print(f"handx: error: {msg}", file=sys.stderr)
+        return 1
     return int(rc or 0)
 
 

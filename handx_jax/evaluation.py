@@ -50,7 +50,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from handx_jax import representation as rep
-from handx_jax.io import DataError, atomic_write_bytes, atomic_write_json, read_format_meta
+from handx_jax.io import (DataError, atomic_write_bytes, atomic_write_json, read_format_meta, read_params_msgpack,
+                          write_params_msgpack)
 from handx_jax.metrics import MetricConfig, replicate_embedding_metrics, replicate_motion_metrics
 from handx_jax.models.evaluator import PRESETS, Evaluator, EvaluatorConfig, evaluator_loss
 from handx_jax.text.cache import bucket_length
@@ -310,8 +311,6 @@ def load_evaluator(root: str | os.PathLike, *, encoder: str | os.PathLike | None
                    batch_size: int = 256) -> TrainedEvaluator:
     """Open an evaluator folder. The encoder folder recorded in it (or ``encoder``, e.g. after a move)
     is loaded and must have the recorded weight fingerprint; anything else is refused."""
-    from flax import serialization
-
     from handx_jax.text.t5 import load_hf_t5_encoder
 
     root = Path(root)
@@ -336,7 +335,7 @@ def load_evaluator(root: str | os.PathLike, *, encoder: str | os.PathLike | None
     with np.load(root / STATS_FILE, allow_pickle=False) as z:
         stats = rep.NormStats.from_npz_dict({k: z[k] for k in z.files}, "evaluator")
     template = _init_params(cfg, policy.max_len)
-    params = serialization.from_bytes(template, (root / PARAMS_FILE).read_bytes())
+    params = read_params_msgpack(root / PARAMS_FILE, template)  # checksum verified; bad files name themselves
     return TrainedEvaluator(cfg=cfg, params=params, stats=stats, encoder=enc, policy=policy, meta=meta, root=root,
                             batch_size=batch_size)
 
@@ -352,11 +351,9 @@ def _init_params(cfg: EvaluatorConfig, text_len: int, rng: jax.Array | None = No
 
 def save_evaluator(root: str | os.PathLike, ev: TrainedEvaluator) -> Path:
     """Write params, stats and (last, marking completeness) evaluator.json into ``root``."""
-    from flax import serialization
-
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(root / PARAMS_FILE, serialization.to_bytes(jax.device_get(ev.params)))
+    write_params_msgpack(root / PARAMS_FILE, ev.params)  # with params.msgpack.sha256
     buf = io.BytesIO()
     np.savez(buf, **ev.stats.to_npz_dict("evaluator"))
     atomic_write_bytes(root / STATS_FILE, buf.getvalue())

@@ -9,6 +9,8 @@ into place only when complete.
 from __future__ import annotations
 
 import contextlib
+import errno
+import hashlib
 import io
 import json
 import os
@@ -36,6 +38,246 @@ class DataError(ValueError):
         self.path, self.clip, self.field = path, clip, field
 
 
+class DiskFullError(OSError):
+    """No space left while writing ``path`` (ENOSPC/EDQUOT). The message names the path, the bytes the
+    write needed (where known) and what was free, so the user can free space or write elsewhere."""
+
+    def __init__(self, path: str | os.PathLike, needed: int | None = None, free: int | None = None):
+        need = f"; it needs {_human(needed)}" if needed is not None else ""
+        have = f", {_human(free)} free" if free is not None else ""
+        super().__init__(errno.ENOSPC, f"no space left on device writing {os.fspath(path)}{need}{have} "
+                                       f"(free some space or write elsewhere)")
+        self.path, self.needed, self.free = Path(path), needed, free
+
+    def __str__(self) -> str:
+        return self.strerror
+
+
+def _human(n: int) -> str:
+    for unit in ("B", "KB", "MB", "GB", "TB"):
+        if abs(n) < 1024 or unit == "TB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n} B"
+
+
+def is_disk_full(e: BaseException) -> bool:
+    return isinstance(e, OSError) and e.errno in (errno.ENOSPC, errno.EDQUOT)
+
+
+def disk_full_message(e: BaseException) -> str | None:
+    """One line for a full-disk failure anywhere in ``e``'s chain (an OSError 28/122, or a library error
+    that says "No space left on device"), else None."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, DiskFullError):
+            return str(e)
+        if is_disk_full(e):
+            where = f" writing {e.filename}" if getattr(e, "filename", None) else ""
+            return f"no space left on device{where} (free some space or write elsewhere)"
+        if "No space left on device" in str(e) or "Disk quota exceeded" in str(e):
+            return f"no space left on device ({type(e).__name__}: {str(e).strip().splitlines()[0][:300]})"
+        e = e.__cause__ or e.__context__
+    return None
+
+
+def free_bytes(path: str | os.PathLike) -> int | None:
+    """Bytes available to this user on the file system holding ``path`` (its nearest existing parent)."""
+    p = Path(path).absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    try:
+        st = os.statvfs(p)
+    except OSError:
+        return None
+    return st.f_bavail * st.f_frsize
+
+
+def check_free_space(path: str | os.PathLike, needed: int, *, margin: float = 1.02) -> None:
+    """Refuse before writing ``needed`` bytes under ``path`` if the file system cannot hold them, so a
+    long build fails in a second, not after minutes (and never by SIGBUS on a memory-mapped write)."""
+    free = free_bytes(path)
+    if free is not None and needed * margin > free:
+        raise DiskFullError(path, needed, free)
+
+
+@contextlib.contextmanager
+def disk_full_as_error(path: str | os.PathLike, needed: int | None = None) -> Iterator[None]:
+    """Turn an ENOSPC/EDQUOT ``OSError`` raised inside the block into a :class:`DiskFullError` naming ``path``."""
+    try:
+        yield
+    except DiskFullError:
+        raise
+    except OSError as e:
+        if not is_disk_full(e):
+            raise
+        raise DiskFullError(path, needed, free_bytes(path)) from None
+
+
+class NpyWriter:
+    """Write a C-order ``.npy`` file of known shape by appending rows, with plain ``write`` calls.
+
+    Replaces ``np.lib.format.open_memmap(mode="w+")`` for outputs: writing into a memory map on a full
+    file system (e.g. tmpfs) kills the process with SIGBUS, with no message and no clean-up; a
+    ``write`` fails with ENOSPC, which becomes a :class:`DiskFullError` naming the file.
+    """
+
+    def __init__(self, path: str | os.PathLike, dtype, shape: tuple[int, ...]):
+        self.path, self.dtype, self.shape = Path(path), np.dtype(dtype), tuple(int(n) for n in shape)
+        self.row_shape, self.rows = self.shape[1:], 0
+        self.nbytes = int(np.prod(self.shape)) * self.dtype.itemsize
+        check_free_space(self.path, self.nbytes)
+        with disk_full_as_error(self.path, self.nbytes):
+            self._f = open(self.path, "wb")
+            header = {"descr": np.lib.format.dtype_to_descr(self.dtype), "fortran_order": False, "shape": self.shape}
+            np.lib.format.write_array_header_2_0(self._f, header) if self.nbytes > 2**31 else \
+                np.lib.format.write_array_header_1_0(self._f, header)
+
+    def append(self, rows: np.ndarray) -> None:
+        a = np.ascontiguousarray(rows, dtype=self.dtype)
+        if a.shape[1:] != self.row_shape or self.rows + a.shape[0] > self.shape[0]:
+            raise ValueError(f"{self.path}: rows {a.shape} do not fit {self.shape} after {self.rows} rows")
+        with disk_full_as_error(self.path, self.nbytes):
+            self._f.write(a.data if a.size else b"")
+        self.rows += a.shape[0]
+
+    def close(self) -> None:
+        if self._f.closed:
+            return
+        try:
+            if self.rows != self.shape[0]:
+                raise ValueError(f"{self.path}: wrote {self.rows} of {self.shape[0]} rows")
+            with disk_full_as_error(self.path, self.nbytes):
+                self._f.flush()
+                os.fsync(self._f.fileno())
+        finally:
+            self._f.close()
+
+    def __enter__(self) -> "NpyWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if exc[0] is None:
+            self.close()
+        else:
+            self._f.close()
+
+
+# ---- checksums ---------------------------------------------------------------------------------
+# A sidecar ``NAME.sha256`` ("<hex>  NAME" as sha256sum writes it, so `sha256sum -c` checks it too) next
+# to a weights file: flipped or truncated bytes are caught before they load silently.
+CHECKSUM_SUFFIX = ".sha256"
+
+
+def sha256_file(path: str | os.PathLike) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 22), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def checksum_path(path: str | os.PathLike) -> Path:
+    p = Path(path)
+    return p.with_name(p.name + CHECKSUM_SUFFIX)
+
+
+def write_checksum(path: str | os.PathLike) -> Path:
+    """Write ``path``'s sha256 sidecar (atomically); call after the file itself is complete."""
+    p = Path(path)
+    return atomic_write_text(checksum_path(p), f"{sha256_file(p)}  {p.name}\n")
+
+
+def verify_checksum(path: str | os.PathLike, *, required: bool = False) -> bool:
+    """Check ``path`` against its sidecar. Returns True if verified, False if there is no sidecar (files
+    written before checksums existed; a ``DataError`` instead when ``required``). A mismatch is a
+    ``DataError`` naming the file: it was corrupted or changed after it was written."""
+    p = Path(path)
+    side = checksum_path(p)
+    if not side.exists():
+        if required:
+            raise DataError(f"missing checksum {side.name}", path=p)
+        return False
+    try:
+        want = side.read_text(encoding="utf-8").split()[0].lower()
+    except (IndexError, UnicodeDecodeError, OSError):
+        raise DataError(f"unreadable checksum file {side.name}", path=p) from None
+    try:
+        have = sha256_file(p)
+    except FileNotFoundError:
+        raise DataError("missing file (its checksum exists)", path=p) from None
+    if have != want:
+        raise DataError(f"checksum mismatch (sha256 {have[:16]}…, expected {want[:16]}… from {side.name}): the "
+                        "file is corrupt or was changed after it was written; restore or regenerate it", path=p)
+    return True
+
+
+TREE_CHECKSUMS = "SHA256SUMS"
+
+
+def write_tree_checksum(folder: str | os.PathLike) -> Path:
+    """Checksum every file under ``folder`` into ``folder/SHA256SUMS`` (``sha256sum -c`` format, sorted
+    relative paths). For checkpoint folders written by a library (e.g. an Orbax step directory): call
+    it once the folder is complete; :func:`verify_tree_checksum` before restoring."""
+    root = Path(folder)
+    files = sorted(p for p in root.rglob("*") if p.is_file() and p.name != TREE_CHECKSUMS)
+    lines = "".join(f"{sha256_file(p)}  {p.relative_to(root).as_posix()}\n" for p in files)
+    return atomic_write_text(root / TREE_CHECKSUMS, lines)
+
+
+def verify_tree_checksum(folder: str | os.PathLike, *, required: bool = False) -> bool:
+    """Check the files listed in ``folder/SHA256SUMS``: True if all match, False if there is no list
+    (unless ``required``); a changed or missing file is a ``DataError`` naming it."""
+    root = Path(folder)
+    listing = root / TREE_CHECKSUMS
+    if not listing.exists():
+        if required:
+            raise DataError(f"missing {TREE_CHECKSUMS}", path=root)
+        return False
+    for line in listing.read_text(encoding="utf-8").splitlines():
+        if not line.strip():
+            continue
+        want, _, rel = line.partition("  ")
+        p = root / rel
+        if not p.is_file():
+            raise DataError(f"listed in {TREE_CHECKSUMS} but missing", path=p)
+        if sha256_file(p) != want.lower():
+            raise DataError(f"checksum mismatch against {TREE_CHECKSUMS}: the file is corrupt or was changed "
+                            "after it was written", path=p)
+    return True
+
+
+def write_params_msgpack(path: str | os.PathLike, params: Any) -> Path:
+    """Flax-serialise a parameter pytree to ``path`` atomically, with its sha256 sidecar."""
+    import jax
+    from flax import serialization
+
+    out = atomic_write_bytes(path, serialization.to_bytes(jax.device_get(params)))
+    write_checksum(out)
+    return out
+
+
+def read_params_msgpack(path: str | os.PathLike, template: Any) -> Any:
+    """Read parameters written by :func:`write_params_msgpack` (or plain ``serialization.to_bytes``) into
+    the structure of ``template``. The checksum sidecar, when present, is verified; a missing, truncated
+    or garbage file, or one of another structure, is a ``DataError`` naming it (flax says only
+    "Unpack failed" or raises a ValueError/KeyError that does not)."""
+    from flax import serialization
+
+    p = Path(path)
+    verify_checksum(p)
+    try:
+        data = p.read_bytes()
+    except FileNotFoundError:
+        raise DataError(f"missing {p.name}", path=p.parent) from None
+    try:
+        return serialization.from_bytes(template, data)
+    except Exception as e:  # msgpack's ExtraData/UnpackValueError/FormatError, flax's ValueError/KeyError, ...
+        raise DataError(f"corrupt, truncated or incompatible parameter file ({type(e).__name__}: "
+                        f"{str(e).splitlines()[0][:200] if str(e) else 'no detail'})", path=p) from None
+
+
 def _fsync_dir(path: Path) -> None:
     with contextlib.suppress(OSError):
         fd = os.open(path, os.O_RDONLY)
@@ -60,7 +302,7 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         os.fchmod(fd, _FILE_MODE)
-        with os.fdopen(fd, "wb") as f:
+        with disk_full_as_error(path, len(data)), os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
@@ -160,6 +402,13 @@ def atomic_dir(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator[
     os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes it owner-only; a dataset should read like any folder
     try:
         yield tmp
+    except DiskFullError as e:  # name the file the user asked for, not the removed temporary folder
+        shutil.rmtree(tmp, ignore_errors=True)
+        try:
+            where = path / e.path.relative_to(tmp)
+        except ValueError:
+            raise e from None
+        raise DiskFullError(where, e.needed, e.free) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

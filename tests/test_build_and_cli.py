@@ -29,7 +29,7 @@ def test_build_is_deterministic_across_worker_counts(corpus, tmp_path):
     # The recipe (issue 14.5) is the identity: generator version, seed, count and options, not workers.
     assert a.meta["recipe"] == b.meta["recipe"] and a.meta["identity"] == b.meta["identity"]
     r = a.meta["recipe"]
-    assert (r["kind"], r["generator_version"], r["seed"], r["clips"]) == ("synth", 2, 3, 160)
+    assert (r["kind"], r["generator_version"], r["seed"], r["clips"]) == ("synth", 4, 3, 160)
     assert r["options"]["synth"]["noise_deg"] == 2.0 and "workers" not in r["options"]
 
 

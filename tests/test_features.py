@@ -143,3 +143,46 @@ def test_compute_features_shapes_and_dtype():
     assert all(a.dtype == np.float32 for a in vars(f).values())
     with pytest.raises(ValueError):
         ft.compute_features(np.zeros((5, 2, 21, 3)))
+
+
+def test_descriptors_survive_an_ulp_change_in_float_kernels(monkeypatch):
+    """Issue 14.5: numpy/BLAS builds differ in the last bit of arctan2, sqrt and GEMMs. The descriptors
+    are computed in float64 and rounded to float32, so such a change leaves (almost) every descriptor
+    bit-identical and the captions with them; computed in float32, it changed most of them (and one
+    caption record in 2000 of a corpus)."""
+    from handx_jax.data import synth
+
+    class UlpNumpy:
+        def __getattr__(self, name):
+            return getattr(np, name)
+
+        @staticmethod
+        def arctan2(a, b):
+            r = np.arctan2(a, b)
+            return np.nextafter(r, np.asarray(np.inf, r.dtype))
+
+        @staticmethod
+        def sqrt(x):
+            r = np.sqrt(x)
+            return np.nextafter(r, np.asarray(np.inf, r.dtype))
+
+        @staticmethod
+        def matmul(a, b, *args, **kw):
+            r = np.matmul(a, b, *args, **kw)
+            return np.nextafter(r, np.asarray(-np.inf, r.dtype))
+
+        @staticmethod
+        def einsum(*args, **kw):
+            r = np.einsum(*args, **kw)
+            return np.nextafter(r, np.asarray(-np.inf, r.dtype))
+
+    seq = synth.synth_chunk(1, 0, synth.SynthConfig(chunk_size=2, defect_prob=0.0)).joints
+    clips = seq.reshape(-1, 60, 2, 21, 3)[:6]
+    ref = ft.compute_features(clips)
+    monkeypatch.setattr(ft, "np", UlpNumpy())
+    moved = ft.compute_features(clips)
+    monkeypatch.undo()
+    for name in ref.__dataclass_fields__:
+        a, b = getattr(ref, name), getattr(moved, name)
+        assert a.dtype == np.float32
+        assert np.mean(a != b) < 1e-3, f"{name}: {np.mean(a != b):.1%} of the values changed"

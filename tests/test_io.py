@@ -87,3 +87,25 @@ def test_read_format_meta_names_the_file_and_the_problem(tmp_path):
         read_format_meta(p, "fmt-x", 2, upgrade="; redo")
     p.write_text('{"format": "fmt-x", "format_version": 2, "k": 3}')
     assert read_format_meta(p, "fmt-x", 2) == {"format": "fmt-x", "format_version": 2, "k": 3}
+
+
+def test_tree_checksum_catches_a_changed_file(tmp_path):
+    """For checkpoint folders written by a library (Orbax step directories): one SHA256SUMS listing."""
+    from handx_jax.io import DataError, verify_tree_checksum, write_tree_checksum
+
+    d = tmp_path / "ckpt" / "10"
+    (d / "state").mkdir(parents=True)
+    (d / "state" / "a.bin").write_bytes(bytes(range(200)))
+    (d / "meta.json").write_text("{}")
+    assert verify_tree_checksum(d) is False
+    write_tree_checksum(d)
+    assert (d / "SHA256SUMS").read_text().splitlines()[1].endswith("  state/a.bin")
+    assert verify_tree_checksum(d, required=True)
+    data = bytearray((d / "state" / "a.bin").read_bytes())
+    data[10:74] = bytes(b ^ 0xFF for b in data[10:74])  # 64 flipped bytes
+    (d / "state" / "a.bin").write_bytes(bytes(data))
+    with pytest.raises(DataError, match=r"file .*state/a\.bin: checksum mismatch"):
+        verify_tree_checksum(d)
+    (d / "state" / "a.bin").unlink()
+    with pytest.raises(DataError, match="listed in SHA256SUMS but missing"):
+        verify_tree_checksum(d)

@@ -230,3 +230,32 @@ def test_intensity_top_up_is_one_coordinated_gesture():
             assert amp.min() > 0.8 * amp.max()                                        # similar amplitudes
             c = np.corrcoef(d.T)
             assert c[np.triu_indices(len(free), 1)].min() > 0.9                       # one shared rhythm
+
+
+def test_stored_motion_survives_an_ulp_change_in_sin_cos(monkeypatch):
+    """Issue 14.5: numpy builds differ in the last bit of sin/cos (SIMD kernels). FK runs in float64,
+    so such a change stays below the float32 the corpus stores; with float32 FK (generator version
+    ≤ 2) it moved ~all stored joints by an ulp and flipped ~0.6 % of the captions downstream."""
+    class UlpNumpy:
+        def __getattr__(self, name):
+            return getattr(np, name)
+
+        @staticmethod
+        def sin(x):
+            return np.nextafter(np.sin(x), np.inf)
+
+        @staticmethod
+        def cos(x):
+            return np.nextafter(np.cos(x), -np.inf)
+
+    cfg = dataclasses.replace(SMALL, chunk_size=8)
+    ref = synth.synth_chunk(4, 0, cfg).joints
+    monkeypatch.setattr(H, "np", UlpNumpy())
+    H.pinch_pose.cache_clear()
+    try:
+        moved = synth.synth_chunk(4, 0, cfg).joints
+    finally:
+        monkeypatch.undo()
+        H.pinch_pose.cache_clear()
+    differ = np.mean(~((ref == moved) | (np.isnan(ref) & np.isnan(moved))))
+    assert differ < 1e-4, f"{differ:.2%} of the stored joint values changed"

@@ -134,3 +134,49 @@ def test_cli_cache_and_encode(setup, capsys):
         n = int(e.lengths_B[i])
         assert doc["ids"][i] == enc.tokenizer.encode_one(t) == e.ids_BxL[i, :n].tolist()
         np.testing.assert_allclose(np.array(doc["hidden"][i]), h[i, :n], atol=1e-6)
+
+
+def test_full_disk_is_a_clean_error_and_leaves_nothing(setup, monkeypatch):
+    """Issue 14.8: the cache was written through memory maps, so a full disk killed `text cache` by
+    SIGBUS and left a hidden temporary folder. Now: a DiskFullError naming the file, nothing left."""
+    import errno
+
+    from handx_jax import io as hio
+
+    data, enc_dir, _ = setup
+    root = data / "text_cache"
+    monkeypatch.setattr(hio, "free_bytes", lambda path: 100)
+    with pytest.raises(hio.DiskFullError, match=r"writing .*text_cache/[0-9a-f]{16}; it needs .* 100 B free"):
+        build_cache(data, enc_dir, dtype="float32", max_len=40, overwrite=True, log=lambda s: None)
+    monkeypatch.setattr(hio, "free_bytes", lambda path: None)
+
+    def append(self, rows):  # the disk fills up during the build
+        with hio.disk_full_as_error(self.path, self.nbytes):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(hio.NpyWriter, "append", append)
+    with pytest.raises(hio.DiskFullError, match=r"writing .*text_cache/[0-9a-f]{16}/hidden\.npy; it needs"):
+        build_cache(data, enc_dir, dtype="float32", max_len=40, overwrite=True, log=lambda s: None)
+    assert not [p for p in root.iterdir() if p.name.startswith(".")]
+
+
+def test_cache_follows_check_compatible_on_captions(setup, tmp_path):
+    """Issue 14.5: the cache depends only on the clip ids and captions, so a dataset whose motion
+    differs by float rounding keeps it (dataset.check_compatible, parts ids + captions); other
+    captions are refused."""
+    from handx_jax.data.dataset import write_dataset
+
+    data, enc_dir, _ = setup
+    root = build_cache(data, enc_dir, dtype="float32", max_len=40, log=lambda s: None)
+    ds = Dataset.open(data)
+    splits = {k: ds.splits[k].tolist() for k in ("train", "val", "test")}
+    jitter = np.float32(1e-6) * np.sign(np.random.default_rng(0).normal(size=ds.motion.shape)).astype(np.float32)
+    write_dataset(tmp_path / "rounded", np.asarray(ds.motion) + jitter, ds.texts, splits=splits, stats=False)
+    rounded = Dataset.open(tmp_path / "rounded")
+    assert rounded.fingerprint != ds.fingerprint
+    assert TextCache.open(root, dataset=rounded).meta["dataset"]["fingerprint"] == ds.fingerprint
+    texts = [dict(t) for t in ds.texts]
+    texts[1] = dict(texts[1], left=["something else"] * len(texts[1]["left"]))
+    write_dataset(tmp_path / "recaptioned", ds.motion, texts, splits=splits, stats=False)
+    with pytest.raises(DataError, match="the captions differ"):
+        TextCache.open(root, dataset=Dataset.open(tmp_path / "recaptioned"))

@@ -77,6 +77,8 @@ def _run(args: argparse.Namespace) -> int:
 
     if bool(args.generated) == bool(args.ground_truth):
         raise SystemExit("handx: error: give exactly one of --generated G.npz or --ground-truth")
+    if args.replications < 1:
+        raise SystemExit(f"handx: error: --replications must be at least 1, got {args.replications}")
     cfg = MetricConfig(rprec_block=args.block, replications=args.replications, seed=args.seed,
                        mpjpe_root=args.mpjpe_root)
     cache = not args.no_reference_cache

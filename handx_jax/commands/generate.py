@@ -38,6 +38,10 @@ def _prompts(args) -> list:
     if not (len(L) == len(R) == len(I)):
         raise ValueError(f"give --left, --right and --interaction the same number of times "
                          f"(got {len(L)}, {len(R)}, {len(I)})")
+    from handx_jax.text.prompts import check_texts  # empty prompts are refused (issue 14.8)
+
+    for name, texts in (("--left", L), ("--right", R), ("--interaction", I)):
+        check_texts(texts, name)
     return [Prompt(*x) for x in zip(L, R, I)]
 
 
@@ -118,7 +122,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("generate", help="sample motion from a trained diffusion run",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--run", required=True, help="diffusion run folder")
-    p.add_argument("--left", action="append", help="left-hand prompt (repeat for --task long)")
+    p.add_argument("--left", action="append", help="left-hand prompt (repeat for --task long); prompts must not "
+                                                   "be empty (refused: no model was trained on an empty caption)")
     p.add_argument("--right", action="append", help="right-hand prompt")
     p.add_argument("--interaction", action="append", help="interaction prompt")
     p.add_argument("--task", default="text2motion", choices=TASKS)

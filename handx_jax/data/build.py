@@ -25,6 +25,7 @@ from handx_jax.data.clips import ClipConfig, ClipReport, extract_clips
 from handx_jax.data.dataset import DEFAULT_FRACTIONS, write_dataset
 from handx_jax.data.events import AnnotationConfig, annotate
 from handx_jax.data.parallel import map_ordered
+from handx_jax.io import check_free_space
 from handx_jax.data.caption import TemplateCaptioner
 from handx_jax.data.synth import GENERATOR_VERSION, SynthConfig, synth_chunk
 
@@ -125,6 +126,9 @@ def build_corpus(out: str | os.PathLike, cfg: BuildConfig = BuildConfig(), *, ov
     out = Path(out)
     if out.exists() and not overwrite:  # refuse before spending minutes of work
         raise FileExistsError(f"{out} already exists; pass --force to replace it")
+    # The motion alone takes clips × 30 KB (texts, events and stats add ~20 %): refuse a disk that cannot
+    # hold it now rather than after the synthesis.
+    check_free_space(out, cfg.clips * sk.CLIP_LEN * 2 * sk.NUM_JOINTS * 3 * 4)
     workers = cfg.workers or os.cpu_count() or 1
     t0 = time.perf_counter()
     results: list[ChunkResult] = []

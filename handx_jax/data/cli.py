@@ -116,6 +116,10 @@ def _show(a: argparse.Namespace) -> int:
     i = _clip_index(ds, a.clip)
     t = ds.texts[i]
     lv = a.level
+    levels = len(t["left"])
+    if not -levels <= lv < levels:
+        raise SystemExit(f"handx: error: --level {lv} out of range: {ds.root} has {levels} caption levels "
+                         f"(0..{levels - 1}, or -{levels}..-1 from the most detailed)")
     out = render_gif(np.asarray(ds.motion[i]), a.out, texts=(t["left"][lv], t["right"][lv], t["interaction"][lv]),
                      title=t["id"])
     print(f"wrote {out}")

@@ -41,7 +41,9 @@ def interior_angles_deg(joints_Nx2x21x3: np.ndarray) -> np.ndarray:
     Zero-length bones give a zero direction, i.e. an angle of 0 (the reference's arccos gives 90°;
     neither occurs for valid clips, which have no zero-length bones).
     """
-    x = np.asarray(joints_Nx2x21x3, dtype=np.float32)
+    # float64: the intensity filter thresholds these angles' rates, and a float32 arctan2 can differ in its
+    # last bit between numpy builds; a clip must be kept or dropped alike everywhere (issue 14.5).
+    x = np.asarray(joints_Nx2x21x3, dtype=np.float64)
     tri = np.asarray(sk.INTERIOR_TRIPLES)
     pre = x[..., tri[:, 1], :] - x[..., tri[:, 0], :]
     nxt = x[..., tri[:, 2], :] - x[..., tri[:, 1], :]
@@ -63,7 +65,7 @@ def hand_intensity(joints_NxTx2x21x3: np.ndarray, cfg: ClipConfig = ClipConfig()
     """
     theta = interior_angles_deg(joints_NxTx2x21x3)  # (N, T, 2, 15)
     omega = np.abs(np.diff(theta, axis=1)) * cfg.fps  # (N, T-1, 2, 15)
-    lam = np.tile(np.asarray(cfg.weights, dtype=np.float32), 5)  # chain-major: (p, m, d) × 5
+    lam = np.tile(np.asarray(cfg.weights, dtype=np.float64), 5)  # chain-major: (p, m, d) × 5
     return (omega * lam).sum(-1).mean(1) / lam.sum()
 
 

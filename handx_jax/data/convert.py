@@ -39,6 +39,7 @@ def import_handx(files: Sequence[str | os.PathLike], out: str | os.PathLike, *, 
     motions, texts, split_of = [], [], []
     dropped: dict[str, list[str]] = {}
     seen_ids: set[str] = set()
+    levels: tuple[int, str] | None = None  # (caption levels, "file:key" of the first clip)
     for f in map(Path, files):
         s = split or split_from_filename(f)
         for c in read_handx_npz(f, allow_nonfinite=True):
@@ -46,6 +47,13 @@ def import_handx(files: Sequence[str | os.PathLike], out: str | os.PathLike, *, 
             if cid in seen_ids:
                 raise DataError(f"duplicate clip key {c.key!r}", path=f, clip=c.key)
             seen_ids.add(cid)
+            # Level k must mean the same on every clip (training samples a level index, `data stats` counts
+            # per level): a clip with another count is refused here, naming it, not an IndexError later.
+            if levels is None:
+                levels = (len(c.left), f"{f.name}:{c.key}")
+            elif len(c.left) != levels[0]:
+                raise DataError(f"{len(c.left)} caption levels, but clip {levels[1]} has {levels[0]}; every clip "
+                                "needs the same number of levels", path=f, clip=c.key)
             if not np.isfinite(c.motion).all():
                 dropped.setdefault(str(f), []).append(c.key)
                 continue

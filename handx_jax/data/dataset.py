@@ -39,7 +39,8 @@ import numpy as np
 
 from handx_jax import skeleton as sk
 from handx_jax.data.parallel import map_ordered
-from handx_jax.io import DataError, atomic_dir, atomic_write_json, read_format_meta, read_jsonl
+from handx_jax.io import (DataError, NpyWriter, atomic_dir, atomic_write_json, check_free_space, disk_full_as_error,
+                          read_format_meta, read_jsonl)
 
 FORMAT = "handx-jax-dataset"
 IDENTITY_VERSION = 1
@@ -286,12 +287,13 @@ def write_dataset(
     levels = len(texts[0]["left"]) if n else 0
 
     out = Path(out)
+    # Plain writes, not a memory map: a full disk then raises ENOSPC (DiskFullError naming the file, and
+    # atomic_dir removes the half-written folder) instead of killing the process with SIGBUS.
+    check_free_space(out, motion.size * 4)
     with atomic_dir(out, overwrite=overwrite) as tmp:
-        mm = np.lib.format.open_memmap(tmp / "motion.npy", mode="w+", dtype=np.float32, shape=motion.shape)
-        for s in range(0, n, 4096):
-            mm[s:s + 4096] = motion[s:s + 4096]
-        mm.flush()
-        del mm
+        with NpyWriter(tmp / "motion.npy", np.float32, motion.shape) as w:
+            for s in range(0, n, 4096):
+                w.append(motion[s:s + 4096])
         _write_lines(tmp / "texts.jsonl", texts)
         if events is not None:
             _write_lines(tmp / "events.jsonl", events)
@@ -321,7 +323,7 @@ def write_dataset(
 
 def _write_lines(path: Path, rows: Sequence[Any]) -> None:
     # Streamed (the file is inside a temporary directory that is renamed only when complete).
-    with open(path, "w", encoding="utf-8") as f:
+    with disk_full_as_error(path), open(path, "w", encoding="utf-8") as f:
         for r in rows:
             f.write(json.dumps(r, separators=(",", ":"), ensure_ascii=False) + "\n")
 
@@ -345,7 +347,8 @@ def _write_stats(root: Path, train_idx: Sequence[int], workers: int = 1) -> None
         st = rep.stats_from_moments(name, s, ss, n)
         arrays[f"{name}_mean"] = st.mean
         arrays[f"{name}_std"] = st.std
-    np.savez(root / "stats.npz", **arrays)
+    with disk_full_as_error(root / "stats.npz"):
+        np.savez(root / "stats.npz", **arrays)
 
 
 def _chunk_moments(motion_path: str, idx: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray, int]]:

@@ -109,8 +109,16 @@ class Features:
     wrist_NxTx2x3: np.ndarray
 
 
+# Working precision. The descriptors are returned as float32, but computed in float64: a float32
+# kernel (arctan2, sqrt, a BLAS GEMM) may differ in its last bit between numpy/BLAS builds and CPUs,
+# and the event thresholds then flip ~1 caption in 2000 (moving every such kernel by one ulp); in
+# float64 such differences vanish when the result is rounded to float32, so one recipe gives one
+# set of captions everywhere (issue 14.5).
+_F = np.float64
+
+
 def _as_joints(joints_NxTx2x21x3: np.ndarray) -> np.ndarray:
-    x = np.asarray(joints_NxTx2x21x3, dtype=np.float32)
+    x = np.asarray(joints_NxTx2x21x3, dtype=_F)
     if x.ndim != 5 or x.shape[2:] != (2, sk.NUM_JOINTS, 3):
         raise ValueError(f"expected joints of shape (N, T, 2, 21, 3), got {x.shape}")
     return x
@@ -149,7 +157,7 @@ def finger_flexion(joints_NxTx2x21x3: np.ndarray, cfg: FeatureConfig = FeatureCo
     full 3-D vectors with sign −sign((û×v̂)·ẑ); the thumb IP is unsigned. Magnitudes under the
     dead zone (11°) become 0. A straight finger gives 0.
     """
-    x = np.asarray(joints_NxTx2x21x3, dtype=np.float32)
+    x = np.asarray(joints_NxTx2x21x3, dtype=_F)
     ax, ay, az = local_axes(x)
     tri = np.asarray(FLEX_TRIPLES)
     u = x[..., tri[:, 1], :] - x[..., tri[:, 0], :]  # (..., 2, 14, 3)
@@ -171,13 +179,13 @@ def finger_flexion(joints_NxTx2x21x3: np.ndarray, cfg: FeatureConfig = FeatureCo
     sgn_mcp = np.where(sgn_mcp == 0, 1.0, sgn_mcp)
     ang[..., _THUMB_MCP] = mag[..., 0] * sgn_mcp
     ang[..., _THUMB_IP] = mag[..., 1]
-    dead = np.float32(np.deg2rad(cfg.flex_dead_zone_deg))
-    return np.where(np.abs(ang) < dead, np.float32(0), ang).astype(np.float32)
+    dead = np.deg2rad(cfg.flex_dead_zone_deg)
+    return np.where(np.abs(ang) < dead, 0.0, ang).astype(np.float32)
 
 
 def finger_spacing(joints_NxTx2x21x3: np.ndarray) -> np.ndarray:
     """Angle (rad) between the MCP→PIP directions of adjacent fingers, shape (..., 2, 3)."""
-    x = np.asarray(joints_NxTx2x21x3, dtype=np.float32)
+    x = np.asarray(joints_NxTx2x21x3, dtype=_F)
     d = {f: x[..., sk.CHAINS[f][2], :] - x[..., sk.CHAINS[f][1], :] for f in _FLEX_FINGERS}
     out = []
     for a, b in SPACING_PAIRS:
@@ -187,7 +195,7 @@ def finger_spacing(joints_NxTx2x21x3: np.ndarray) -> np.ndarray:
 
 def tip_distances(joints_NxTx2x21x3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Intra-hand thumb-tip distances ``(..., 2, 4)`` and inter-hand tip pairs ``(..., 5, 5)``."""
-    x = np.asarray(joints_NxTx2x21x3, dtype=np.float32)
+    x = np.asarray(joints_NxTx2x21x3, dtype=_F)
     tips = x[..., list(sk.TIPS), :]  # (..., 2, 5, 3) thumb..pinky
     intra = _norm(tips[..., 1:, :] - tips[..., :1, :])
     inter = _norm(tips[..., 0, :, None, :] - tips[..., 1, None, :, :])
@@ -219,7 +227,7 @@ def palm_weights(cfg: FeatureConfig = FeatureConfig()) -> np.ndarray:
 def palm_clouds(joints_NxTx2x21x3: np.ndarray, cfg: FeatureConfig = FeatureConfig(),
                 W_Px21: np.ndarray | None = None) -> np.ndarray:
     """Palm point clouds ``(..., 2, P, 3)``, one linear map of the joints (a single GEMM)."""
-    x = np.asarray(joints_NxTx2x21x3, dtype=np.float32)
+    x = np.asarray(joints_NxTx2x21x3, dtype=_F)
     W = palm_weights(cfg) if W_Px21 is None else W_Px21
     lead = x.shape[:-2]
     flat = np.moveaxis(x.reshape(-1, sk.NUM_JOINTS, 3), 1, 0).reshape(sk.NUM_JOINTS, -1)
@@ -235,11 +243,11 @@ def _sq_dists(a_MxPx3: np.ndarray, b_MxQx3: np.ndarray) -> np.ndarray:
     """
     M, P, _ = a_MxPx3.shape
     Q = b_MxQx3.shape[1]
-    A = np.empty((M, P, 5), np.float32)
+    A = np.empty((M, P, 5), a_MxPx3.dtype)
     A[..., :3] = a_MxPx3
     A[..., 3] = np.sum(a_MxPx3 * a_MxPx3, -1)
     A[..., 4] = 1.0
-    B = np.empty((M, 5, Q), np.float32)
+    B = np.empty((M, 5, Q), b_MxQx3.dtype)
     B[:, :3, :] = np.swapaxes(b_MxQx3, 1, 2) * -2.0
     B[:, 3, :] = 1.0
     B[:, 4, :] = np.sum(b_MxQx3 * b_MxQx3, -1)
@@ -258,10 +266,10 @@ def _mean_of_closest(D2_MxAxB: np.ndarray, a_MxAx3: np.ndarray, b_MxBx3: np.ndar
     flat = D2_MxAxB.reshape(M, A * B)
     tau = np.partition(flat, k - 1, axis=1)[:, k - 1]
     mask = D2_MxAxB <= tau[:, None, None]
-    cnt = mask.sum((1, 2)).astype(np.float32)
+    cnt = mask.sum((1, 2)).astype(D2_MxAxB.dtype)
     dsum = np.sum(np.sqrt(D2_MxAxB) * mask, axis=(1, 2))
-    vsum = (np.einsum("mq,mqc->mc", mask.sum(1).astype(np.float32), b_MxBx3)
-            - np.einsum("mp,mpc->mc", mask.sum(2).astype(np.float32), a_MxAx3))
+    vsum = (np.einsum("mq,mqc->mc", mask.sum(1).astype(D2_MxAxB.dtype), b_MxBx3)
+            - np.einsum("mp,mpc->mc", mask.sum(2).astype(D2_MxAxB.dtype), a_MxAx3))
     return dsum / cnt, vsum / cnt[:, None], np.sqrt(tau)
 
 
@@ -307,7 +315,7 @@ def _palm_pairs_closest(cl_MxPx3: np.ndarray, cr_MxPx3: np.ndarray, k: int,
     sr_next = np.take_along_axis(sr, rsel[:, m:m + 1], 1)[:, 0]
     lb = np.minimum(sr.min(1) - sl_next, sr_next - sl.max(1))
     a, b = cl_MxPx3[mm, lsel[:, :m]], cr_MxPx3[mm, rsel[:, :m]]  # (M, m, 3)
-    D2 = np.zeros((M, m, m), np.float32)
+    D2 = np.zeros((M, m, m), a.dtype)
     for c in range(3):
         D2 += np.square(b[:, None, :, c] - a[:, :, None, c])
     dist, vec, kth = _mean_of_closest(D2, a, b, k)
@@ -329,7 +337,7 @@ def _palm_pairs_centroid(cl_MxPx3: np.ndarray, cr_MxPx3: np.ndarray, k: int) -> 
 
 def palm_relation(clouds_NxTx2xPx3: np.ndarray, cfg: FeatureConfig = FeatureConfig()) -> tuple[np.ndarray, np.ndarray]:
     """Palm–palm distance ``(N, T)`` and left→right relation vector ``(N, T, 3)``."""
-    c = np.asarray(clouds_NxTx2xPx3, dtype=np.float32)
+    c = np.asarray(clouds_NxTx2xPx3, dtype=_F)
     lead = c.shape[:-3]
     P = c.shape[-2]
     c = c.reshape(-1, 2, P, 3)
@@ -338,13 +346,13 @@ def palm_relation(clouds_NxTx2xPx3: np.ndarray, cfg: FeatureConfig = FeatureConf
         fn = lambda a, b, k: _palm_pairs_closest(a, b, k, cfg.prune_points)
     else:
         fn = _palm_pairs_centroid
-    dist, vec = np.empty(M, np.float32), np.empty((M, 3), np.float32)
+    dist, vec = np.empty(M, _F), np.empty((M, 3), _F)
     for s in range(0, M, cfg.frame_chunk):
         cc = c[s:s + cfg.frame_chunk]
         centre = cc.mean((1, 2), keepdims=True)  # per-frame centring keeps float32 exact enough
         cc = cc - centre
         dist[s:s + len(cc)], vec[s:s + len(cc)] = fn(cc[:, 0], cc[:, 1], cfg.palm_pairs)
-    return dist.reshape(lead), vec.reshape(*lead, 3)
+    return dist.reshape(lead).astype(np.float32), vec.reshape(*lead, 3).astype(np.float32)
 
 
 def finger_palm_distance(joints_NxTx2x21x3: np.ndarray, clouds_NxTx2xPx3: np.ndarray | None = None,
@@ -356,7 +364,7 @@ def finger_palm_distance(joints_NxTx2x21x3: np.ndarray, clouds_NxTx2xPx3: np.nda
     of the (tip · palm-joint) products with Wᵀ: |t − q_p|² = |t|² − 2 Σ_j W_pj (t·J_j) + |q_p|².
     The clouds themselves are therefore not needed (``clouds_NxTx2xPx3`` is only checked).
     """
-    x = np.asarray(joints_NxTx2x21x3, dtype=np.float32)
+    x = np.asarray(joints_NxTx2x21x3, dtype=_F)
     W = palm_weights(cfg) if W_Px21 is None else W_Px21
     if clouds_NxTx2xPx3 is not None and clouds_NxTx2xPx3.shape[-2] != W.shape[0]:
         raise ValueError("palm clouds and palm weights disagree on the number of points")
@@ -397,7 +405,7 @@ def compute_features(joints_NxTx2x21x3: np.ndarray, cfg: FeatureConfig = Feature
         palm_dist_NxT=pd,
         palm_vec_NxTx3=pv,
         finger_palm_NxTx2x5=finger_palm_distance(x, clouds, cfg, W),
-        wrist_NxTx2x3=np.ascontiguousarray(x[..., 0, :]),
+        wrist_NxTx2x3=np.ascontiguousarray(x[..., 0, :], dtype=np.float32),
     )
 
 

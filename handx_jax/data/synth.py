@@ -31,8 +31,11 @@ from handx_jax.data import synth_hand as H
 
 # Bumped whenever the same (seed, SynthConfig) would give different motion; part of a corpus's recipe
 # (its identity, dataset.check_compatible). 1: noise on joint positions after FK. 2: noise in the
-# joint angles and wrist pose before FK, so bones stay rigid (issue 14.4).
-GENERATOR_VERSION = 2
+# joint angles and wrist pose before FK, so bones stay rigid (issue 14.4). 3: FK in float64 (float32
+# sin/cos differ by an ulp between numpy builds; see synth_hand.hand_fk), issue 14.5. 4: the clip filter's
+# angles and the annotation's features in float64 (same reason; clips.py, features.py). The version
+# covers the whole build (synthesis, clip filter, annotation): whatever changes a recipe's content.
+GENERATOR_VERSION = 4
 
 
 @dataclass(frozen=True)

@@ -137,27 +137,30 @@ def _thumb_axes(pose_x16: np.ndarray, radians: bool = False) -> tuple[np.ndarray
 # pinky; _MODEL_TO_OFFICIAL permutes it into skeleton.JOINT_NAMES order.
 _MODEL_ORDER = (0,) + sk.CHAINS["thumb"][1:] + sum((sk.CHAINS[f][1:] for f in ("index", "middle", "ring", "pinky")), ())
 _MODEL_TO_OFFICIAL = np.argsort(_MODEL_ORDER)
-_F32 = {k: v.astype(np.float32) for k, v in
-        {"dir": _FINGER_DIR_4x3, "lat": _FINGER_LAT_4x3, "back": _FINGER_BACK_4x3[:, None, :]}.items()}
+_FRAME = {"dir": _FINGER_DIR_4x3, "lat": _FINGER_LAT_4x3, "back": _FINGER_BACK_4x3[:, None, :]}
 
 
 def hand_fk(pose_x16: np.ndarray, geom: dict[str, np.ndarray]) -> np.ndarray:
-    """Joint positions (..., 21, 3) float32 in the right-hand frame, official joint order, metres.
+    """Joint positions (..., 21, 3) float64 in the right-hand frame, official joint order, metres.
 
     ``pose_x16`` is (..., 16) degrees; ``geom`` arrays (from hand_geometry) must broadcast against
     the leading pose axes, e.g. pose (N, T, 2, 16) with geometry reshaped to (N, 1, 1, ...).
-    Computed in float32 (sub-micrometre error at hand scale) because it is the generator's hot loop.
+    Computed in float64 although float32 would be accurate enough (sub-micrometre): numpy's float32
+    sin/cos differ by an ulp between numpy builds and CPUs (SIMD kernels), and 1e-7 relative changes
+    of the joints flip ~0.6 % of the captions (thresholds in the annotation). In float64 those
+    differences (~1e-16) vanish in the float32 the corpus stores, so a recipe rebuilds the same
+    captions and clip ids on another build (issue 14.5). Measured: no slower (0.55 vs 0.63 s a chunk).
     """
-    p = np.radians(np.asarray(pose_x16, dtype=np.float32))
+    p = np.radians(np.asarray(pose_x16, dtype=np.float64))
     lead = p.shape[:-1]
-    g = {k: np.asarray(v, dtype=np.float32) for k, v in geom.items()}
+    g = {k: np.asarray(v, dtype=np.float64) for k, v in geom.items()}
     # Fingers: abduction turns the finger in the palm plane, then the three flexions act about one
     # axis, so each finger is planar and bone k points at cumulative flexion phi_k.
     a = p[..., ABD, None]
-    dir_a = np.cos(a) * _F32["dir"] - np.sin(a) * _F32["lat"]                   # (..., 4, 3)
+    dir_a = np.cos(a) * _FRAME["dir"] - np.sin(a) * _FRAME["lat"]                   # (..., 4, 3)
     f1, f2 = p[..., MCP], p[..., PIP]
-    phi = np.stack([f1, f1 + f2, f1 + f2 * np.float32(1.0 + DIP_PER_PIP)], -1)[..., None]  # (..., 4, 3, 1)
-    bone = (np.cos(phi) * dir_a[..., None, :] - np.sin(phi) * _F32["back"]) * g["bones_Nx4x3"][..., None]
+    phi = np.stack([f1, f1 + f2, f1 + f2 * (1.0 + DIP_PER_PIP)], -1)[..., None]  # (..., 4, 3, 1)
+    bone = (np.cos(phi) * dir_a[..., None, :] - np.sin(phi) * _FRAME["back"]) * g["bones_Nx4x3"][..., None]
     mcp = np.broadcast_to(g["mcp_Nx4x3"], lead + (4, 3))
     fingers = np.cumsum(np.concatenate([mcp[..., None, :], bone], -2), axis=-2)  # (..., 4, 4, 3)
     # Thumb: CMC sets the metacarpal; MCP and IP flex toward the pad side (−nail).
@@ -168,7 +171,7 @@ def hand_fk(pose_x16: np.ndarray, geom: dict[str, np.ndarray]) -> np.ndarray:
     t_mcp = cmc + tb[..., 0:1] * along
     t_ip = t_mcp + tb[..., 1:2] * (np.cos(m) * along - np.sin(m) * nail)
     t_tip = t_ip + tb[..., 2:3] * (np.cos(m + i) * along - np.sin(m + i) * nail)
-    model = np.concatenate([np.zeros(lead + (1, 3), np.float32), np.stack([cmc, t_mcp, t_ip, t_tip], -2),
+    model = np.concatenate([np.zeros(lead + (1, 3)), np.stack([cmc, t_mcp, t_ip, t_tip], -2),
                             fingers.reshape(lead + (16, 3))], -2)
     return model[..., _MODEL_TO_OFFICIAL, :]
 

@@ -27,7 +27,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from handx_jax.io import DataError, atomic_dir, atomic_write_json, read_format_meta
+from handx_jax.io import DataError, NpyWriter, atomic_dir, atomic_write_json, check_free_space, read_format_meta
 
 FORMAT, FORMAT_VERSION = "handx-jax-text-cache", 1
 CACHE_DIRNAME = "text_cache"
@@ -110,9 +110,12 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
     kept = np.minimum(lengths, L)
     D = enc.cfg.d_model
     t0 = time.perf_counter()
-    with atomic_dir(out, overwrite=overwrite) as tmp:
-        hidden = np.lib.format.open_memmap(tmp / "hidden.npy", mode="w+", dtype=dtype, shape=(len(texts), L, D))
-        mask = np.lib.format.open_memmap(tmp / "mask.npy", mode="w+", dtype=np.bool_, shape=(len(texts), L))
+    # Appending writes, not memory maps: on a full disk a write fails with ENOSPC (a DiskFullError naming the
+    # file; atomic_dir removes the partial folder) where a memory-mapped store dies by SIGBUS, silently.
+    check_free_space(out, len(texts) * L * (D * np.dtype(dtype).itemsize + 1))
+    with atomic_dir(out, overwrite=overwrite) as tmp, \
+            NpyWriter(tmp / "hidden.npy", dtype, (len(texts), L, D)) as hidden, \
+            NpyWriter(tmp / "mask.npy", np.bool_, (len(texts), L)) as mask:
         # Masking and the cast to the cache dtype run on the device inside the encoder's jit: the host then
         # copies half the bytes and does no float work per batch (an exact 0/1 product and an IEEE
         # round-to-nearest cast, so the stored values are the same as doing it in numpy).
@@ -120,7 +123,7 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
         import jax.numpy as jnp
 
         encode = jax.jit(enc.stored_forward(dtype))
-        # Rows are encoded in consecutive chunks that are staged in RAM and written to the memmaps in
+        # Rows are encoded in consecutive chunks that are staged in RAM and appended to the files in
         # order: scattering each batch's rows over the whole file made the kernel write the same pages
         # back again and again (a 60k-clip joined cache, 9.8 GB, had written 180 GB after 19 minutes).
         # Within a chunk, longest first, padded to a multiple of 16 tokens: few distinct shapes (few
@@ -145,11 +148,10 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
                 # Padded positions are stored as exact zeros.
                 h_buf[sel - c0, :Lb] = np.asarray(encode(enc.params, jnp.asarray(ids), jnp.asarray(m)))[:len(sel)]
                 m_buf[sel - c0, :Lb] = m[:len(sel)].astype(bool)
-            hidden[c0:c1] = h_buf
-            mask[c0:c1] = m_buf
-        hidden.flush()
-        mask.flush()
-        del hidden, mask
+            hidden.append(h_buf)
+            mask.append(m_buf)
+        hidden.close()
+        mask.close()
         wall = time.perf_counter() - t0
         flops = enc.flops(kept)
         meta = {

@@ -11,10 +11,17 @@ import sys
 
 import numpy as np
 
+from handx_jax.io import DataError
+from handx_jax.text.prompts import EMPTY_HELP
+
 
 def _encode(args: argparse.Namespace) -> int:
+    from handx_jax.text.prompts import check_texts
     from handx_jax.text.t5 import load_hf_t5_encoder
 
+    check_texts(args.texts, "TEXT")
+    if args.max_len is not None and args.max_len < 2:
+        raise DataError(f"--max-len must be at least 2 (one token and the end-of-sequence id), got {args.max_len}")
     enc = load_hf_t5_encoder(args.weights)
     e, h = enc.encode(args.texts, args.max_len)
     lens = e.lengths_B.tolist()
@@ -93,7 +100,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     e.add_argument("--json", action="store_true",
                    help='print {"ids": [[...]], "hidden": [[[...]]]}: ids and last hidden states per text')
     e.add_argument("--max-len", type=int, default=None, help="truncate to this many tokens (default: none)")
-    e.add_argument("texts", nargs="+", metavar="TEXT")
+    e.add_argument("texts", nargs="+", metavar="TEXT", help="texts to encode; each " + EMPTY_HELP)
     e.set_defaults(func=_encode)
 
     t = sub.add_parser("tokenizer", help="train a SentencePiece tokenizer on a dataset's captions",

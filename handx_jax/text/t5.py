@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handx_jax.io import DataError, atomic_dir, atomic_write_json, read_json
+from handx_jax.io import DataError, atomic_dir, atomic_write_json, read_json, verify_checksum, write_checksum
 from handx_jax.text.tokenizer import MODEL_FILENAME, Encoded, Tokenizer
 
 Params = Any
@@ -360,14 +360,36 @@ _ST_DTYPES = {"F64": "<f8", "F32": "<f4", "F16": "<f2", "BF16": "bf16"}
 class _SafetensorsFile:
     def __init__(self, path: Path):
         self.path = path
+        # A truncated or garbage file must be a DataError naming it, not a MemoryError (a random 8-byte
+        # header length), a KeyError, or numpy's "mmap length is greater than file size" (issue 14.8).
+        verify_checksum(path)
+        size = path.stat().st_size
         try:
             with open(path, "rb") as f:
                 n = struct.unpack("<Q", f.read(8))[0]
+                if n > size - 8:
+                    raise ValueError(f"header length {n} exceeds the file's {size} bytes")
                 self.header = json.loads(f.read(n))
-        except (struct.error, json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise DataError(f"not a safetensors file ({e})", path=path) from None
+            if not isinstance(self.header, dict):
+                raise ValueError(f"header is a {type(self.header).__name__}, not an object")
+        except (struct.error, ValueError, UnicodeDecodeError) as e:  # JSONDecodeError is a ValueError
+            raise DataError(f"not a safetensors file, or truncated ({e})", path=path) from None
         self.header.pop("__metadata__", None)
         self.offset = 8 + n
+        for name, info in self.header.items():
+            try:
+                start, end = (int(x) for x in info["data_offsets"])
+                count = int(np.prod(info["shape"], dtype=np.int64))
+                item = 2 if info["dtype"] in ("F16", "BF16") else np.dtype(_ST_DTYPES.get(info["dtype"], "<f4")).itemsize
+            except (KeyError, TypeError, ValueError) as e:
+                raise DataError(f"malformed header entry for tensor {name!r} ({type(e).__name__}: {e})",
+                                path=path) from None
+            if not 0 <= start <= end or self.offset + end > size:
+                raise DataError(f"tensor {name!r} lies at bytes {start}..{end} of the data, beyond the file's "
+                                f"{size - self.offset} data bytes (truncated file?)", path=path)
+            if info["dtype"] in _ST_DTYPES and end - start != count * item:
+                raise DataError(f"tensor {name!r}: {end - start} bytes for shape {info['shape']} "
+                                f"{info['dtype']}", path=path)
 
     def names(self) -> list[str]:
         return list(self.header)
@@ -538,5 +560,6 @@ def save_hf_t5_encoder(folder: str | os.PathLike, cfg: T5Config, params: Params,
     with atomic_dir(folder, overwrite=overwrite) as tmp:
         atomic_write_json(tmp / CONFIG_FILE, cfg.to_hf(extra=extra_config))
         save_file(tensors, str(tmp / WEIGHTS_FILE), metadata={"format": "pt"})
+        write_checksum(tmp / WEIGHTS_FILE)  # model.safetensors.sha256: flipped bytes are refused on load
         (tmp / MODEL_FILENAME).write_bytes(tokenizer.model_proto)
     return Path(folder)
