@@ -8,6 +8,8 @@
     handx params ...    parameter counts and analytic FLOPs                      (handx_jax.commands.params)
     handx sweep ...     launch sweeps locally or on SLURM, resumable             (sweeps.cli)
     handx analyze ...   scaling fits, tables and plots                           (analysis.cli)
+    handx tokenize ...  FSQ motion tokens of a dataset, for the AR family         (handx_jax.commands.tokenize)
+    handx standard ...  the packaged standard evaluator and its corpus           (handx_jax.standard)
 
 Subcommand modules import heavy dependencies (jax, matplotlib) inside their handlers, so ``--help``
 stays fast.
@@ -31,6 +33,7 @@ GROUPS = (
     ("params", "handx_jax.commands.params"),
     ("tokenize", "handx_jax.commands.tokenize"),
     ("sweep", "sweeps.cli"),
+    ("standard", "handx_jax.standard"),
 )
 
 

@@ -1,13 +1,18 @@
-"""``make demo``: the main job, end to end, on the built-in data (CPU-sized, a few minutes).
+"""``make demo``: the main job, end to end, on the built-in data (CPU-sized, under 15 minutes on 2 cores).
 
-1. Build a small procedural corpus (synthesis → clips + intensity filter → annotation → captions),
-   print its statistics and render one clip with its texts as a GIF.
-2. Train the text side: SentencePiece tokenizer, a tiny T5 by span corruption, the embedding caches.
-3. Train a tiny treble-residual diffusion model and a tiny contrastive evaluator.
-4. Generate motion for the test split and score it against the ground truth (paper Table 2 layout).
+1. Build the first ``--clips`` clips of the standard corpus (``handx standard corpus --clips N``: synthesis
+   → clips + intensity filter → annotation → captions), print its statistics and render one clip with
+   its texts as a GIF. Being a prefix of the standard corpus, its test split is the first test clips of
+   the standard one and its train split holds no standard test clip (``handx_jax/standard.py``).
+2. Text side: the packaged tokenizer and tiny T5 (``handx standard info``) encode every caption once.
+3. Score the test split's ground truth with the packaged standard evaluator (no evaluator is trained).
+4. A mini scaling sweep (``handx sweep run``): tiny diffusion models of increasing size, each trained,
+   sampled for the test prompts and scored by the standard evaluator; then the log-linear fit of top-3
+   R-Precision against training FLOPs and its plot, with the chance level drawn.
 
-Each stage is the same ``handx`` command a user would run (printed before it runs). Sizes are tiny, so
-the scores only show that the pipeline runs; ``--data-only`` stops after stage 1.
+Each stage is the same ``handx`` command a user would run (printed before it runs). The models are
+tiny and trained for minutes, so the sweep shows the pipeline and how to read a fit, not the paper's
+numbers; ``--data-only`` stops after stage 1.
 """
 
 from __future__ import annotations
@@ -29,16 +34,17 @@ def _handx(*args: str) -> None:
     subprocess.run([sys.executable, "-m", "handx_jax", *args], check=True)
 
 
-def data_stage(out: Path, clips: int, seed: int) -> Path:
-    from handx_jax.data.build import BuildConfig, build_corpus
+def data_stage(out: Path, clips: int) -> Path:
     from handx_jax.data.caption import build_prompt
     from handx_jax.data.dataset import Dataset
     from handx_jax.data.render import render_gif
     from handx_jax.data.stats import dataset_stats, format_stats
     from handx_jax.io import atomic_write_json, atomic_write_text
+    from handx_jax.standard import build_standard_corpus
 
     t0 = time.perf_counter()
-    data_dir = build_corpus(out / "data", BuildConfig(clips=clips, seed=seed), overwrite=True)
+    print(f"\n$ handx standard corpus --clips {clips} --out {out / 'data'}", flush=True)
+    data_dir = build_standard_corpus(out / "data", clips, overwrite=True)
     ds = Dataset.open(data_dir)
     print(f"\n== corpus: {data_dir} ({len(ds)} clips, built in {time.perf_counter() - t0:.1f} s)")
     rep = ds.report["clips"]
@@ -60,28 +66,31 @@ def data_stage(out: Path, clips: int, seed: int) -> Path:
     return data_dir
 
 
-def model_stages(out: Path, data: Path, steps: int) -> None:
-    t5, run, ev = out / "t5", out / "diffusion", out / "evaluator"
-    enc = str(t5 / "encoder")
-    _handx("text", "tokenizer", "--data", str(data), "--force")
-    _handx("text", "pretrain", "--data", str(data), "--preset", "tiny", "--out", str(t5), "--steps", str(steps),
-           "--eval-every", str(steps), "--ckpt-every", str(steps))
+SWEEP = Path(__file__).resolve().parent.parent / "sweeps" / "diffusion_scaling.py"
+
+
+def model_stages(out: Path, data: Path, steps: int, eval_limit: int) -> None:
+    from handx_jax.standard import encoder_dir, evaluator_dir
+
+    enc, sweep = str(encoder_dir()), out / "sweep"
+    _handx("standard", "info")
     _handx("text", "cache", "--data", str(data), "--encoder", enc, "--nn-check", "500")
-    _handx("train", "diffusion", "--data", str(data), "--encoder", enc, "--preset", "tiny", "--out", str(run),
-           "--set", f"train.steps={2 * steps}", "--set", "train.batch_size=32", "--set", f"train.log_every={steps // 4}",
-           "--set", f"train.ckpt_every={steps}", "--set", "train.optim.lr=1e-3", "--set", "train.optim.warmup_steps=50",
-           "--quiet")
-    _handx("eval", "train-evaluator", "--data", str(data), "--encoder", enc, "--out", str(ev), "--preset", "tiny",
-           "--steps", str(2 * steps), "--batch-size", "32", "--lr", "1e-3", "--train-levels", "1", "--eval-level", "1")
-    _handx("generate", "--run", str(run), "--reference", str(data), "--split", "test", "--level", "1",
-           "--samples", "2", "--sampler", "ddim", "--steps", "25", "--out", str(out / "generated.npz"),
-           "--gif", str(out / "generated.gif"))
-    _handx("eval", "run", "--evaluator", str(ev), "--generated", str(out / "generated.npz"), "--reference", str(data),
-           "--replications", "10", "--out", str(run))
-    _handx("eval", "run", "--evaluator", str(ev), "--ground-truth", "--reference", str(data), "--replications", "10")
-    row = json.loads((run / "eval.json").read_text())
-    print(f"\nwrote {run}/eval.json; the run folder is one row of a results table "
-          f"(`handx analyze table {run}`): rprec_top3 = {row.get('rprec_top3')}")
+    _handx("eval", "run", "--ground-truth", "--reference", str(data), "--replications", "10")
+    _handx("sweep", "run", str(SWEEP), "--arg", "grid=cpu", "--arg", f"steps={steps}", "--data", str(data),
+           "--encoder", enc, "--evaluator", str(evaluator_dir()), "--eval-limit", str(eval_limit), "--out", str(sweep))
+    _handx("analyze", "table", str(sweep / "results.jsonl"))
+    _handx("analyze", "fit", str(sweep / "results.jsonl"), "--x", "flops", "--y", "rprec_top3",
+           "--plot", str(sweep / "fit.png"))
+    runs = sorted((sweep / "runs").glob("*/generated.npz"))
+    if runs:
+        from handx_jax.data.handx_npz import read_handx_npz
+        from handx_jax.data.render import render_gif
+
+        clip = read_handx_npz(runs[-1])[0]
+        gif = render_gif(clip.motion, out / "generated.gif", texts=(clip.left[0], clip.right[0], clip.interaction[0]),
+                         title=runs[-1].parent.name)
+        print(f"wrote {gif} (first generated clip of {runs[-1].parent.name})")
+    print(f"\nresults: {sweep / 'results.jsonl'} (one row per run), fit plot: {sweep / 'fit.png'}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -92,9 +101,9 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog=textwrap.fill("The corpus cut report (stage 1): " + defect_reasons_help(), 100))
     p.add_argument("--out", default="runs/demo", help="demo folder (rebuilt each time)")
-    p.add_argument("--clips", type=int, default=600)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--steps", type=int, default=200, help="T5 pretraining steps (generator/evaluator: twice this)")
+    p.add_argument("--clips", type=int, default=2400, help="first N clips of the standard corpus")
+    p.add_argument("--steps", type=int, default=300, help="training steps of each sweep run")
+    p.add_argument("--eval-limit", type=int, default=256, help="test prompts generated and scored per run")
     p.add_argument("--data-only", action="store_true", help="stop after building and inspecting the corpus")
     a = p.parse_args(argv)
     os.environ.setdefault("WANDB_MODE", "disabled")
@@ -104,9 +113,9 @@ def main(argv: list[str] | None = None) -> int:
 
         shutil.rmtree(out)
     t0 = time.perf_counter()
-    data = data_stage(out, a.clips, a.seed)
+    data = data_stage(out, a.clips)
     if not a.data_only:
-        model_stages(out, data, a.steps)
+        model_stages(out, data, a.steps, a.eval_limit)
     print(f"\ndemo finished in {time.perf_counter() - t0:.0f} s; everything is in {out}/")
     return 0
 

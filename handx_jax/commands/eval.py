@@ -1,7 +1,7 @@
 """``handx eval …``: train the text–motion evaluator and score generated motion (paper Table 2).
 
     handx eval train-evaluator --data DIR --encoder ENC --out E [--preset small] [--steps N] [--set key.sub=v]
-    handx eval run --evaluator E --generated G.npz --reference DIR [--json] [--out RUN_DIR]
+    handx eval run [--evaluator E] --generated G.npz --reference DIR [--json] [--out RUN_DIR]
     handx eval run --evaluator E --ground-truth --reference DIR [--json]
 
 ``--json`` prints one object whose keys are the analysis schema's metric names and ``<name>_ci``
@@ -56,11 +56,18 @@ def _run(args: argparse.Namespace) -> int:
         raise SystemExit(f"handx: error: --replications must be at least 1, got {args.replications}")
     cfg = MetricConfig(rprec_block=args.block, replications=args.replications, seed=args.seed,
                        mpjpe_root=args.mpjpe_root)
-    ev = load_evaluator(args.evaluator, encoder=args.encoder)
+    cache = not args.no_reference_cache
+    from handx_jax import standard
+
+    if standard.is_standard(args.evaluator):  # the packaged standard evaluator (handx_jax/standard.py)
+        if args.encoder:
+            raise SystemExit("handx: error: --encoder applies to --evaluator E; the standard evaluator carries its own")
+        ev, cache = standard.load(), (standard.reference_cache_dir() if cache else False)
+    else:
+        ev = load_evaluator(args.evaluator, encoder=args.encoder)
     if args.level is not None:
         ev.policy = dataclasses.replace(ev.policy, eval_level=args.level)
     ds = Dataset.open(args.reference)
-    cache = not args.no_reference_cache
     if args.ground_truth:
         res, name = evaluate_ground_truth(ev, ds, cfg, split=args.split, cache=cache), "Ground Truth"
     else:
@@ -110,7 +117,9 @@ def add_parser(subparsers) -> None:
     t.set_defaults(func=_train)
 
     r = sub.add_parser("run", help="Table 2 metrics of generated motion (or the Ground Truth row)")
-    r.add_argument("--evaluator", required=True, help="evaluator folder E")
+    r.add_argument("--evaluator", help="evaluator folder E; default (or 'standard', or the packaged folder): the "
+                                       "standard evaluator, which scores the standard corpus and its prefixes "
+                                       "(`handx standard info`)")
     r.add_argument("--generated", help="generated clips: HandX .npz (entries may carry source_clip, group)")
     r.add_argument("--ground-truth", action="store_true", help="score the reference split's GT motion itself")
     r.add_argument("--reference", required=True, help="the dataset the evaluator was trained on")

@@ -1,0 +1,568 @@
+"""The standard evaluator: one yardstick, shipped with the package (issue 13 item 1).
+
+The text-to-motion line of work scores every model with the same released evaluator (paper E.2;
+Guo et al.'s T2M evaluator for HumanML3D), so numbers from different people compare. This module is
+that for handx-jax. Its **identity is the corpus recipe** — the built-in generator (its version), the
+seed, the clip count and the build options of :data:`RECIPE` — not the bytes of a corpus: the same
+recipe rebuilt with another numpy/jax build gives the same clip ids, splits and captions, and motion
+equal up to float rounding, and it is accepted.
+
+Packaged assets (``handx_jax/assets/standard/``, a few MB, see ``CARD.md``):
+
+    card.json, CARD.md   recipe, how the evaluator was trained (steps, batch, lr, wall time, machine),
+                         its Ground Truth rows at R-Precision blocks 32 and 16, sha256 of every file
+    encoder/             the tiny T5 text encoder + SentencePiece tokenizer (Hugging Face layout)
+    evaluator/           the contrastive evaluator (``handx_jax.evaluation`` checkpoint format)
+    test_manifest.npz    the standard test split: clip ids in build order, a digest of each clip's
+                         captions, per-clip motion moments (for the float-tolerance identity check)
+
+Scoring without the whole standard corpus. Synthesis runs in chunks that depend only on
+``(seed, chunk)`` and a clip's split is a hash of ``(seed, sequence)`` (``data.build``), so the first
+M clips of the recipe are the same whatever the clip count: a *prefix* corpus (``handx standard
+corpus --clips M``) has a train split inside the standard train split and a test split equal to the
+first test clips of the standard one. :meth:`StandardEvaluator.check_dataset` accepts the standard
+corpus and any prefix of it — after checking its test clips against the manifest (ids, captions,
+motion within tolerance) and that no train clip is a standard test clip — and refuses anything else.
+``make demo`` trains on a 2,400-clip prefix and is scored on its ~120 standard test clips; the card's
+rows are on the full test split.
+
+    handx standard info [--json]                    the card
+    handx standard corpus --out DIR [--clips M]     build the standard corpus (or its first M clips)
+    handx standard check DIR                        is DIR the standard corpus or a prefix of it?
+    handx standard package --data DIR --encoder ENC --evaluator E --out ASSETS   (maintainers)
+    handx eval run --generated G.npz --reference DIR    (no --evaluator: the standard one)
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import json
+import os
+import platform
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from handx_jax.io import DataError, atomic_write_json, atomic_write_text
+
+VERSION = 1  # of the packaged assets; bumped whenever the recipe or any weight changes
+ASSETS = Path(__file__).resolve().parent / "assets" / "standard"
+CARD_JSON, CARD_MD, MANIFEST = "card.json", "CARD.md", "test_manifest.npz"
+ENCODER_DIR, EVALUATOR_DIR = "encoder", "evaluator"
+NAME = "standard"  # `handx eval run --evaluator standard` (the default)
+
+# Per-clip motion moments of the test clips are compared with the dataset identity's tolerance
+# (data.dataset.MOTION_ATOL, 10 µm): float rounding of another numpy/jax build moves them by ~1e-7 m; any
+# change to the generator moves them by millimetres.
+from handx_jax.data.dataset import MOTION_ATOL  # noqa: E402
+
+
+@dataclasses.dataclass(frozen=True)
+class Recipe:
+    """The standard corpus: ``handx standard corpus`` = ``handx data synth --clips CLIPS --seed SEED``
+    with the default build options, from generator version ``generator``."""
+
+    clips: int = 20_000
+    seed: int = 0
+    generator: str = ""  # filled by :func:`code_recipe` from the data package
+
+    def build_config(self, clips: int | None = None, workers: int = 0):
+        from handx_jax.data.build import BuildConfig
+
+        return BuildConfig(clips=self.clips if clips is None else int(clips), seed=self.seed, workers=workers)
+
+
+def generator_version() -> str:
+    """The generator's version as the data package states it (bumped by any change to its output)."""
+    from handx_jax.data.synth import GENERATOR_VERSION
+
+    return str(GENERATOR_VERSION)
+
+
+def code_recipe() -> Recipe:
+    """The recipe this code builds as the standard corpus."""
+    return Recipe(generator=generator_version())
+
+
+def build_options(recipe: Recipe) -> dict:
+    """The build options of the recipe as ``meta.json``'s ``recipe.options`` records them
+    (``data.build.recipe``: everything but the clip count, seed and worker count)."""
+    from handx_jax.data.build import recipe as build_recipe
+
+    return json.loads(json.dumps(build_recipe(recipe.build_config())["options"]))
+
+
+# ------------------------------------------------------------------------------------------------
+# The test manifest: the standard test split's identity, small enough to ship
+
+
+def _caption_digest(t: Mapping[str, Any]) -> str:
+    blob = json.dumps([t["left"], t["right"], t["interaction"]], ensure_ascii=False, separators=(",", ":"))
+    return hashlib.blake2b(blob.encode(), digest_size=8).hexdigest()
+
+
+def _moments(motion_NxTx2x21x3: np.ndarray) -> np.ndarray:
+    """(N, 2, 3, 2) per clip, hand and axis: mean and root-mean-square of the joint coordinates (metres)."""
+    m = np.asarray(motion_NxTx2x21x3, np.float64)
+    mean = m.mean(axis=(1, 3))
+    rms = np.sqrt((m ** 2).mean(axis=(1, 3)))
+    return np.stack([mean, rms], -1)
+
+
+def test_manifest(ds) -> dict[str, np.ndarray]:
+    """ids, caption digests and motion moments of ``ds``'s test split, in clip order."""
+    clips = np.sort(ds.split("test"))
+    moments = np.concatenate([_moments(ds.motion[clips[s:s + 512]]) for s in range(0, len(clips), 512)]) \
+        if len(clips) else np.zeros((0, 2, 3, 2))
+    return {"ids": np.array([ds.texts[int(c)]["id"] for c in clips]),
+            "captions": np.array([_caption_digest(ds.texts[int(c)]) for c in clips]),
+            "moments": moments.astype(np.float64)}
+
+
+def read_manifest(assets: Path | None = None) -> dict[str, np.ndarray]:
+    with np.load(Path(assets or ASSETS) / MANIFEST, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+# ------------------------------------------------------------------------------------------------
+# Identity check
+
+
+def recipe_of(ds) -> tuple[Recipe | None, dict]:
+    """(recipe, build options) from ``meta.json``'s ``recipe`` of a corpus built by the generator
+    (``data synth`` / ``standard corpus``); (None, {}) for anything else (imports, older corpora)."""
+    r = ds.meta.get("recipe") or {}
+    if r.get("kind") != "synth":
+        return None, {}
+    return (Recipe(clips=int(r["clips"]), seed=int(r["seed"]), generator=str(r["generator_version"])),
+            dict(r.get("options", {})))
+
+
+def check_reference(ds, card: Mapping[str, Any] | None = None, assets: Path | None = None) -> dict:
+    """Raise ``DataError`` unless ``ds`` is the standard corpus or a prefix of it; return what was found.
+
+    Accepted: the card's recipe (generator, seed, build options) with at most its clip count, whose
+    test clips are the first test clips of the standard split (same ids and captions, motion moments
+    within :data:`MOTION_ATOL`) and whose train/val clips include no standard test clip. A content
+    hash that differs (another numpy/jax build) is reported, not refused.
+    """
+    assets = Path(assets or ASSETS)
+    card = card if card is not None else read_card(assets)
+    want = Recipe(**card["recipe"])
+    got, opts = recipe_of(ds)
+    fix = (f"build it with `handx standard corpus --out DIR` (or `--clips M` for a prefix), or score with "
+           f"your own evaluator (`--evaluator E`)")
+    if got is None:
+        raise DataError(f"not the standard corpus: its recipe {(ds.meta.get('recipe') or {}).get('kind')!r} is "
+                        f"not the built-in generator's; {fix}", path=ds.root / "meta.json")
+    for name, a, b in (("generator version", got.generator, want.generator), ("seed", got.seed, want.seed)):
+        if a != b:
+            raise DataError(f"not the standard recipe: {name} {a} where the standard evaluator (v{card['version']}) "
+                            f"was trained on {b}; {fix}", path=ds.root / "meta.json")
+    want_opts = card["recipe_options"]
+    diff = sorted(k for k in set(opts) | set(want_opts) if opts.get(k) != want_opts.get(k))
+    if diff:
+        raise DataError(f"not the standard recipe: build option(s) {diff} differ from the standard's; {fix}",
+                        path=ds.root / "meta.json")
+    if got.clips > want.clips:
+        raise DataError(f"{got.clips} clips: more than the standard corpus's {want.clips}, so its test split is not "
+                        f"the standard one; {fix}", path=ds.root / "meta.json")
+    man = read_manifest(assets)
+    mine = test_manifest(ds)
+    k = len(mine["ids"])
+    if k == 0:
+        raise DataError("the test split is empty", path=ds.root / "splits.json")
+    if k > len(man["ids"]) or not np.array_equal(mine["ids"], man["ids"][:k]):
+        bad = next((i for i in range(min(k, len(man["ids"]))) if mine["ids"][i] != man["ids"][i]), k)
+        raise DataError(f"test split is not the standard one: test clip {bad} is {mine['ids'][min(bad, k - 1)]!r}, "
+                        f"expected {man['ids'][bad] if bad < len(man['ids']) else 'none'}; {fix}",
+                        path=ds.root / "splits.json")
+    if got.clips == want.clips:  # the whole corpus: the data package's identity check (every split, caption)
+        from handx_jax.data.dataset import check_compatible
+
+        check_compatible(card["corpus"]["record"], ds, what=f"the standard evaluator v{card['version']}", fix=fix)
+    cap = np.flatnonzero(mine["captions"] != man["captions"][:k])
+    if cap.size:
+        raise DataError(f"captions differ from the standard corpus's ({cap.size} test clips; first "
+                        f"{mine['ids'][cap[0]]}); {fix}", path=ds.root / "texts.jsonl", clip=mine["ids"][cap[0]])
+    dev = np.abs(mine["moments"] - man["moments"][:k]).reshape(k, -1).max(1)
+    if (dev > MOTION_ATOL).any():
+        i = int(np.argmax(dev))
+        raise DataError(f"motion differs from the standard corpus's by {dev[i]:.2e} m (tolerance {MOTION_ATOL:g}); "
+                        f"{fix}", path=ds.root / "motion.npy", clip=mine["ids"][i])
+    test_ids = set(man["ids"].tolist())
+    for split in ("train", "val"):
+        overlap = [ds.texts[int(c)]["id"] for c in ds.split(split) if ds.texts[int(c)]["id"] in test_ids]
+        if overlap:
+            raise DataError(f"{len(overlap)} {split} clip(s) are standard test clips (first {overlap[0]}): the "
+                            f"standard evaluator would score clips it may have been trained beside; {fix}",
+                            path=ds.root / "splits.json")
+    return {"prefix": got.clips < want.clips, "clips": got.clips, "test_clips": k,
+            "fingerprint": ds.fingerprint, "standard_fingerprint": card["corpus"]["fingerprint"],
+            "same_bytes": ds.fingerprint == card["corpus"]["fingerprint"] and got.clips == want.clips,
+            "max_motion_deviation_m": float(dev.max())}
+
+
+# ------------------------------------------------------------------------------------------------
+# Loading
+
+
+def read_card(assets: Path | None = None) -> dict:
+    p = Path(assets or ASSETS) / CARD_JSON
+    if not p.exists():
+        raise DataError(f"the standard evaluator's card is missing (is the package installed with its assets? "
+                        f"see pyproject package-data)", path=p)
+    return json.loads(p.read_text())
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def asset_files(assets: Path) -> list[str]:
+    """Files covered by the card's checksums (everything but the card itself), sorted."""
+    return sorted(str(p.relative_to(assets)) for p in Path(assets).rglob("*")
+                  if p.is_file() and p.name not in (CARD_JSON, CARD_MD) and "__pycache__" not in p.parts)
+
+
+def verify_assets(assets: Path | None = None, card: Mapping[str, Any] | None = None) -> None:
+    assets = Path(assets or ASSETS)
+    card = card if card is not None else read_card(assets)
+    for rel, want in card["sha256"].items():
+        p = Path(assets) / rel
+        if not p.exists():
+            raise DataError("standard evaluator file missing (reinstall the package)", path=p)
+        if _sha256(p) != want:
+            raise DataError("standard evaluator file corrupt: sha256 differs from card.json (reinstall the "
+                            "package)", path=p)
+
+
+def reference_cache_dir() -> Path:
+    """Where the standard evaluator caches reference embeddings: the package folder may be read-only
+    (and an editable install should not collect cache files), so a user cache folder."""
+    base = os.environ.get("HANDX_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "handx-jax")
+    return Path(base) / f"standard-v{VERSION}" / "reference_cache"
+
+
+def load(assets: Path | None = None, *, verify: bool = True, batch_size: int = 256):
+    """The packaged standard evaluator (a :class:`StandardEvaluator`; ``assets``: another assets folder)."""
+    from handx_jax.evaluation import load_evaluator
+
+    assets = Path(assets or ASSETS)
+    card = read_card(assets)
+    if verify:
+        verify_assets(assets, card)
+    ev = load_evaluator(assets / EVALUATOR_DIR, encoder=assets / ENCODER_DIR, batch_size=batch_size)
+    fields = {f.name: getattr(ev, f.name) for f in dataclasses.fields(ev)}
+    return __getattr__("StandardEvaluator")(**fields, card=card, assets=assets)
+
+
+def evaluator_dir(assets: Path | None = None) -> Path:
+    """The packaged evaluator folder. Passing it as ``--evaluator`` (e.g. to ``handx sweep run``, which
+    reads its ``evaluator.json`` for the caption level) selects the standard evaluator."""
+    return Path(assets or ASSETS) / EVALUATOR_DIR
+
+
+def is_standard(evaluator: str | os.PathLike | None) -> bool:
+    """``--evaluator`` omitted, ``standard``, or the packaged evaluator folder itself."""
+    if evaluator is None or str(evaluator) == NAME:
+        return True
+    return Path(evaluator).resolve() == evaluator_dir().resolve()
+
+
+def evaluator_meta(evaluator: str | os.PathLike | None) -> dict:
+    """``evaluator.json`` of an evaluator folder, or of the standard evaluator (see :func:`is_standard`)."""
+    folder = evaluator_dir() if is_standard(evaluator) else Path(evaluator)
+    return json.loads((folder / "evaluator.json").read_text())
+
+
+def encoder_dir(assets: Path | None = None) -> Path:
+    """The packaged T5 encoder folder (pass it as ``--encoder`` to train models on the standard corpus)."""
+    return Path(assets or ASSETS) / ENCODER_DIR
+
+
+def _standard_evaluator_class():
+    from handx_jax.evaluation import TrainedEvaluator
+
+    @dataclasses.dataclass
+    class StandardEvaluator(TrainedEvaluator):
+        """The packaged evaluator; accepts the standard corpus and its prefixes (:func:`check_reference`)."""
+
+        card: dict = dataclasses.field(default_factory=dict)
+        assets: Path | None = None
+
+        def check_dataset(self, ds) -> None:
+            found = check_reference(ds, self.card, self.assets)
+            self.meta.setdefault("reference_check", {})[str(ds.root)] = found
+
+    return StandardEvaluator
+
+
+def __getattr__(name: str):  # StandardEvaluator is built lazily: importing this module must not import jax
+    if name == "StandardEvaluator":
+        if name not in globals():
+            globals()[name] = _standard_evaluator_class()
+        return globals()[name]
+    raise AttributeError(name)
+
+
+# ------------------------------------------------------------------------------------------------
+# Building the corpus and packaging the assets
+
+
+def build_standard_corpus(out: str | os.PathLike, clips: int | None = None, *, workers: int = 0,
+                          overwrite: bool = False, progress: bool = True, recipe: Recipe | None = None,
+                          assets: Path | None = None) -> Path:
+    """``handx standard corpus``: the standard recipe, or its first ``clips`` clips (a prefix)."""
+    from handx_jax.data.build import build_corpus
+
+    rec = recipe or code_recipe()
+    assets = Path(assets or ASSETS)
+    card = read_card(assets) if (assets / CARD_JSON).exists() else None
+    if card is not None and Recipe(**card["recipe"]) != rec:
+        raise DataError(f"this code's generator builds recipe {dataclasses.asdict(rec)}, but the packaged standard "
+                        f"evaluator was trained on {card['recipe']}; its corpus cannot be rebuilt with this code "
+                        f"(rebuild the assets: see {assets / CARD_MD})")
+    n = rec.clips if clips is None else int(clips)
+    if not 0 < n <= rec.clips:
+        raise ValueError(f"--clips must be in [1, {rec.clips}] (the standard corpus has {rec.clips}), got {n}")
+    return build_corpus(out, rec.build_config(n, workers), overwrite=overwrite, progress=progress)
+
+
+def _copy_folder(src: Path, dst: Path, names: Sequence[str]) -> None:
+    dst.mkdir(parents=True, exist_ok=True)
+    for n in names:
+        if not (src / n).exists():
+            raise DataError(f"missing {n}", path=src)
+        shutil.copy2(src / n, dst / n)
+
+
+def package(data: str | os.PathLike, encoder: str | os.PathLike, evaluator: str | os.PathLike,
+            out: str | os.PathLike | None = None, *, training: Mapping[str, Any] | None = None,
+            replications: int = 20, blocks: Sequence[int] = (32, 16), recipe: Recipe | None = None,
+            log=print) -> Path:
+    """Copy the encoder and evaluator trained on the standard corpus ``data`` into ``out``, score the
+    Ground Truth rows (blocks 32 and 16) on the full test split, and write the manifest and the card."""
+    from handx_jax.data.dataset import Dataset
+    from handx_jax.evaluation import EVAL_FILE, META_FILE, PARAMS_FILE, STATS_FILE, evaluate_ground_truth, \
+        read_meta
+    from handx_jax.metrics import MetricConfig
+
+    ds = Dataset.open(data)
+    rec, opts = recipe_of(ds)
+    want = recipe or code_recipe()
+    if rec != want or opts != build_options(want):
+        raise DataError(f"{data} is not this code's standard corpus: recipe {rec}, expected {want}"
+                        + ("" if opts == build_options(want) else " (build options differ)"), path=data)
+    meta = read_meta(evaluator)
+    if meta["dataset"]["fingerprint"] != ds.fingerprint:
+        raise DataError(f"the evaluator was trained on dataset {meta['dataset']['fingerprint']}, not {data} "
+                        f"({ds.fingerprint})", path=evaluator)
+    out = Path(out or ASSETS)
+    tmp = out.with_name(f".{out.name}.packaging")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    enc_src = Path(encoder)
+    _copy_folder(enc_src, tmp / ENCODER_DIR, sorted(p.name for p in enc_src.iterdir() if p.is_file()))
+    _copy_folder(Path(evaluator), tmp / EVALUATOR_DIR, [PARAMS_FILE, STATS_FILE])
+    # evaluator.json: paths made relative to the package (they pointed into the maintainer's machine).
+    meta = dict(meta)
+    meta["dataset"] = {**meta["dataset"], "path": f"standard corpus v{VERSION} (handx standard corpus)"}
+    meta["encoder"] = {**meta["encoder"], "path": ENCODER_DIR}
+    atomic_write_json(tmp / EVALUATOR_DIR / META_FILE, meta)
+    man = test_manifest(ds)
+    np.savez_compressed(tmp / MANIFEST, **man)
+    from handx_jax.data.dataset import dataset_record
+
+    card = {"version": VERSION, "recipe": dataclasses.asdict(rec), "recipe_options": opts,
+            "corpus": {"record": dataset_record(ds), "fingerprint": ds.fingerprint, "clips": len(ds), "split_sizes": ds.meta["split_sizes"],
+                       "build_seconds": ds.report.get("seconds"), "test_clips": len(man["ids"])},
+            "evaluator": {"preset": meta["preset"], "params": meta["params"], "config": meta["evaluator_config"],
+                          "text": meta["text"], "training": meta["training"],
+                          "encoder_fingerprint": meta["encoder"]["fingerprint"],
+                          "tokenizer_fingerprint": meta["encoder"]["tokenizer_fingerprint"]},
+            "training_run": dict(training or {}),
+            "packaged": {"machine": f"{platform.machine()}, {os.cpu_count()} CPU cores, no accelerator"
+                         if not _has_accelerator() else platform.machine(),
+                         "python": sys.version.split()[0], "numpy": np.__version__, "jax": _jax_version(),
+                         "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime())},
+            "sha256": {}}
+    card["sha256"] = {rel: _sha256(tmp / rel) for rel in asset_files(tmp)}
+    atomic_write_json(tmp / CARD_JSON, card)
+    # Score the GT rows with the packaged copy, through the same check users go through.
+    ev = load(tmp)
+    rows = {}
+    for block in blocks:
+        t0 = time.perf_counter()
+        res = evaluate_ground_truth(ev, ds, MetricConfig(rprec_block=block, replications=replications), cache=False)
+        rows[str(block)] = {**res.flat(), "prompts": res.meta["prompts"], "replications": replications,
+                            "seconds": round(time.perf_counter() - t0, 1)}
+        log(f"GT block {block}: top-1 {rows[str(block)]['rprec_top1']:.3f} top-3 {rows[str(block)]['rprec_top3']:.3f}")
+    card["ground_truth"] = rows
+    atomic_write_json(tmp / CARD_JSON, card)
+    atomic_write_json(tmp / EVALUATOR_DIR / EVAL_FILE,
+                      {**rows[str(blocks[0])], "_meta": {"split": "test", "block": blocks[0]}})
+    card["sha256"] = {rel: _sha256(tmp / rel) for rel in asset_files(tmp)}
+    atomic_write_json(tmp / CARD_JSON, card)
+    atomic_write_text(tmp / CARD_MD, card_markdown(card))
+    if out.exists():
+        shutil.rmtree(out)
+    os.replace(tmp, out)
+    return out
+
+
+def _has_accelerator() -> bool:
+    try:
+        import jax
+
+        return jax.default_backend() != "cpu"
+    except Exception:  # noqa: BLE001 - packaging must not fail on a missing backend
+        return False
+
+
+def _jax_version() -> str:
+    try:
+        import jax
+
+        return jax.__version__
+    except Exception:  # noqa: BLE001
+        return "?"
+
+
+def _row(r: Mapping[str, Any]) -> str:
+    f = lambda k: f"{r[k]:.3f} ± {r[k + '_ci']:.3f}"  # noqa: E731
+    return f"{f('rprec_top1')} | {f('rprec_top2')} | {f('rprec_top3')} | {r['mm_dist']:.3f} | {f('diversity')}"
+
+
+def card_markdown(card: Mapping[str, Any]) -> str:
+    """CARD.md from card.json (one source of truth)."""
+    rec, c, e, tr = card["recipe"], card["corpus"], card["evaluator"], card.get("training_run", {})
+    t = e["training"]
+    gt = card.get("ground_truth", {})
+    lines = [
+        f"# Standard evaluator v{card['version']}",
+        "",
+        "The evaluator `handx eval run` uses when no `--evaluator` is given. Its identity is the corpus recipe:",
+        "",
+        f"- generator version **{rec['generator']}**, seed **{rec['seed']}**, **{rec['clips']:,}** clips, default "
+        f"build options (`handx standard corpus --out DIR` = `handx data synth --clips {rec['clips']} --seed "
+        f"{rec['seed']}`)",
+        f"- splits {c['split_sizes']}; content hash on the packaging machine `{c['fingerprint']}` (another "
+        f"numpy/jax build may give other float bytes: the check compares ids, captions and motion within "
+        f"{MOTION_ATOL:g} m instead)",
+        f"- a corpus of the first M clips (`--clips M`) is a *prefix*: its train split lies inside the standard "
+        f"train split and its test split is the first test clips of the standard one; it is accepted, so small "
+        f"experiments (`make demo`) are scored on a subset of the same test split",
+        "",
+        "## Training",
+        "",
+        f"- evaluator preset `{e['preset']}`, {e['params']:,} parameters, motion input "
+        f"`{e['config'].get('motion_input')}`, latent {e['config'].get('latent')}; frozen tiny T5 text encoder "
+        f"(`encoder/`, fingerprint `{e['encoder_fingerprint']}`, tokenizer `{e['tokenizer_fingerprint']}`)",
+        f"- {t['steps']:,} steps × batch {t['batch_size']}, AdamW lr {t['lr']:g}, warm-up {t['warmup']}, "
+        f"{t['schedule']} decay, weight decay {t['weight_decay']:g}, caption level(s) "
+        f"{e['text'].get('train_levels')}, scored at level {e['text'].get('eval_level')}",
+    ]
+    for k, v in tr.items():
+        lines.append(f"- {k}: {v}")
+    lines += [
+        f"- packaged on: {card['packaged']['machine']}; python {card['packaged']['python']}, numpy "
+        f"{card['packaged']['numpy']}, jax {card['packaged']['jax']}; {card['packaged']['date_utc']} UTC",
+        "",
+        "## Ground Truth rows (standard test split, level-0 captions, 20 replications, mean ± 1.96σ/√n)",
+        "",
+        "| block | top-1 | top-2 | top-3 | MM-Dist | Diversity |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for b, r in gt.items():
+        lines.append(f"| {b} | {_row(r)} |")
+    lines += ["", f"{c['test_clips']:,} test prompts. Reproduce: `handx eval run --ground-truth --reference DIR "
+              f"[--block 16]` on the standard corpus.", ""]
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------------
+# CLI: handx standard ...
+
+
+def _info(a: argparse.Namespace) -> int:
+    card = read_card()
+    if a.json:
+        json.dump({k: v for k, v in card.items() if k != "sha256"}, sys.stdout, indent=1)
+        sys.stdout.write("\n")
+    else:
+        print(card_markdown(card))
+        print(f"assets: {ASSETS}")
+    return 0
+
+
+def _corpus(a: argparse.Namespace) -> int:
+    t0 = time.perf_counter()
+    out = build_standard_corpus(a.out, a.clips, workers=a.workers, overwrite=a.force, progress=not a.quiet)
+    print(f"wrote {out} ({time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
+def _check(a: argparse.Namespace) -> int:
+    from handx_jax.data.dataset import Dataset
+
+    found = check_reference(Dataset.open(a.data))
+    if a.json:
+        json.dump(found, sys.stdout)
+        sys.stdout.write("\n")
+    else:
+        kind = "a prefix of the standard corpus" if found["prefix"] else "the standard corpus"
+        note = "" if found["same_bytes"] or found["prefix"] else (
+            f" (content hash {found['fingerprint']} differs from the packaging machine's "
+            f"{found['standard_fingerprint']}: float rounding of another build, within tolerance)")
+        print(f"{a.data}: {kind}, {found['clips']} clips, {found['test_clips']} standard test clips; max motion "
+              f"deviation {found['max_motion_deviation_m']:.1e} m{note}")
+    return 0
+
+
+def _package(a: argparse.Namespace) -> int:
+    training = dict(kv.split("=", 1) for kv in a.note)
+    package(a.data, a.encoder, a.evaluator, a.out, training=training, replications=a.replications)
+    print(f"wrote {a.out}")
+    return 0
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser("standard", help="the packaged standard evaluator and its corpus",
+                              description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="standard_command", metavar="SUBCOMMAND")
+    sub.required = True
+    i = sub.add_parser("info", help="print the standard evaluator's card (recipe, training, GT rows)")
+    i.add_argument("--json", action="store_true")
+    i.set_defaults(func=_info)
+    c = sub.add_parser("corpus", help="build the standard corpus, or its first --clips M clips (a prefix)")
+    c.add_argument("--out", required=True, help="dataset directory to create")
+    c.add_argument("--clips", type=int, help="build only the first M clips (default: the whole standard corpus)")
+    c.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
+    c.add_argument("--force", action="store_true", help="replace an existing dataset directory")
+    c.add_argument("--quiet", action="store_true", help="no progress bar")
+    c.set_defaults(func=_corpus)
+    k = sub.add_parser("check", help="is a dataset the standard corpus (or a prefix)? if not, say why and exit 2")
+    k.add_argument("data", help="dataset directory")
+    k.add_argument("--json", action="store_true")
+    k.set_defaults(func=_check)
+    g = sub.add_parser("package", help="(maintainers) copy a trained encoder + evaluator into the package assets")
+    g.add_argument("--data", required=True, help="the standard corpus the evaluator was trained on")
+    g.add_argument("--encoder", required=True, help="its T5 encoder folder")
+    g.add_argument("--evaluator", required=True, help="its evaluator folder")
+    g.add_argument("--out", help="assets folder (default: the package's)")
+    g.add_argument("--replications", type=int, default=20)
+    g.add_argument("--note", action="append", default=[], metavar="KEY=VALUE",
+                   help="a line for the card's training section, e.g. 'corpus build=612 s on 2 cores'")
+    g.set_defaults(func=_package)
