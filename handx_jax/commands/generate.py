@@ -32,6 +32,14 @@ from handx_jax.commands import fail
 CMD = "handx generate"
 
 
+def _check_empty(args) -> None:
+    """Empty prompts are refused (issue 14.8): no model was trained on an empty caption."""
+    from handx_jax.text.prompts import check_texts
+
+    for name, texts in (("--left", args.left), ("--right", args.right), ("--interaction", args.interaction)):
+        check_texts(texts or [], name)
+
+
 def _prompts(args) -> list:
     from handx_jax.generation import Prompt
 
@@ -41,10 +49,7 @@ def _prompts(args) -> list:
     if not (len(L) == len(R) == len(I)):
         raise ValueError(f"give --left, --right and --interaction the same number of times "
                          f"(got {len(L)}, {len(R)}, {len(I)})")
-    from handx_jax.text.prompts import check_texts  # empty prompts are refused (issue 14.8)
-
-    for name, texts in (("--left", L), ("--right", R), ("--interaction", I)):
-        check_texts(texts, name)
+    _check_empty(args)
     return [Prompt(*x) for x in zip(L, R, I)]
 
 
@@ -66,7 +71,7 @@ def _run(args: argparse.Namespace) -> int:
         return 0 if args.help else fail(CMD, "the following arguments are required: --run, --out")
     try:
         if not args.help:
-            _prompts(args)  # bad prompts (e.g. empty) are refused before any run is opened
+            _check_empty(args)  # before any run is opened
         fam, fp = family_parser(args.run)
     except ValueError as e:
         return fail(CMD, e)
