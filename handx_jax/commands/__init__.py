@@ -9,3 +9,22 @@ def fail(cmd: str, err: object, code: int = 2) -> int:
     """Print ``cmd: error: err`` on stderr and return the exit status (every command's error path)."""
     print(f"{cmd}: error: {err}", file=sys.stderr)
     return code
+
+
+def parse_family(args, verb: str, family_parser):
+    """The shared head of ``handx train|params FAMILY``: list the families, show help, or parse the
+    family's own flags. Returns ``(family_args, None)`` to go on, or ``(None, exit_status)``."""
+    from handx_jax.families import FAMILIES
+
+    if args.family is None:
+        args.parser.print_help()
+        print("\nfamilies:\n" + "\n".join(f"  {k:<12s}{f.help}" for k, f in FAMILIES.items()))
+        return None, 0 if args.help else fail(f"handx {verb}", "give a FAMILY")
+    try:
+        p = family_parser(args.family)
+    except ValueError as e:
+        return None, fail(f"handx {verb}", e)
+    if args.help:
+        p.print_help()
+        return None, 0
+    return p.parse_args(args.extra), None

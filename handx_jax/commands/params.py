@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from handx_jax.commands import fail
+from handx_jax.commands import fail, parse_family
 
 
 def family_parser(name: str) -> argparse.ArgumentParser:
@@ -33,21 +33,12 @@ def family_parser(name: str) -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from handx_jax.families import FAMILIES, get_family
+    fargs, status = parse_family(args, "params", family_parser)
+    if fargs is None:
+        return status
+    from handx_jax.families import get_family
 
-    if args.family is None:
-        args.parser.print_help()
-        print("\nfamilies:\n" + "\n".join(f"  {k:<12s}{f.help}" for k, f in FAMILIES.items()))
-        return 0 if args.help else fail("handx params", "give a FAMILY")
     cmd = f"handx params {args.family}"
-    try:
-        p = family_parser(args.family)
-    except ValueError as e:
-        return fail("handx params", e)
-    if args.help:
-        p.print_help()
-        return 0
-    fargs = p.parse_args(args.extra)
     try:
         label, out = get_family(args.family).params_from_args(fargs)
     except ValueError as e:

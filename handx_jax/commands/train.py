@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 
-from handx_jax.commands import fail
+from handx_jax.commands import fail, parse_family
 
 
 def family_parser(name: str) -> argparse.ArgumentParser:
@@ -41,21 +41,10 @@ def _print_row(row: dict) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from handx_jax.families import FAMILIES
-
-    if args.family is None:
-        args.parser.print_help()
-        print("\nfamilies:\n" + "\n".join(f"  {k:<12s}{f.help}" for k, f in FAMILIES.items()))
-        return 0 if args.help else fail("handx train", "give a FAMILY")
+    fargs, status = parse_family(args, "train", family_parser)
+    if fargs is None:
+        return status
     cmd = f"handx train {args.family}"
-    try:
-        p = family_parser(args.family)
-    except ValueError as e:
-        return fail("handx train", e)
-    if args.help:
-        p.print_help()
-        return 0
-    fargs = p.parse_args(args.extra)
     from handx_jax.config import print_config
     from handx_jax.families import get_family
     from handx_jax.train import initialize_distributed
