@@ -79,6 +79,17 @@ def family_of(run_dir: str | Path) -> str:
     return str(fam)
 
 
+def run_config(run_dir: str | Path, family: str) -> dict:
+    """A run folder's ``config.json``, refused (naming the folder) unless it was trained as ``family``;
+    the head of every family's ``load``."""
+    found = family_of(run_dir)
+    if found != family:
+        from handx_jax.io import DataError
+
+        raise DataError(f"not a {family} run folder (config.json names family {found!r})", path=run_dir)
+    return json.loads((Path(run_dir) / "config.json").read_text())
+
+
 def load_run(run_dir: str | Path, **kw):
     """Open any trained run for generation, dispatching on its ``config.json["family"]``."""
     return get_family(family_of(run_dir)).load(run_dir, **kw)

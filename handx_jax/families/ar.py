@@ -36,6 +36,7 @@ import numpy as np
 from handx_jax import ar_decode as AD
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
 from handx_jax.families import tokenizer as T
+from handx_jax.families import run_config
 from handx_jax.io import DataError
 from handx_jax.models import prefix_lm as P
 from handx_jax.train import OptimConfig, TrainConfig
@@ -311,10 +312,7 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
     from handx_jax.train import load_params
 
     run_dir = Path(run_dir)
-    p = run_dir / "config.json"
-    doc = json.loads(p.read_text()) if p.exists() else None
-    if doc is None or doc.get("family") != FAMILY:
-        raise DataError("not an ar run folder (config.json missing or family is not 'ar')", path=run_dir)
+    doc = run_config(run_dir, FAMILY)
     cfg = from_dict(ARRunConfig, doc)
     bad = [o for o in overrides if not o.split("=", 1)[0].strip().startswith("sample.")]
     if bad:

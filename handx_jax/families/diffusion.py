@@ -32,6 +32,7 @@ import numpy as np
 
 from handx_jax import diffusion as D
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
+from handx_jax.families import run_config
 from handx_jax.io import DataError
 from handx_jax.models.dit import PRESETS, DiTConfig, TrebleDenoiser, forward_flops, init_denoiser, param_count, size_name
 from handx_jax.train import OptimConfig, TrainConfig
@@ -307,9 +308,7 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
     from handx_jax.train import load_params
 
     run_dir = Path(run_dir)
-    doc = json.loads((run_dir / "config.json").read_text()) if (run_dir / "config.json").exists() else None
-    if doc is None or doc.get("family") != FAMILY:
-        raise DataError("not a diffusion run folder (config.json missing or family is not 'diffusion')", path=run_dir)
+    doc = run_config(run_dir, FAMILY)
     cfg = config_from_dict(doc)
     bad = [o for o in overrides if not o.split("=", 1)[0].strip().startswith("diffusion.")]
     if bad:

@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
+from handx_jax.families import run_config
 from handx_jax.io import DataError
 from handx_jax.models import fsq as Q
 from handx_jax.train import OptimConfig, TrainConfig
@@ -265,10 +266,7 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
     from handx_jax.train import load_params
 
     run_dir = Path(run_dir)
-    p = run_dir / "config.json"
-    doc = json.loads(p.read_text()) if p.exists() else None
-    if doc is None or doc.get("family") != FAMILY:
-        raise DataError("not a tokenizer run folder (config.json missing or family is not 'tokenizer')", path=run_dir)
+    doc = run_config(run_dir, FAMILY)
     cfg = from_dict(TokenizerRunConfig, doc)
     params, step = load_params(run_dir, ema=ema)
     with np.load(run_dir / NORM_FILE) as z:
