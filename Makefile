@@ -20,8 +20,11 @@ venv: $(STAMP)
 demo: $(STAMP)
 	JAX_PLATFORMS=cpu $(BIN)/python -m handx_jax.demo --out $(DEMO_DIR)
 
+# One pytest worker per core, each test file on one worker (its module fixtures are built once):
+# single-process pytest leaves the second core idle most of the run (wall time ~ user CPU time).
+TEST_WORKERS ?= auto
 test: $(STAMP)
-	JAX_PLATFORMS=cpu $(BIN)/python -m pytest tests
+	JAX_PLATFORMS=cpu $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile tests
 
 # Rebuild the packaged standard evaluator (corpus -> tokenizer -> tiny T5 -> evaluator -> card); see CARD.md.
 standard-assets: $(STAMP)

@@ -46,3 +46,11 @@ def test_eval_speed_default_preset_runs(eval_speed, capsys):
 def test_peak_is_a_positive_float32_figure():
     peak = _load("_peak").matmul_peak(n=128, repeats=2)
     assert peak["dtype"] == "float32" and peak["n"] == 128 and peak["flops_per_s"] > 1e6
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in (ROOT / "benchmarks").glob("*.py")))
+def test_every_benchmark_script_imports(name):
+    # vs_torch.py imported a module that the family split had moved, and nothing noticed: every script's
+    # imports are checked here (loading runs no benchmark: each keeps its work under ``__main__``).
+    mod = _load(name)
+    assert callable(getattr(mod, "main", None)) or name == "_peak"
