@@ -3,19 +3,43 @@
 
 from __future__ import annotations
 
+import fcntl
+import os
+import shutil
 from pathlib import Path
 
 ENCODER = Path(__file__).parent / "fixtures" / "t5_tiny_gated"
 
 
-def make_dataset(root: Path) -> Path:
+def _build(root: Path, joined: bool) -> Path:
     from handx_jax.data.build import BuildConfig, build_corpus
     from handx_jax.text.cache import build_cache
 
     data = build_corpus(root / "ds", BuildConfig(clips=32, seed=3, workers=1, val_fraction=0.2, test_fraction=0.2),
                         progress=False)
-    build_cache(data, ENCODER, log=lambda s: None)
+    build_cache(data, ENCODER, joined=joined, log=lambda s: None)
     return data
+
+
+def make_dataset(root: Path, joined: bool = False) -> Path:
+    """The 32-clip corpus (seed 3) with its per-field (or ``joined``) text cache, under ``root/ds``.
+
+    Built once per test session in the session folder (tests/conftest.py) and copied from there: several
+    test files use this same corpus, and the copy costs milliseconds where the build costs seconds. The
+    build runs under a file lock, so two xdist workers never build it twice or read it half-written."""
+    session = os.environ.get("HANDX_TEST_SESSION")
+    if not session:
+        return _build(root, joined)
+    shared = Path(session) / "shared" / f"corpus32-seed3-{'joined' if joined else 'fields'}"
+    shared.parent.mkdir(parents=True, exist_ok=True)
+    with open(shared.parent / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (shared / "done").exists():
+            shutil.rmtree(shared, ignore_errors=True)
+            _build(shared, joined)
+            (shared / "done").touch()
+    shutil.copytree(shared / "ds", root / "ds")
+    return root / "ds"
 
 
 def tiny_config(data: Path, *overrides: str):

@@ -8,7 +8,7 @@ import pytest
 
 from handx_jax.cli import main
 from handx_jax.io import read_jsonl
-from tests.diffusion_fixtures import ENCODER
+from tests.diffusion_fixtures import ENCODER, make_dataset
 
 LOOP = ["--set", "train.batch_size=8", "--set", "train.log_every=2", "--set", "train.ckpt_every=4",
         "--set", "train.wandb=disabled", "--set", "train.optim.warmup_steps=0", "--set", "train.optim.lr=2e-3"]
@@ -16,13 +16,8 @@ LOOP = ["--set", "train.batch_size=8", "--set", "train.log_every=2", "--set", "t
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
-    from handx_jax.data.build import BuildConfig, build_corpus
-    from handx_jax.text.cache import build_cache
-
     root = tmp_path_factory.mktemp("ar")
-    data = build_corpus(root / "ds", BuildConfig(clips=32, seed=3, workers=1, val_fraction=0.2, test_fraction=0.2),
-                        progress=False)
-    build_cache(data, ENCODER, joined=True, log=lambda s: None)
+    data = make_dataset(root, joined=True)
     tok, run = root / "tok", root / "lm"
     assert main(["train", "tokenizer", "--data", str(data), "--codebook", "256", "--preset", "tiny", "--quiet",
                  "--set", "train.steps=4", "--set", "train.eval_every=2", *LOOP, "--out", str(tok)]) == 0
