@@ -9,7 +9,12 @@ Prints one JSON object with three passes over the same clips:
 - ``seconds``: warm, reference embeddings read from the cache, as every evaluation of a sweep after the
   first one against the same evaluator, clips and caption level: only the generated motion is embedded.
 
-The cache lives in a temporary folder (never in the evaluator folder).
+The cache lives in a temporary folder (never in the evaluator folder). Each pass also reports
+``metrics_parts`` (seconds of R-Precision + MM-Dist, FID with its bootstrap, Diversity, the motion
+metrics) and ``cpu_total`` (process CPU seconds, all threads: on a shared machine wall time also counts
+the time other processes held the cores); the output names the command, the bootstrap resample count
+and the load average at start and end. The default preset matches issue 15 item 4: 2,000 clips (one
+generation group, so every ± is a prompt bootstrap of ``--bootstrap`` = 200 resamples), 20 replications.
 
     JAX_PLATFORMS=cpu .venv/bin/python benchmarks/eval_speed.py                       # random-init small evaluator
     JAX_PLATFORMS=cpu .venv/bin/python benchmarks/eval_speed.py --evaluator E --reference DIR   # a trained one

@@ -118,6 +118,9 @@ def _blas_single_thread():
     The bootstrap's stacked 128² Cholesky / matmul / eigvalsh calls are each too small to split, but
     OpenBLAS threads them anyway (its potrf always; gemm above 64³): with 2 threads on this 2-core CPU
     shared with a training run they took 2.9 s of CPU (50 s wall at load 16) instead of 0.02 s each.
+    The resampled Gram and distance matmuls are used single-threaded too: on a quiet machine a second
+    thread saves ~0.1 s, on one shared with a training run (the usual case in a sweep) OpenBLAS's
+    spinning threads cost several seconds of wall time (FID part 4.5 s wall for ~1 s CPU at load 12).
     """
     fns = _openblas_threads()
     if fns is None:
@@ -209,9 +212,10 @@ def resampled_moments(x_NxD, counts_BxN) -> tuple[np.ndarray, np.ndarray]:
 def fid_resampled(a_NxD, b_NxD, counts_BxN) -> np.ndarray:
     """FID (B,) of each paired bootstrap resample: resample b takes prompt n ``counts[b, n]`` times on
     both sides (a and b are aligned by prompt). Same values as :func:`fid` on ``a[idx_b], b[idx_b]``."""
-    mu1, s1 = resampled_moments(a_NxD, counts_BxN)
-    mu2, s2 = resampled_moments(b_NxD, counts_BxN)
-    return np.maximum(_fid_from_moments(mu1, s1, mu2, s2), 0.0)
+    with _blas_single_thread():
+        mu1, s1 = resampled_moments(a_NxD, counts_BxN)
+        mu2, s2 = resampled_moments(b_NxD, counts_BxN)
+        return np.maximum(_fid_from_moments(mu1, s1, mu2, s2), 0.0)
 
 
 @jax.jit
@@ -417,7 +421,8 @@ def resampled_pair_mean(emb_NxD, i1_P, i2_P, idx_BxN) -> np.ndarray:
     """
     e = np.asarray(emb_NxD, np.float64)
     sq = np.sum(e * e, -1)
-    dist_NxN = np.sqrt(np.maximum(sq[:, None] + sq[None, :] - 2.0 * (e @ e.T), 0.0))
+    with _blas_single_thread():
+        dist_NxN = np.sqrt(np.maximum(sq[:, None] + sq[None, :] - 2.0 * (e @ e.T), 0.0))
     idx = np.asarray(idx_BxN)
     return dist_NxN[idx[:, np.asarray(i1_P)], idx[:, np.asarray(i2_P)]].mean(1)
 
