@@ -140,9 +140,9 @@ def _trace_sqrt_product(s1_BxDxD: np.ndarray, s2_BxDxD: np.ndarray) -> np.ndarra
 
     Σ1Σ2 is similar to L1ᵀ Σ2 L1 with Σ1 = L1 L1ᵀ (Cholesky): a symmetric PSD matrix with the same
     eigenvalues, so the trace of the square root is Σ sqrt(eigvalsh(L1ᵀ Σ2 L1)), with no non-symmetric
-    ``scipy.linalg.sqrtm`` (the usual FID code; tests/test_metrics.py checks the two agree). NumPy's
-    LAPACK loops over the stacked 128² matrices about 100× faster than a float64 ``lax.map`` of
-    ``jnp.linalg.eigh`` did on this CPU. A singular Σ1 (fewer samples than dimensions, a collapsed
+    ``scipy.linalg.sqrtm`` (the usual FID code; tests/test_metrics.py checks the two agree). With the
+    Gram matmul of :func:`resampled_moments` this takes 200 resamples of 128-d embeddings in ~0.7 s of
+    CPU, where a float64 ``lax.map`` of gather + ``jnp.cov`` + ``jnp.linalg.eigh`` took ~31 s. A singular Σ1 (fewer samples than dimensions, a collapsed
     embedding) has no Cholesky factor: its symmetric square root from ``eigh`` (same eigenvalues of the
     product, about twice the cost) takes the place of L1 then.
     """
