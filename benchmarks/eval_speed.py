@@ -9,7 +9,12 @@ Prints one JSON object with three passes over the same clips:
 - ``seconds``: warm, reference embeddings read from the cache, as every evaluation of a sweep after the
   first one against the same evaluator, clips and caption level: only the generated motion is embedded.
 
-The cache lives in a temporary folder (never in the evaluator folder).
+The cache lives in a temporary folder (never in the evaluator folder). Each pass also reports
+``metrics_parts`` (seconds of R-Precision + MM-Dist, FID with its bootstrap, Diversity, the motion
+metrics) and ``cpu_total`` (process CPU seconds, all threads: on a shared machine wall time also counts
+the time other processes held the cores); the output names the command, the bootstrap resample count
+and the load average at start and end. The default preset matches issue 15 item 4: 2,000 clips (one
+generation group, so every ± is a prompt bootstrap of ``--bootstrap`` = 200 resamples), 20 replications.
 
     JAX_PLATFORMS=cpu .venv/bin/python benchmarks/eval_speed.py                       # random-init small evaluator
     JAX_PLATFORMS=cpu .venv/bin/python benchmarks/eval_speed.py --evaluator E --reference DIR   # a trained one
@@ -25,6 +30,7 @@ import argparse
 import json
 import os
 import platform
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -35,7 +41,8 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 from handx_jax.evaluation import (TextPolicy, TrainedEvaluator, _init_params,  # noqa: E402
-                                  evaluate_embeddings_and_motion, load_evaluator, model_config, reference_embeddings)
+                                  evaluate_embeddings_and_motion, load_evaluator, model_config, motion_features,
+                                  reference_embeddings)
 from handx_jax.metrics import MetricConfig  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -103,28 +110,39 @@ def main(argv=None) -> dict:
     mcfg = MetricConfig(replications=a.replications, bootstrap=a.bootstrap)
 
     def run(cache):
-        t0 = time.perf_counter()
+        c0, t0 = time.process_time(), time.perf_counter()
         ref = reference_embeddings(ev, prompts, gt, provenance=provenance, cache=cache)
         t1 = time.perf_counter()
         res = evaluate_embeddings_and_motion(ev, ref.text_NxD, gen, gt, mcfg, gt_NxD=ref.motion_NxD)
         s = res.meta["seconds"]
         text, motion = ref.seconds["text"], ref.seconds["motion"] + s["motion_embedding"]
         return {"text_embedding": text, "motion_embedding": motion, "embedding_total": t1 - t0 + s["motion_embedding"],
-                "metrics": s["metrics"], "total": t1 - t0 + s["motion_embedding"] + s["metrics"],
-                "reference_cache": ref.status}, res
+                "metrics": s["metrics"], "metrics_parts": s["metrics_parts"],
+                "total": t1 - t0 + s["motion_embedding"] + s["metrics"],
+                # CPU seconds of the process (all threads): on a shared machine wall time also counts the
+                # time other processes held the cores, this does not
+                "cpu_total": time.process_time() - c0, "reference_cache": ref.status}, res
 
+    load_start = os.getloadavg()
     with tempfile.TemporaryDirectory() as cache_dir:
         cold, _ = run(cache_dir)  # compiles; empty cache: embeds the reference and writes it
         uncached, _ = run(False)
         warm, res = run(cache_dir)
+    t0 = time.perf_counter()
+    for g in range(a.groups):  # the host-side part of motion embedding, alone (profile)
+        motion_features(gen[g], ev.stats, ev.cfg.motion_input)
+    features = time.perf_counter() - t0
     out = {
+        "command": " ".join(["benchmarks/eval_speed.py", *(argv if argv is not None else sys.argv[1:])]),
         "clips": int(N * a.groups), "prompts": int(N), "groups": a.groups, "replications": a.replications,
+        "bootstrap": a.bootstrap,
         "seconds": warm, "seconds_uncached": uncached, "cold_seconds_with_compile": cold,
+        "generated_motion_features_seconds": features,
         "evaluator": {"latent": ev.cfg.latent, "layers": ev.cfg.layers, "ff": ev.cfg.ff,
                       "text_max_len": ev.policy.max_len, "encoder_d_model": ev.encoder.cfg.d_model, **source},
         "rprec_top1": res.metrics["rprec_top1"][0],
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "backend": jax.default_backend(),
-                    "loadavg_1m": os.getloadavg()[0]},
+                    "loadavg_start": load_start, "loadavg_end": os.getloadavg()},
     }
     print(json.dumps(out, indent=1))
     return out

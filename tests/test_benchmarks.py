@@ -40,7 +40,11 @@ def test_eval_speed_default_preset_runs(eval_speed, capsys):
     assert out["clips"] == 8 and out["replications"] == 1
     assert out["seconds"]["reference_cache"] == "hit" and out["seconds_uncached"]["reference_cache"] == "off"
     assert 0.0 <= out["rprec_top1"] <= 1.0
-    assert out["seconds"]["total"] > 0
+    assert out["seconds"]["total"] > 0 and out["seconds_uncached"]["cpu_total"] > 0
+    # the profile the issue asks for: each metric part timed, and the load the figure was taken under
+    assert set(out["seconds"]["metrics_parts"]) == {"rprec_mm_dist", "fid", "diversity", "motion_metrics"}
+    assert out["bootstrap"] == 2 and len(out["machine"]["loadavg_start"]) == 3
+    assert out["command"].endswith("--clips 8 --replications 1 --bootstrap 2")
 
 
 def test_peak_is_a_positive_float32_figure():

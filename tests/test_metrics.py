@@ -21,6 +21,67 @@ def test_fid_zero_for_same_set_and_monotone_in_shift():
     assert M.fid(b, 2 * b) == pytest.approx(4 * (1 - 2) ** 2, rel=2e-2)
 
 
+def _fid_sqrtm_reference(a, b):
+    """The textbook FID (float64, scipy.linalg.sqrtm of the non-symmetric product Σ1Σ2)."""
+    import scipy.linalg
+
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    s1, s2 = np.cov(a, rowvar=False), np.cov(b, rowvar=False)
+    covmean = scipy.linalg.sqrtm(s1 @ s2)
+    return float(np.sum((a.mean(0) - b.mean(0)) ** 2) + np.trace(s1) + np.trace(s2) - 2.0 * np.trace(covmean).real)
+
+
+def test_fid_matches_the_scipy_sqrtm_formula():
+    rng = np.random.default_rng(4)
+    mix = rng.normal(size=(12, 12))
+    a = rng.normal(size=(300, 12)) @ mix
+    b = 0.3 + rng.normal(size=(250, 12)) @ (mix + 0.5 * rng.normal(size=(12, 12)))
+    assert M.fid(a, b) == pytest.approx(_fid_sqrtm_reference(a, b), rel=1e-9)
+    # Singular Σ1 (fewer samples than dimensions): no Cholesky factor, the eigh square root is used.
+    a_few = a[:8]
+    s1, s2 = np.cov(a_few, rowvar=False), np.cov(b, rowvar=False)
+    ev = np.clip(np.linalg.eigvals(s1 @ s2).real, 0, None)
+    want = np.sum((a_few.mean(0) - b.mean(0)) ** 2) + np.trace(s1) + np.trace(s2) - 2 * np.sqrt(ev).sum()
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.cholesky(s1)
+    assert M.fid(a_few, b) == pytest.approx(want, rel=1e-6)
+
+
+def test_fid_bootstrap_equals_fid_of_each_explicit_resample():
+    """The weighted-Gram bootstrap (counts, one matmul, Cholesky + eigvalsh) gives, for the same resample
+    indices, the values of the straightforward computation: gather the rows, np.cov, scipy sqrtm."""
+    rng = np.random.default_rng(5)
+    n, d = 80, 6
+    a = 2.0 + rng.normal(size=(n, d)) @ rng.normal(size=(d, d))
+    b = a + 0.5 * rng.normal(size=(n, d)) + 0.1
+    idx = M.bootstrap_indices(n, M.MetricConfig(bootstrap=25))
+    counts = M._counts(idx, n)
+    mu, cov = M.resampled_moments(a, counts)
+    np.testing.assert_allclose(mu, np.stack([a[i].mean(0) for i in idx]), rtol=1e-12, atol=1e-12)
+    # The Gram correction is a float32 matmul on top of the exact float64 full-sample Gram (metrics.py):
+    # agreement to ~1e-8 of the covariance's scale, far below float32's own 6e-8 per value.
+    want_cov = np.stack([np.cov(a[i], rowvar=False) for i in idx])
+    np.testing.assert_allclose(cov, want_cov, rtol=0, atol=1e-7 * np.abs(want_cov).max())
+    want = [max(_fid_sqrtm_reference(a[i], b[i]), 0.0) for i in idx]
+    # FID is Tr Σ1 + Tr Σ2 − 2 Tr sqrt(Σ1Σ2) (+ the mean term): its rounding error scales with the traces.
+    scale = np.trace(np.cov(a, rowvar=False)) + np.trace(np.cov(b, rowvar=False))
+    np.testing.assert_allclose(M.fid_resampled(a, b, counts), want, rtol=0, atol=1e-7 * scale)
+    # Diversity's resamples: the gathered N × N distances equal the direct norms of the resampled pairs.
+    i1, i2 = M.diversity_indices(n, 30, 0)
+    direct = [np.mean(np.linalg.norm(a[i[i1]] - a[i[i2]], axis=-1)) for i in idx]
+    np.testing.assert_allclose(M.resampled_pair_mean(a, i1, i2, idx), direct, rtol=1e-9)
+
+
+def test_blas_single_thread_restores_the_thread_count():
+    fns = M._openblas_threads()
+    if fns is None:
+        pytest.skip("no bundled OpenBLAS found")  # the context manager is then a no-op
+    before = fns[0]()
+    with M._blas_single_thread():
+        assert fns[0]() == 1
+    assert fns[0]() == before
+
+
 def test_r_precision_perfect_and_random():
     rng = np.random.default_rng(1)
     e = rng.normal(size=(320, 8)).astype(np.float32)

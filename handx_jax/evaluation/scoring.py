@@ -56,9 +56,12 @@ def evaluate_embeddings_and_motion(ev: TrainedEvaluator, text_NxD: np.ndarray, g
         gen_GxNxD = np.stack([ev.embed_motion(gen_GxNxTx2x21x3[g]) for g in range(G)])
     gen_emb = np.asarray(gen_GxNxD, np.float32)
     t1 = time.perf_counter()
-    emb = replicate_embedding_metrics(text_NxD, gen_emb, gt_emb, cfg)
+    parts: dict[str, float] = {}
+    emb = replicate_embedding_metrics(text_NxD, gen_emb, gt_emb, cfg, timings=parts)
+    tm = time.perf_counter()
     mot = _schema_names(replicate_motion_metrics(gen_GxNxTx2x21x3, gt_NxTx2x21x3, cfg))
     t2 = time.perf_counter()
+    parts["motion_metrics"] = t2 - tm
     order = ("rprec_top1", "rprec_top2", "rprec_top3", "fid", "mm_dist", "diversity", "multimodality", "mpjpe",
              "acceleration", "jitter", "contact_precision_intra", "contact_recall_intra", "contact_f1_intra",
              "contact_precision_inter", "contact_recall_inter", "contact_f1_inter")
@@ -66,7 +69,8 @@ def evaluate_embeddings_and_motion(ev: TrainedEvaluator, text_NxD: np.ndarray, g
     metrics = {k: allm[k] for k in order if k in allm}
     m = {"prompts": int(N), "groups": int(G), "replications": cfg.replications, "rprec_block": cfg.rprec_block,
          "seed": cfg.seed, "mpjpe_root": cfg.mpjpe_root, "evaluator": str(ev.root) if ev.root else None,
-         "eval_level": ev.policy.eval_level, "seconds": {"motion_embedding": t1 - t0, "metrics": t2 - t1},
+         "eval_level": ev.policy.eval_level, "seconds": {"motion_embedding": t1 - t0, "metrics": t2 - t1,
+                                                              "metrics_parts": parts},
          "ci_method": {k: ci_method(k, G) for k in metrics}, "bootstrap": cfg.bootstrap,
          **(meta or {})}
     return EvalResult(metrics, m)
