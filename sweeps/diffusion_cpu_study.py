@@ -40,9 +40,11 @@ from sweeps.launcher import RunSpec, run_id
 
 # (layers, dim, heads, FFN): per-sample forward FLOPs (analytic) ≈ 12 M, 55 M, 177 M.
 SIZES = ((1, 32, 2, 64), (2, 64, 4, 128), (2, 128, 4, 256))
+# make demo: three smaller sizes (≈ 12 M, 33 M, 55 M), so that three runs fit in a few minutes.
+DEMO_SIZES = ((1, 32, 2, 64), (2, 48, 4, 96), (2, 64, 4, 128))
 FRACTIONS = (0.2, 1.0)
 # Optimizer steps at data fraction 1.0 per preset; fraction f trains round(f × STEPS) steps (fixed epochs).
-STEPS = {"cpu": 1500, "demo": 600}
+STEPS = {"cpu": 1500, "demo": 400}
 BATCH = 32
 RESOURCES = {**_RESOURCES, "cpu": {"timeout_min": 90, "cpus_per_task": 1, "mem_gb": 4},
              "demo": {"timeout_min": 30, "cpus_per_task": 1, "mem_gb": 4}}
@@ -55,15 +57,16 @@ def _train(steps: int, batch: int) -> tuple[str, ...]:
 
 
 def runs(preset: str = "cpu", steps: int | None = None, batch: int = BATCH, fractions: tuple = FRACTIONS,
-         sizes: tuple = SIZES) -> list[RunSpec]:
+         sizes: tuple | None = None) -> list[RunSpec]:
     """The study's runs, most expensive first (so ``--max-parallel 2`` packs two cores well).
 
-    ``preset``: ``cpu`` (``make sweep-cpu``) or ``demo`` (``make demo``: the largest fraction only, fewer
-    steps); ``steps`` overrides the steps at fraction 1.0."""
+    ``preset``: ``cpu`` (``make sweep-cpu``) or ``demo`` (``make demo``: ``DEMO_SIZES`` on the largest
+    fraction only, fewer steps); ``steps`` overrides the steps at fraction 1.0."""
     if preset not in STEPS:
         raise ValueError(f"unknown preset {preset!r} ({' | '.join(STEPS)})")
     full = int(steps or STEPS[preset])
     fracs = tuple(float(f) for f in ((max(fractions),) if preset == "demo" else fractions))
+    sizes = sizes or (DEMO_SIZES if preset == "demo" else SIZES)
     out = []
     for frac in fracs:
         for L, d, H, F in sizes:
