@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed-stamp
 DEMO_DIR ?= runs/demo
 STANDARD_WORK ?= runs/standard-build
 
-.PHONY: venv demo test bench standard-assets clean
+.PHONY: venv demo sweep-cpu test bench standard-assets clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -19,6 +19,28 @@ venv: $(STAMP)
 
 demo: $(STAMP)
 	JAX_PLATFORMS=cpu $(BIN)/python -m handx_jax.demo --out $(DEMO_DIR)
+
+# The CPU scaling study (sweeps/diffusion_cpu_study.py, issue 13 item 7): a prefix of the standard corpus and
+# its text cache (built once, reused), 6 diffusion runs (3 sizes x 2 data fractions at fixed epochs, two at a
+# time), each scored by the packaged standard evaluator, then the table and the fit of top-3 R-Precision
+# against training compute with its plot. About an hour on 2 CPU cores (README: the measured time).
+SWEEP_CPU_DIR ?= runs/sweep-cpu
+SWEEP_CPU_CLIPS ?= 4000
+SWEEP_CPU_ARGS ?= --eval-limit 10000 --eval-samples 2 --sampler-steps 25 --max-parallel 2
+sweep-cpu: $(STAMP)
+	@start=$$(date +%s); set -e; export JAX_PLATFORMS=cpu WANDB_MODE=disabled; \
+	H="$(BIN)/python -m handx_jax"; D=$(SWEEP_CPU_DIR)/data; \
+	ENC=$$($(BIN)/python -c "from handx_jax import standard; print(standard.encoder_dir())"); \
+	EV=$$($(BIN)/python -c "from handx_jax import standard; print(standard.evaluator_dir())"); \
+	test -f $$D/meta.json || $$H standard corpus --clips $(SWEEP_CPU_CLIPS) --out $$D --quiet; \
+	$$H text cache --data $$D --encoder $$ENC; \
+	$$H sweep run sweeps/diffusion_cpu_study.py --preset cpu --data $$D --encoder $$ENC --evaluator $$EV \
+	    $(SWEEP_CPU_ARGS) --out $(SWEEP_CPU_DIR)/sweep; \
+	$$H analyze table $(SWEEP_CPU_DIR)/sweep/results.csv; \
+	$$H analyze fit $(SWEEP_CPU_DIR)/sweep/results.csv --x compute --y rprec_top3 \
+	    --plot $(SWEEP_CPU_DIR)/sweep/fit.png | tee $(SWEEP_CPU_DIR)/sweep/fit.txt; \
+	$$H analyze fit $(SWEEP_CPU_DIR)/sweep/results.csv --x compute --y rprec_top3 --json > $(SWEEP_CPU_DIR)/sweep/fit.json; \
+	echo "sweep-cpu finished in $$(( $$(date +%s) - start )) s (corpus prefix, text cache, 6 runs, fit)"
 
 # One pytest worker per core, each test file on one worker (its module fixtures are built once):
 # single-process pytest leaves the second core idle most of the run (wall time ~ user CPU time).

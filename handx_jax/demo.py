@@ -6,13 +6,16 @@
    the standard one and its train split holds no standard test clip (``handx_jax/standard.py``).
 2. Text side: the packaged tokenizer and tiny T5 (``handx standard info``) encode every caption once.
 3. Score the test split's ground truth with the packaged standard evaluator (no evaluator is trained).
-4. A mini scaling sweep (``handx sweep run``): tiny diffusion models of increasing size, each trained,
-   sampled for the test prompts and scored by the standard evaluator; then the log-linear fit of top-3
-   R-Precision against training FLOPs and its plot, with the chance level drawn.
+4. A mini scaling sweep (``handx sweep run``, the ``demo`` preset of ``sweeps/diffusion_cpu_study.py``,
+   the short version of ``make sweep-cpu``): three small diffusion models (L1 d32, L2 d48, L2 d64) trained
+   for 400 steps at lr 1e-3, two at a time, each sampled for the test prompts (DDIM, 25 steps) and scored
+   by the standard evaluator; then the log-linear fit of top-3 R-Precision against training compute and
+   its plot, with the chance level drawn.
 
 Each stage is the same ``handx`` command a user would run (printed before it runs). The models are
-tiny and trained for minutes, so the sweep shows the pipeline and how to read a fit, not the paper's
-numbers; ``--data-only`` stops after stage 1.
+small and trained for a few minutes, so the sweep shows the pipeline and how to read a fit, not the
+paper's numbers (``make sweep-cpu`` trains longer: ``docs/results/cpu_study/``); ``--data-only`` stops
+after stage 1.
 """
 
 from __future__ import annotations
@@ -66,20 +69,26 @@ def data_stage(out: Path, clips: int) -> Path:
     return data_dir
 
 
-SWEEP = Path(__file__).resolve().parent.parent / "sweeps" / "diffusion_scaling.py"
+SWEEP = Path(__file__).resolve().parent.parent / "sweeps" / "diffusion_cpu_study.py"
 
 
-def model_stages(out: Path, data: Path, steps: int, eval_limit: int) -> None:
+def model_stages(out: Path, data: Path, steps: int | None, eval_limit: int, eval_samples: int = 1,
+                 sampler_steps: int = 25) -> None:
     from handx_jax.standard import encoder_dir, evaluator_dir
 
     enc, sweep = str(encoder_dir()), out / "sweep"
     _handx("standard", "info")
     _handx("text", "cache", "--data", str(data), "--encoder", enc, "--nn-check", "500")
     _handx("eval", "run", "--ground-truth", "--reference", str(data), "--replications", "10")
-    _handx("sweep", "run", str(SWEEP), "--arg", "grid=cpu", "--arg", f"steps={steps}", "--data", str(data),
-           "--encoder", enc, "--evaluator", str(evaluator_dir()), "--eval-limit", str(eval_limit), "--out", str(sweep))
+    # The short version of `make sweep-cpu` (sweeps/diffusion_cpu_study.py, preset demo): three sizes on all
+    # the prefix's train clips, two runs at a time on two cores, each scored by the standard evaluator.
+    _handx("sweep", "run", str(SWEEP), "--preset", "demo", *(("--arg", f"steps={steps}") if steps else ()),
+           "--data", str(data), "--encoder", enc, "--evaluator", str(evaluator_dir()), "--eval-limit", str(eval_limit),
+           "--eval-samples", str(eval_samples), "--sampler-steps", str(sampler_steps), "--max-parallel", "2",
+           "--out", str(sweep))
     _handx("analyze", "table", str(sweep / "results.jsonl"))
-    _handx("analyze", "fit", str(sweep / "results.jsonl"), "--x", "flops", "--y", "rprec_top3",
+    # x = training compute: the study trains at fixed epochs (see the sweep file's docstring)
+    _handx("analyze", "fit", str(sweep / "results.jsonl"), "--x", "compute", "--y", "rprec_top3",
            "--plot", str(sweep / "fit.png"))
     runs = sorted((sweep / "runs").glob("*/generated.npz"))
     if runs:
@@ -101,9 +110,11 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog=textwrap.fill("The corpus cut report (stage 1): " + defect_reasons_help(), 100))
     p.add_argument("--out", default="runs/demo", help="demo folder (rebuilt each time)")
-    p.add_argument("--clips", type=int, default=2400, help="first N clips of the standard corpus")
-    p.add_argument("--steps", type=int, default=300, help="training steps of each sweep run")
-    p.add_argument("--eval-limit", type=int, default=256, help="test prompts generated and scored per run")
+    p.add_argument("--clips", type=int, default=1200, help="first N clips of the standard corpus")
+    p.add_argument("--steps", type=int, help="training steps of each sweep run (default: the sweep's demo preset)")
+    p.add_argument("--eval-limit", type=int, default=512, help="test prompts generated and scored per run")
+    p.add_argument("--eval-samples", type=int, default=1, help="samples per test prompt (1: the ± is a prompt bootstrap)")
+    p.add_argument("--sampler-steps", type=int, default=25, help="DDIM steps when sampling the test prompts")
     p.add_argument("--data-only", action="store_true", help="stop after building and inspecting the corpus")
     a = p.parse_args(argv)
     os.environ.setdefault("WANDB_MODE", "disabled")
@@ -115,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     data = data_stage(out, a.clips)
     if not a.data_only:
-        model_stages(out, data, a.steps, a.eval_limit)
+        model_stages(out, data, a.steps, a.eval_limit, a.eval_samples, a.sampler_steps)
     print(f"\ndemo finished in {time.perf_counter() - t0:.0f} s; everything is in {out}/")
     return 0
 

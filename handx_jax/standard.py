@@ -51,7 +51,7 @@ import numpy as np
 
 from handx_jax.io import DataError, atomic_write_json, atomic_write_text
 
-VERSION = 1  # of the packaged assets; bumped whenever the recipe or any weight changes
+VERSION = 2  # of the packaged assets; bumped whenever the recipe or any weight changes
 ASSETS = Path(__file__).resolve().parent / "assets" / "standard"
 CARD_JSON, CARD_MD, MANIFEST = "card.json", "CARD.md", "test_manifest.npz"
 ENCODER_DIR, EVALUATOR_DIR = "encoder", "evaluator"
@@ -407,7 +407,8 @@ def package(data: str | os.PathLike, encoder: str | os.PathLike, evaluator: str 
         t0 = time.perf_counter()
         res = evaluate_ground_truth(ev, ds, MetricConfig(rprec_block=block, replications=replications), cache=False)
         rows[str(block)] = {**res.flat(), "prompts": res.meta["prompts"], "replications": replications,
-                            "seconds": round(time.perf_counter() - t0, 1)}
+                            "ci_method": res.meta.get("ci_method", {}).get("rprec_top1"),
+                            "bootstrap": res.meta.get("bootstrap"), "seconds": round(time.perf_counter() - t0, 1)}
         log(f"GT block {block}: top-1 {rows[str(block)]['rprec_top1']:.3f} top-3 {rows[str(block)]['rprec_top3']:.3f}")
     card["ground_truth"] = rows
     atomic_write_json(tmp / CARD_JSON, card)
@@ -442,7 +443,18 @@ def _jax_version() -> str:
 
 def _row(r: Mapping[str, Any]) -> str:
     f = lambda k: f"{r[k]:.3f} ± {r[k + '_ci']:.3f}"  # noqa: E731
-    return f"{f('rprec_top1')} | {f('rprec_top2')} | {f('rprec_top3')} | {r['mm_dist']:.3f} | {f('diversity')}"
+    return f"{f('rprec_top1')} | {f('rprec_top2')} | {f('rprec_top3')} | {f('mm_dist')} | {f('diversity')}"
+
+
+def _ci_note(gt: Mapping[str, Any]) -> str:
+    """What the rows' ± is (``metrics.ci_method``): the GT row is one group, so a prompt bootstrap."""
+    r = next(iter(gt.values()), {})
+    reps, boot = r.get("replications", "?"), r.get("bootstrap") or 200
+    if r.get("ci_method", "bootstrap_prompts") == "bootstrap_prompts":
+        return (f"Point values average {reps} re-blockings of the prompts; ± is a 95% interval for the mean: 1.96 × "
+                f"the spread over {boot} bootstrap resamples of the test prompts (`handx_jax/metrics.py`, "
+                f"`ci_method` `bootstrap_prompts`).")
+    return f"± is a 95% interval (`ci_method` `{r.get('ci_method')}`, `handx_jax/metrics.py`)."
 
 
 def card_markdown(card: Mapping[str, Any]) -> str:
@@ -480,7 +492,9 @@ def card_markdown(card: Mapping[str, Any]) -> str:
         f"- packaged on: {card['packaged']['machine']}; python {card['packaged']['python']}, numpy "
         f"{card['packaged']['numpy']}, jax {card['packaged']['jax']}; {card['packaged']['date_utc']} UTC",
         "",
-        "## Ground Truth rows (standard test split, level-0 captions, 20 replications, mean ± 1.96σ/√n)",
+        f"## Ground Truth rows (standard test split, level-{e['text'].get('eval_level', 0)} captions)",
+        "",
+        _ci_note(gt),
         "",
         "| block | top-1 | top-2 | top-3 | MM-Dist | Diversity |",
         "| --- | --- | --- | --- | --- | --- |",

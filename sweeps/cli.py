@@ -59,7 +59,8 @@ def _run(a: argparse.Namespace) -> int:
         raise SystemExit("handx sweep run: error: --data (and --encoder for diffusion runs) are required")
     cfg = SweepConfig(data=str(Path(a.data).absolute()), encoder=str(Path(a.encoder).absolute()) if a.encoder else "",
                       out=a.out, evaluator=str(Path(a.evaluator).absolute()) if a.evaluator else None,
-                      eval_limit=a.eval_limit, eval_samples=a.eval_samples, executor=a.executor, slurm=resources,
+                      eval_limit=a.eval_limit, eval_samples=a.eval_samples, sampler=a.sampler,
+                      sampler_steps=a.sampler_steps, executor=a.executor, slurm=resources,
                       name=a.name or "", preset=preset, max_parallel=a.max_parallel, existing=a.existing)
     try:
         res = launch(specs, cfg)
@@ -120,6 +121,8 @@ def add_parser(subparsers) -> None:
     r.add_argument("--evaluator", help="evaluator checkpoint; without it runs are trained but not scored")
     r.add_argument("--eval-limit", type=int, default=512, help="test clips generated per run")
     r.add_argument("--eval-samples", type=int, default=1, help="generations per prompt")
+    r.add_argument("--sampler", choices=("ddim", "ddpm"), default="ddim", help="sampler of the generate stage")
+    r.add_argument("--sampler-steps", type=int, default=50, help="denoising steps of the generate stage")
     r.add_argument("--executor", choices=("local", "slurm", "debug"), default="local")
     r.add_argument("--max-parallel", type=int, default=1,
                    help="runs at once (local: worker threads; SLURM: the array's parallelism)")

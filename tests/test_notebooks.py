@@ -37,6 +37,7 @@ def kernel_env(tmp_path, monkeypatch):
     monkeypatch.setenv("PYTHONPATH", str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     monkeypatch.setenv("JAX_PLATFORMS", os.environ.get("JAX_PLATFORMS", "cpu"))
     monkeypatch.setenv("MPLBACKEND", "Agg")
+    monkeypatch.setenv("HANDX_CACHE_DIR", str(tmp_path / "handx-cache"))  # the standard evaluator's reference cache
     work = tmp_path / "work"
     work.mkdir()
     return work
