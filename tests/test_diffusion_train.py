@@ -70,7 +70,7 @@ def test_training_lowers_the_loss_and_writes_a_results_row(data, tmp_path):
                       "train.optim.lr=2e-3")
     tr = load_train_data(cfg)
     model = make_model(cfg.model)
-    loss = make_loss(model, cfg.diffusion)
+    loss = jax.jit(make_loss(model, cfg.diffusion), static_argnums=3)  # one compile, not one per op (eager)
     batch = tr.batch(np.arange(0, tr.num_items, 2)[:32])
     fixed = lambda p: float(np.mean([loss(p, batch, jax.random.PRNGKey(s), False)[0] for s in range(4)]))  # noqa: E731
     cfg_model = dataclasses.replace(cfg.model, text_dim=32)
