@@ -81,20 +81,21 @@ def test_branches_share_weights_and_text_matters():
     assert not any(n.startswith("layer2") for n in names)  # one stack, not three
     x, t, text, mask = _inputs(cfg)
     none = jnp.zeros((2, 3), bool)
-    out = model.apply(params, x, t, text, mask, none)
+    apply = jax.jit(model.apply)  # one compile for the five calls below (eager dispatch compiles every op)
+    out = apply(params, x, t, text, mask, none)
     assert out.shape == x.shape
     # Changing only the interaction text changes the prediction; dropping all texts gives the
     # unconditional output, which is independent of the texts.
     text2 = text.at[2].set(-text[2])
-    assert not np.allclose(model.apply(params, x, t, text2, mask, none), out)
+    assert not np.allclose(apply(params, x, t, text2, mask, none), out)
     allnull = jnp.ones((2, 3), bool)
-    u1 = model.apply(params, x, t, text, mask, allnull)
-    u2 = model.apply(params, x, t, text2, mask, allnull)
+    u1 = apply(params, x, t, text, mask, allnull)
+    u2 = apply(params, x, t, text2, mask, allnull)
     np.testing.assert_allclose(u1, u2, atol=1e-6)
     assert not np.allclose(u1, out)
     # Padding is masked: changing padded text tokens changes nothing.
     text3 = text.at[2, :, 5:].set(123.0)  # interaction text is valid only in its first 2 tokens
-    np.testing.assert_allclose(model.apply(params, x, t, text3, mask, none), out, atol=1e-5)
+    np.testing.assert_allclose(apply(params, x, t, text3, mask, none), out, atol=1e-5)
 
 
 def test_cosine_schedule_matches_reference_formula():
