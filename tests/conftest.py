@@ -29,8 +29,10 @@ def pytest_unconfigure(config):
 # whole on one worker, in collection order, so a heavy file collected last (the notebooks, SLURM, the sweeps
 # are late in the alphabet) ran alone at the end while the other core idled. Starting the longest ones first
 # is the classic longest-processing-time schedule; files not listed keep their order after these.
-HEAVY_FIRST = ("test_evaluation.py", "test_notebooks.py", "test_diffusion_train.py", "test_generate.py",
-               "test_slurm.py", "test_sweeps.py", "test_ar_family.py", "test_prefix_lm.py", "test_standard.py",
+# test_slurm.py leads: on a fresh machine it first apt-installs slurm, munge and mariadb (~30 s, mostly
+# waiting on the network and the disk), which then overlaps the other worker's compute.
+HEAVY_FIRST = ("test_slurm.py", "test_evaluation.py", "test_notebooks.py", "test_diffusion_train.py",
+               "test_generate.py", "test_sweeps.py", "test_ar_family.py", "test_prefix_lm.py", "test_standard.py",
                "test_build_and_cli.py", "test_dit.py", "test_text_pretrain.py", "test_perf_paths.py", "test_fsq.py")
 
 
