@@ -8,6 +8,7 @@ n×n matmul is timed ``repeats`` times after one compiling call; the best repeat
 
 from __future__ import annotations
 
+import json
 import time
 
 import jax
@@ -40,3 +41,31 @@ def matmul_peak(n: int | None = None, repeats: int = 10, dtype=None) -> dict:
         best = min(best, time.perf_counter() - t0)
     return {"flops_per_s": 2.0 * n ** 3 * inner / best, "dtype": jnp.dtype(dtype).name, "n": n,
             "device": dev.device_kind, "seconds_best": best, "repeats": repeats}
+
+
+# Peak dense bf16 tensor-core FLOP/s (vendor datasheets, without sparsity), for MFU on a GPU.
+PEAK_BF16 = {
+    "H200": 989.4e12,  # H200 SXM
+    "H100 PCIe": 756.0e12,
+    "H100": 989.4e12,  # H100 SXM (HBM3)
+    "A100": 312.0e12,
+    "L4": 121.0e12,
+}
+
+
+def device_peak(kind: str) -> float | None:
+    """The datasheet bf16 peak of a GPU by its ``device_kind`` (None when unknown)."""
+    for name, peak in PEAK_BF16.items():  # most specific first
+        if name in kind:
+            return peak
+    return None
+
+
+def emit(doc: dict, out: str | None = None, indent: int = 2) -> None:
+    """Every benchmark's ending: the JSON document on stdout and, with ``--out``, written atomically."""
+    text = json.dumps(doc, indent=indent)
+    print(text)
+    if out:
+        from handx_jax.io import atomic_write_text
+
+        atomic_write_text(out, text + "\n")

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import platform
 import sys
 import tempfile
@@ -33,21 +32,13 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/_peak.py
 
 from handx_jax import ar_decode as AD  # noqa: E402
 from handx_jax.models import fsq as Q  # noqa: E402
 from handx_jax.models import prefix_lm as P  # noqa: E402
 from handx_jax.train import OptimConfig, TrainConfig, train  # noqa: E402
-
-PEAK_BF16 = {"H200": 989.4e12, "H100 PCIe": 756.0e12, "H100": 989.4e12, "A100": 312.0e12, "L4": 121.0e12}
-
-
-def device_peak(kind: str) -> float | None:
-    for name, peak in PEAK_BF16.items():
-        if name in kind:
-            return peak
-    return None
-
+from _peak import device_peak, emit, matmul_peak  # noqa: E402
 
 def _loop_cfg(batch_size, steps, bf16):
     return TrainConfig(steps=2 * steps, batch_size=batch_size, log_every=steps, ckpt_every=10 * steps, wandb="disabled",
@@ -137,31 +128,38 @@ def main(argv=None) -> int:
     on_gpu = dev.platform == "gpu"
     bf16 = on_gpu if args.bf16 == "auto" else args.bf16 == "on"
     peak = device_peak(dev.device_kind) if on_gpu else None
+    measured = matmul_peak()  # issue 15 §3: every training figure also as a fraction of this machine's peak
+    print(f"[peak] {measured['dtype']} {measured['n']}² matmul: {measured['flops_per_s'] / 1e9:.1f} GFLOP/s",
+          file=sys.stderr, flush=True)
     nb = Q.real_codebook_size(args.codebook)
     doc = {"device": dev.device_kind, "platform": dev.platform, "host": platform.node(), "jax": jax.__version__,
            "codebook": args.codebook, "nb_code": nb, "text_len": args.text_len, "peak_bf16_flops": peak,
-           "tokenizer": [], "lm": [], "decode": []}
+           "measured_peak": measured, "tokenizer": [], "lm": [], "decode": []}
+
+    def add_peak_fractions(res: dict) -> None:
+        train_flops_per_s = 3 * res["flops_per_sample"] * res["samples_per_s"]  # forward + backward
+        res["fraction_of_peak"] = train_flops_per_s / measured["flops_per_s"]
+        if peak:
+            res["mfu"] = train_flops_per_s / peak
+
     with tempfile.TemporaryDirectory() as tmp:
         for p in filter(None, args.tokenizer_presets.split(",")):
             res = bench_tokenizer(p, args.codebook, args.batch_size, args.train_steps, bf16, Path(tmp))
-            if peak:
-                res["mfu"] = 3 * res["flops_per_sample"] * res["samples_per_s"] / peak
+            add_peak_fractions(res)
             doc["tokenizer"].append(res)
-            print(f"[tokenizer {p}] {res['samples_per_s']:.1f} samples/s", file=sys.stderr, flush=True)
+            print(f"[tokenizer {p}] {res['samples_per_s']:.1f} samples/s ({res['fraction_of_peak']:.0%} of peak)",
+                  file=sys.stderr, flush=True)
         for p in filter(None, args.lm_presets.split(",")):
             res = bench_lm(p, nb, args.text_len, args.text_dim, args.batch_size, args.train_steps, bf16, Path(tmp))
-            if peak:
-                res["mfu"] = 3 * res["flops_per_sample"] * res["samples_per_s"] / peak
+            add_peak_fractions(res)
             doc["lm"].append(res)
             dec = [bench_decode(p, nb, args.text_len, args.text_dim, args.decode_batch, c) for c in (True, False)]
             dec[0]["speedup_vs_no_cache"] = dec[0]["tokens_per_s"] / dec[1]["tokens_per_s"]
             doc["decode"] += dec
-            print(f"[lm {p}] train {res['tokens_per_s']:.0f} tokens/s; decode {dec[0]['tokens_per_s']:.0f} tokens/s "
-                  f"(KV cache) vs {dec[1]['tokens_per_s']:.0f} (no cache)", file=sys.stderr, flush=True)
-    text = json.dumps(doc, indent=2)
-    print(text)
-    if args.out:
-        Path(args.out).write_text(text + "\n")
+            print(f"[lm {p}] train {res['tokens_per_s']:.0f} tokens/s ({res['fraction_of_peak']:.0%} of peak); "
+                  f"decode {dec[0]['tokens_per_s']:.0f} tokens/s (KV cache) vs {dec[1]['tokens_per_s']:.0f} (no cache)",
+                  file=sys.stderr, flush=True)
+    emit(doc, args.out)
     return 0
 
 

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import platform
 import sys
 import tempfile
@@ -45,29 +44,8 @@ from handx_jax.generation import _sample_impl
 from handx_jax.models.dit import PRESETS, forward_flops, init_denoiser, param_count
 from handx_jax.train import train
 
-# Peak dense bf16 tensor-core FLOP/s (vendor datasheets, without sparsity).
-PEAK_BF16 = {
-    "H200": 989.4e12,  # H200 SXM
-    "H100 PCIe": 756.0e12,
-    "H100": 989.4e12,  # H100 SXM (HBM3)
-    "A100": 312.0e12,
-    "L4": 121.0e12,
-}
-
-
-def measured_peak() -> dict:
-    try:
-        from benchmarks._peak import matmul_peak
-    except ImportError:  # run as a script: benchmarks/ is sys.path[0]
-        from _peak import matmul_peak
-    return matmul_peak()
-
-
-def device_peak(kind: str) -> float | None:
-    for name, peak in PEAK_BF16.items():  # most specific first
-        if name in kind:
-            return peak
-    return None
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/_peak.py, also when loaded by path
+from _peak import PEAK_BF16, device_peak, emit, matmul_peak  # noqa: E402
 
 
 def bench_train(preset: str, cfg: DiffusionRunConfig, text_len: int, batch_size: int, steps: int, bf16: bool,
@@ -148,7 +126,7 @@ def main(argv=None) -> int:
     on_gpu = dev.platform == "gpu"
     bf16 = on_gpu if args.bf16 == "auto" else args.bf16 == "on"
     peak = device_peak(dev.device_kind) if on_gpu else None
-    measured = measured_peak()
+    measured = matmul_peak()
     print(f"[peak] {measured['dtype']} {measured['n']}² matmul: {measured['flops_per_s'] / 1e9:.1f} GFLOP/s",
           file=sys.stderr, flush=True)
     doc = {"device": dev.device_kind, "platform": dev.platform, "num_devices": jax.device_count(),
@@ -183,10 +161,7 @@ def main(argv=None) -> int:
                   + "; ".join(f"{s['sampler']} {s['clips_per_s']:.2f} clips/s ({s['fraction_of_peak']:.0%} of peak)"
                               for s in res["sample"]),
                   file=sys.stderr, flush=True)
-    text = json.dumps(doc, indent=2)
-    print(text)
-    if args.out:
-        Path(args.out).write_text(text + "\n")
+    emit(doc, args.out)
     return 0
 
 

@@ -33,7 +33,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import jax  # noqa: E402
 
-from _peak import matmul_peak  # noqa: E402
+from _peak import emit, matmul_peak  # noqa: E402
 from diffusion import bench_sample, bench_train  # noqa: E402
 from handx_jax.families.diffusion import DiffusionRunConfig  # noqa: E402
 from handx_jax.models.dit import PRESETS, forward_flops, init_denoiser  # noqa: E402
@@ -110,12 +110,7 @@ def main(argv=None) -> int:
         frac["torch_sample"], frac["jax_sample"] = per_s / t / peak, per_s / j / peak
     doc["ratios_jax_over_torch"] = ratios
     doc["fraction_of_peak"] = frac
-    text = json.dumps(doc, indent=1)
-    print(text)
-    if a.out:
-        from handx_jax.io import atomic_write_text
-
-        atomic_write_text(a.out, text + "\n")
+    emit(doc, a.out, indent=1)
     return 0
 
 
