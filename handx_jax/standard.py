@@ -49,7 +49,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from handx_jax.io import DataError, atomic_write_json, atomic_write_text
+from handx_jax.io import DataError, atomic_write_json, atomic_write_text, sha256_file
 
 VERSION = 2  # of the packaged assets; bumped whenever the recipe or any weight changes
 ASSETS = Path(__file__).resolve().parent / "assets" / "standard"
@@ -221,14 +221,6 @@ def read_card(assets: Path | None = None) -> dict:
     return json.loads(p.read_text())
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def asset_files(assets: Path) -> list[str]:
     """Files covered by the card's checksums (everything but the card itself), sorted."""
     return sorted(str(p.relative_to(assets)) for p in Path(assets).rglob("*")
@@ -242,7 +234,7 @@ def verify_assets(assets: Path | None = None, card: Mapping[str, Any] | None = N
         p = Path(assets) / rel
         if not p.exists():
             raise DataError("standard evaluator file missing (reinstall the package)", path=p)
-        if _sha256(p) != want:
+        if sha256_file(p) != want:
             raise DataError("standard evaluator file corrupt: sha256 differs from card.json (reinstall the "
                             "package)", path=p)
 
@@ -398,7 +390,7 @@ def package(data: str | os.PathLike, encoder: str | os.PathLike, evaluator: str 
                          "python": sys.version.split()[0], "numpy": np.__version__, "jax": _jax_version(),
                          "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime())},
             "sha256": {}}
-    card["sha256"] = {rel: _sha256(tmp / rel) for rel in asset_files(tmp)}
+    card["sha256"] = {rel: sha256_file(tmp / rel) for rel in asset_files(tmp)}
     atomic_write_json(tmp / CARD_JSON, card)
     # Score the GT rows with the packaged copy, through the same check users go through.
     ev = load(tmp)
@@ -414,7 +406,7 @@ def package(data: str | os.PathLike, encoder: str | os.PathLike, evaluator: str 
     atomic_write_json(tmp / CARD_JSON, card)
     atomic_write_json(tmp / EVALUATOR_DIR / EVAL_FILE,
                       {**rows[str(blocks[0])], "_meta": {"split": "test", "block": blocks[0]}})
-    card["sha256"] = {rel: _sha256(tmp / rel) for rel in asset_files(tmp)}
+    card["sha256"] = {rel: sha256_file(tmp / rel) for rel in asset_files(tmp)}
     atomic_write_json(tmp / CARD_JSON, card)
     atomic_write_text(tmp / CARD_MD, card_markdown(card))
     if out.exists():

@@ -12,7 +12,6 @@ official loaders; export → import reproduces motion and texts exactly.
 
 from __future__ import annotations
 
-import hashlib
 import os
 from pathlib import Path
 from typing import Sequence
@@ -21,7 +20,7 @@ import numpy as np
 
 from handx_jax.data.dataset import DEFAULT_FRACTIONS, Dataset, write_dataset
 from handx_jax.data.handx_npz import HandXClip, read_handx_npz, write_handx_npz
-from handx_jax.io import DataError
+from handx_jax.io import DataError, sha256_file
 
 
 def split_from_filename(path: Path) -> str:
@@ -81,18 +80,10 @@ def import_handx(files: Sequence[str | os.PathLike], out: str | os.PathLike, *, 
     source = {"kind": "handx-npz", "files": [str(Path(f).resolve()) for f in files],
               "val_is_test": splits_val_is_test}
     # The recipe names the archives by content, not path: the same files imported anywhere are one dataset.
-    recipe = {"kind": "handx-npz", "files": [{"name": Path(f).name, "sha256": _file_sha256(Path(f))} for f in files],
+    recipe = {"kind": "handx-npz", "files": [{"name": Path(f).name, "sha256": sha256_file(f)} for f in files],
               "split": split, "events": bool(annotate_events), "fractions": list(fractions), "seed": seed}
     return write_dataset(out, motion, texts, splits=splits, events=events, source=source, report=report,
                          fractions=fractions, seed=seed, overwrite=overwrite, recipe=recipe)
-
-
-def _file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 22), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def export_handx(data_dir: str | os.PathLike, out: str | os.PathLike, *, split: str | None = None) -> Path:
