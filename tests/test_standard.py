@@ -14,7 +14,7 @@ import pytest
 from handx_jax import standard
 from handx_jax.data.dataset import Dataset
 from handx_jax.evaluation import evaluate_ground_truth, make_evaluator_config, train_evaluator
-from handx_jax.io import DataError
+from handx_jax.io import DataError, sha256_file
 from handx_jax.metrics import MetricConfig
 
 ENCODER = Path(__file__).parent / "fixtures" / "t5_tiny_gated"
@@ -62,7 +62,7 @@ def test_package_writes_card_manifest_and_relative_paths(std):
     with pytest.raises(DataError, match="corrupt"):
         standard.verify_assets(assets)
     np.savez_compressed(assets / "test_manifest.npz", **man)  # restore (same content, maybe other bytes)
-    card["sha256"]["test_manifest.npz"] = standard._sha256(assets / "test_manifest.npz")
+    card["sha256"]["test_manifest.npz"] = sha256_file(assets / "test_manifest.npz")
     (assets / "card.json").write_text(json.dumps(card))
     assert "| 4 |" in standard.card_markdown(card) and "generator version" in standard.card_markdown(card)
 
