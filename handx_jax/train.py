@@ -309,12 +309,17 @@ def train(
         raise ValueError(f"batch size {cfg.batch_size} is not divisible by {len(jax.devices())} devices")
 
     rng = jax.random.PRNGKey(cfg.seed)
-    params = init(jax.random.fold_in(rng, 0))
-    state = {"params": params, "opt_state": tx.init(params),
-             # A copy: EMA must not alias params, or donating the state donates one buffer twice.
-             "ema": jax.tree_util.tree_map(jnp.copy, params) if cfg.ema_decay > 0 else {},
-             "step": jnp.zeros((), jnp.int32)}
-    state = jax.device_put(state, replicated)
+
+    def initial_state(key):
+        params = init(key)
+        return {"params": params, "opt_state": tx.init(params),
+                # A copy: EMA must not alias params, or donating the state donates one buffer twice.
+                "ema": jax.tree_util.tree_map(jnp.copy, params) if cfg.ema_decay > 0 else {},
+                "step": jnp.zeros((), jnp.int32)}
+
+    # One jitted program for the whole initial state: run eagerly, every initialiser and optimiser-state op
+    # is its own dispatch and compile (seconds on CPU for the tiny presets); the values are the same.
+    state = jax.device_put(jax.jit(initial_state)(jax.random.fold_in(rng, 0)), replicated)
 
     mngr = ocp.CheckpointManager(run_dir / "checkpoints", options=ocp.CheckpointManagerOptions(
         max_to_keep=cfg.keep_checkpoints, create=True, enable_async_checkpointing=False))

@@ -170,7 +170,9 @@ def init_denoiser(cfg: DiTConfig, rng: jax.Array, text_len: int = 8):
     x = jnp.zeros((1, cfg.frames, cfg.joints, cfg.channels))
     text = jnp.zeros((NUM_BRANCHES, 1, text_len, cfg.text_dim))
     mask = jnp.ones((NUM_BRANCHES, 1, text_len), bool)
-    return model, model.init(rng, x, jnp.zeros((1,), jnp.int32), text, mask, jnp.zeros((1, NUM_BRANCHES), bool))
+    # jitted: one XLA program rather than one compile per initialiser op (same values, seconds less on CPU)
+    return model, jax.jit(lambda r: model.init(r, x, jnp.zeros((1,), jnp.int32), text, mask,
+                                               jnp.zeros((1, NUM_BRANCHES), bool)))(rng)
 
 
 def param_count(cfg: DiTConfig) -> int:
