@@ -78,21 +78,49 @@ class TrainConfig:
     optim: OptimConfig = OptimConfig()
 
 
-def make_optimizer(cfg: OptimConfig, total_steps: int) -> optax.GradientTransformation:
-    if cfg.schedule == "constant":
-        sched = optax.constant_schedule(cfg.lr)
-        if cfg.warmup_steps:
-            sched = optax.join_schedules([optax.linear_schedule(0.0, cfg.lr, cfg.warmup_steps), sched],
-                                         [cfg.warmup_steps])
-    elif cfg.schedule == "cosine":
-        sched = optax.warmup_cosine_decay_schedule(0.0, cfg.lr, max(cfg.warmup_steps, 1), max(total_steps, 2))
-    else:
+def schedule_values(cfg: OptimConfig, total_steps: int) -> np.ndarray:
+    """The numbers of the learning-rate schedule, [peak lr, warm-up steps, decay end], as float32.
+
+    The train step takes them as a traced argument rather than baking them in as constants, so runs
+    that differ only in learning rate, warm-up or length (a sweep's data-fraction axis at fixed epochs,
+    a learning-rate scan, a resumed or extended run) share one compiled step, through the persistent
+    compilation cache, instead of compiling it again each."""
+    if cfg.schedule not in ("constant", "cosine"):
         raise ValueError(f"unknown schedule {cfg.schedule!r}")
+    if cfg.schedule == "cosine":
+        return np.asarray([cfg.lr, max(cfg.warmup_steps, 1), max(total_steps, 2, cfg.warmup_steps + 1)], np.float32)
+    return np.asarray([cfg.lr, cfg.warmup_steps, max(total_steps, 1)], np.float32)
+
+
+def learning_rate(count, values, schedule: str):
+    """The learning rate at update ``count`` from :func:`schedule_values` (concrete or traced).
+
+    Same values as optax's schedules: "constant" = linear 0 -> lr over the warm-up, then lr
+    (``join_schedules([linear_schedule, constant_schedule])``); "cosine" =
+    ``warmup_cosine_decay_schedule(0, lr, warmup, end)``, decaying to 0 at step ``end``."""
+    lr, warmup, end = values[0], values[1], values[2]
+    c = jnp.asarray(count, jnp.float32)
+    ramp = lr * jnp.clip(c, 0.0, warmup) / jnp.maximum(warmup, 1.0)
+    if schedule == "constant":
+        return jnp.where(c < warmup, ramp, lr)
+    frac = jnp.clip(c - warmup, 0.0, end - warmup) / (end - warmup)
+    return jnp.where(c < warmup, ramp, lr * 0.5 * (1.0 + jnp.cos(jnp.pi * frac)))
+
+
+def optimizer_for(cfg: OptimConfig, lr_fn: Callable) -> optax.GradientTransformation:
+    """Global-norm clipping, then AdamW with ``lr_fn(count)`` and weight decay on matrices only."""
     decay_mask = lambda p: jax.tree_util.tree_map(lambda x: x.ndim >= 2, p)  # noqa: E731
     parts = [optax.clip_by_global_norm(cfg.grad_clip)] if cfg.grad_clip > 0 else []
-    parts.append(optax.adamw(sched, b1=cfg.b1, b2=cfg.b2, eps=cfg.eps, weight_decay=cfg.weight_decay,
+    parts.append(optax.adamw(lr_fn, b1=cfg.b1, b2=cfg.b2, eps=cfg.eps, weight_decay=cfg.weight_decay,
                              mask=decay_mask))
-    return optax.chain(*parts), sched
+    return optax.chain(*parts)
+
+
+def make_optimizer(cfg: OptimConfig, total_steps: int) -> tuple[optax.GradientTransformation, Callable]:
+    """(optimizer, schedule) with the schedule's numbers fixed (for use outside the loop)."""
+    values = schedule_values(cfg, total_steps)
+    sched = lambda count: learning_rate(count, values, cfg.schedule)  # noqa: E731
+    return optimizer_for(cfg, sched), sched
 
 
 def batch_indices(n: int, batch_size: int, seed: int, step: int) -> np.ndarray:
@@ -301,7 +329,13 @@ def train(
     # The run-folder lock (handx_jax.runlock.RunLock, issue 14.8) is taken by `handx train` around the
     # whole family run, before the family writes its first file; library callers take it themselves.
     logger = RunLogger(run_dir, doc, cfg.wandb)
-    tx, sched = optimizer if optimizer is not None else make_optimizer(cfg.optim, cfg.steps)
+    if optimizer is not None:  # a family's own recipe, its numbers compiled in
+        hp = np.zeros((3,), np.float32)
+        make_tx, lr_at = (lambda _hp: optimizer[0]), (lambda _hp, count: optimizer[1](count))
+    else:  # the schedule's numbers are an argument of the step (see schedule_values)
+        hp = schedule_values(cfg.optim, cfg.steps)
+        make_tx = lambda v: optimizer_for(cfg.optim, lambda count: learning_rate(count, v, cfg.optim.schedule))  # noqa: E731
+        lr_at = lambda v, count: learning_rate(count, v, cfg.optim.schedule)  # noqa: E731
     mesh = _mesh()
     data_sharding = NamedSharding(mesh, P("data"))
     replicated = NamedSharding(mesh, P())
@@ -312,7 +346,7 @@ def train(
 
     def initial_state(key):
         params = init(key)
-        return {"params": params, "opt_state": tx.init(params),
+        return {"params": params, "opt_state": make_tx(hp).init(params),
                 # A copy: EMA must not alias params, or donating the state donates one buffer twice.
                 "ema": jax.tree_util.tree_map(jnp.copy, params) if cfg.ema_decay > 0 else {},
                 "step": jnp.zeros((), jnp.int32)}
@@ -320,6 +354,7 @@ def train(
     # One jitted program for the whole initial state: run eagerly, every initialiser and optimiser-state op
     # is its own dispatch and compile (seconds on CPU for the tiny presets); the values are the same.
     state = jax.device_put(jax.jit(initial_state)(jax.random.fold_in(rng, 0)), replicated)
+    hp_dev = jax.device_put(jnp.asarray(hp), replicated)
 
     mngr = ocp.CheckpointManager(run_dir / "checkpoints", options=ocp.CheckpointManagerOptions(
         max_to_keep=cfg.keep_checkpoints, create=True, enable_async_checkpointing=False))
@@ -337,7 +372,8 @@ def train(
 
     compute_dtype = jnp.bfloat16 if cfg.bf16 else jnp.float32
 
-    def step_fn(state, batch, step_rng):
+    def step_fn(state, batch, step_rng, hp):
+        tx = make_tx(hp)
         def lf(p):
             l, aux = loss(_cast(p, compute_dtype) if cfg.bf16 else p, batch, step_rng, True)
             return l.astype(jnp.float32), aux
@@ -352,7 +388,7 @@ def train(
             d = jnp.minimum(cfg.ema_decay, (1 + k) / (10 + k)) if cfg.ema_warmup else cfg.ema_decay
             ema = jax.tree_util.tree_map(lambda e, p: d * e + (1 - d) * p, ema, params)
         new = {"params": params, "opt_state": opt_state, "ema": ema, "step": state["step"] + 1}
-        metrics = {"loss": l, "grad_norm": optax.tree.norm(grads), "lr": sched(state["step"]), **aux}
+        metrics = {"loss": l, "grad_norm": optax.tree.norm(grads), "lr": lr_at(hp, state["step"]), **aux}
         return new, metrics
 
     jstep = jax.jit(step_fn, donate_argnums=(0,))
@@ -372,7 +408,7 @@ def train(
     for step, local in _host_batches(get_batch, range(start, end), num_examples, cfg.batch_size, cfg.seed,
                                      cfg.prefetch, get_step_batch):
         batch = _global_batch(local, cfg.batch_size, data_sharding)
-        state, metrics = jstep(state, batch, jax.random.fold_in(jax.random.fold_in(rng, 1), step))
+        state, metrics = jstep(state, batch, jax.random.fold_in(jax.random.fold_in(rng, 1), step), hp_dev)
         n_since += cfg.batch_size
         done = step + 1
         if done % cfg.log_every == 0 or done == cfg.steps:

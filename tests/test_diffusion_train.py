@@ -66,8 +66,9 @@ def test_items_are_clip_level_pairs_with_aligned_fields(data):
 
 
 def test_training_lowers_the_loss_and_writes_a_results_row(data, tmp_path):
-    cfg = tiny_config(data, "train.steps=30", "train.log_every=10", "train.ckpt_every=30", "train.batch_size=16",
-                      "train.optim.lr=2e-3")
+    # tiny_config's batch size: the same compiled step as the other tiny runs of the session (the learning
+    # rate and the length are arguments of the step, not constants in it)
+    cfg = tiny_config(data, "train.steps=30", "train.log_every=10", "train.ckpt_every=30", "train.optim.lr=2e-3")
     tr = load_train_data(cfg)
     model = make_model(cfg.model)
     loss = jax.jit(make_loss(model, cfg.diffusion), static_argnums=3)  # one compile, not one per op (eager)
@@ -85,8 +86,8 @@ def test_training_lowers_the_loss_and_writes_a_results_row(data, tmp_path):
     assert row["params"] == param_count(cfg_model) and row["params_non_embedding"] == params_non_embedding(cfg_model)
     doc = json.loads((tmp_path / "run" / "config.json").read_text())
     assert row["flops_per_sample"] == forward_flops(cfg_model, round(doc["text_len_mean"]))
-    assert row["data_fraction"] == 1.0 and row["steps"] == 30 and row["samples_seen"] == 30 * 16
-    assert row["train_flops"] == pytest.approx(3 * row["flops_per_sample"] * 30 * 16)
+    assert row["data_fraction"] == 1.0 and row["steps"] == 30 and row["samples_seen"] == 30 * 8
+    assert row["train_flops"] == pytest.approx(3 * row["flops_per_sample"] * 30 * 8)
     cache_meta = load_train_data(cfg).cache.meta  # three captions through the frozen encoder per sample
     assert row["text_flops_per_sample"] == pytest.approx(3 * cache_meta["encoder_flops_per_caption"]["mean"])
     assert (tmp_path / "run" / "norm_stats.npz").exists()

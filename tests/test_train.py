@@ -139,3 +139,48 @@ def test_checkpoints_carry_checksums_and_flipped_bytes_are_refused(tmp_path):
     with pytest.raises(DataError, match=victim.name):
         train(tmp_path / "r", init=init, loss=loss, get_batch=get_batch, num_examples=96,
               cfg=CFG, config={})
+
+
+@pytest.mark.parametrize("schedule,warmup,steps", [("constant", 0, 20), ("constant", 5, 20), ("cosine", 0, 20),
+                                                   ("cosine", 7, 30), ("cosine", 3, 4)])
+def test_learning_rate_matches_optax_schedules(schedule, warmup, steps):
+    import optax
+
+    from handx_jax.train import learning_rate, schedule_values
+
+    cfg = OptimConfig(lr=3e-3, warmup_steps=warmup, schedule=schedule)
+    if schedule == "constant":
+        ref = optax.constant_schedule(cfg.lr)
+        if warmup:
+            ref = optax.join_schedules([optax.linear_schedule(0.0, cfg.lr, warmup), ref], [warmup])
+    else:
+        ref = optax.warmup_cosine_decay_schedule(0.0, cfg.lr, max(warmup, 1), max(steps, 2))
+    values = schedule_values(cfg, steps)
+    for count in range(steps + 3):
+        assert float(learning_rate(count, values, schedule)) == pytest.approx(float(ref(count)), rel=1e-5, abs=1e-12)
+
+
+def test_runs_differing_in_lr_and_length_share_one_compiled_step(tmp_path, monkeypatch):
+    """The schedule's numbers are an argument of the step, not constants in it: a learning-rate scan or a
+    data-fraction axis at fixed epochs compiles the step once (through the persistent cache)."""
+    init, loss, get_batch, _ = _problem()
+    real_jit, texts = jax.jit, []
+
+    def spy(fn, **kw):
+        jitted = real_jit(fn, **kw)
+        if getattr(fn, "__name__", "") != "step_fn":
+            return jitted
+
+        def call(*args):
+            if len(texts) < 3 and not any(t[0] is jitted for t in texts):
+                texts.append((jitted, jitted.lower(*args).as_text()))
+            return jitted(*args)
+        return call
+
+    monkeypatch.setattr(jax, "jit", spy)
+    runs = [CFG, TrainConfig(**{**CFG.__dict__, "steps": 12, "optim": OptimConfig(lr=0.05, weight_decay=0.0)}),
+            TrainConfig(**{**CFG.__dict__, "batch_size": 8})]  # a different batch shape: a different program
+    for i, cfg in enumerate(runs):
+        train(tmp_path / str(i), init=init, loss=loss, get_batch=get_batch, num_examples=96, cfg=cfg, config={})
+    assert len(texts) == 3
+    assert texts[0][1] == texts[1][1] and texts[0][1] != texts[2][1]
