@@ -2,7 +2,7 @@
 (``make sweep-cpu``; the short ``demo`` preset is ``make demo``'s mini sweep).
 
     handx sweep run sweeps/diffusion_cpu_study.py --preset cpu --data D --encoder E --evaluator standard \\
-        --eval-limit 0 --eval-samples 2 --sampler-steps 25 --max-parallel 2 --out runs/sweep-cpu
+        --eval-limit 0 --eval-samples 4 --sampler-steps 25 --max-parallel 2 --out runs/sweep-cpu
     handx analyze fit runs/sweep-cpu/results.csv --x compute --y rprec_top3 --plot fit.png
 
 Why it looks like this (issue 13 item 7). The earlier CPU grids trained every model for 60-300 steps
@@ -26,7 +26,8 @@ the evaluator can tell which caption produced a motion, and two CPU cores give a
   would put two runs of different compute on one x value.) Each row also carries the per-sample FLOPs
   in both conventions, so ``--x flops`` is one flag away.
 * **Scoring**: the packaged standard evaluator on the corpus's standard test prompts, G samples per
-  prompt (the ± is then a Student-t interval over the G generation groups, ``metrics.ci_method``),
+  prompt (the ± is then a Student-t interval over the G generation groups, ``metrics.ci_method``;
+  ``make sweep-cpu`` uses G = 4: at G = 2 it has one degree of freedom, t = 12.7, and says nothing),
   DDIM with fewer steps than the 50 default (a generation option; the same for every run, so it moves
   every score alike).
 
