@@ -82,12 +82,14 @@ def test_tokenizer_shapes_and_encode_decode_agree():
     cfg = Q.PRESETS["tiny"]
     model, params = Q.init_tokenizer(cfg, jax.random.PRNGKey(0))
     x = jnp.asarray(np.random.default_rng(0).normal(size=(2, 60, 288)), jnp.float32)
-    xhat, digits = model.apply(params, x)
+    # compiled, as training and decoding run them (eager dispatch of the conv stacks costs seconds per call)
+    apply = jax.jit(model.apply, static_argnames="method")
+    xhat, digits = apply(params, x)
     assert xhat.shape == x.shape and digits.shape == (2, 30, 3)  # 60 frames → 30 tokens
-    idx = model.apply(params, x, method=model.encode)
+    idx = apply(params, x, method=model.encode)
     np.testing.assert_array_equal(idx, Q.digits_to_index(digits, cfg.levels))
-    np.testing.assert_allclose(model.apply(params, idx, method=model.decode), xhat, atol=1e-5)
-    assert model.apply(params, x[:, :48], method=model.encode).shape == (2, 24)  # 48-frame windows (§4.3)
+    np.testing.assert_allclose(apply(params, idx, method=model.decode), xhat, atol=1e-5)
+    assert apply(params, x[:, :48], method=model.encode).shape == (2, 24)  # 48-frame windows (§4.3)
 
 
 def test_rotation_row_convention_and_losses_known_values():
@@ -95,7 +97,8 @@ def test_rotation_row_convention_and_losses_known_values():
     rot = R.rotation_6d_to_matrix(f[..., 6:18].reshape(1, -1, 2, 6))
     np.testing.assert_allclose(Q.rot6d_to_matrix(jnp.asarray(f[..., 6:18].reshape(1, -1, 2, 6))), rot, atol=1e-5)
     mean, std = np.zeros(288, np.float32), np.ones(288, np.float32)
-    total, aux = Q.tokenizer_loss(jnp.asarray(f), jnp.asarray(f), mean, std)
+    loss = jax.jit(Q.tokenizer_loss)  # one compile for the three calls (eager: seconds each)
+    total, aux = loss(jnp.asarray(f), jnp.asarray(f), mean, std)
     floor = float(np.arccos(np.float32(1 - 1e-7)))  # the reference's clamp: identical rotations give this
     for k, v in aux.items():
         assert float(v) == pytest.approx(floor if k.startswith("l_geo") else 0.0, abs=2e-4), k
@@ -107,13 +110,13 @@ def test_rotation_row_convention_and_losses_known_values():
     turned[..., 0, :, :] = rx @ rot[..., 0, :, :]
     g = f.copy()
     g[..., 6:18] = R.matrix_to_rotation_6d(turned).reshape(1, -1, 12)
-    _, aux = Q.tokenizer_loss(jnp.asarray(g), jnp.asarray(f), mean, std)
+    _, aux = loss(jnp.asarray(g), jnp.asarray(f), mean, std)
     assert float(aux["l_geo"]) == pytest.approx(theta / 2, abs=1e-3)
     assert float(aux["l_geo_rel"]) == pytest.approx(floor, abs=1e-3)
     # A constant shift of one local coordinate: SmoothL1 of 0.1 on 1/288 of "all" and 1/120 of "pos".
     h = f.copy()
     h[..., 50] += 0.1
-    _, aux = Q.tokenizer_loss(jnp.asarray(h), jnp.asarray(f), mean, std)
+    _, aux = loss(jnp.asarray(h), jnp.asarray(f), mean, std)
     assert float(aux["l_all"]) == pytest.approx(0.005 / 288, rel=1e-3)
     assert float(aux["l_pos"]) == pytest.approx(0.005 / 120, rel=1e-3)
     assert float(aux["l_pos_acc"]) == pytest.approx(0.0, abs=1e-9)

@@ -38,13 +38,15 @@ def test_encode_denoise_equals_full_forward(tiny):
     r = np.random.default_rng(1)
     x = jnp.asarray(r.normal(size=(B, cfg.frames, 42, 4)), jnp.float32)
     t = jnp.asarray([0, 400, 999])
-    memory = model.apply(params, text, mask, method=model.encode)
-    both = model.apply(params, jnp.concatenate([x, x]), jnp.concatenate([t, t]), memory, B, method=model.denoise)
-    cond = model.apply(params, x, t, text, mask, jnp.zeros((B, 3), bool))
-    uncond = model.apply(params, x, t, text, mask, jnp.ones((B, 3), bool))
+    # each path compiled (as the sampler and the train step run them): eager dispatch costs seconds per call
+    memory = jax.jit(lambda p: model.apply(p, text, mask, method=model.encode))(params)
+    both = jax.jit(lambda p, m: model.apply(p, jnp.concatenate([x, x]), jnp.concatenate([t, t]), m, B,
+                                            method=model.denoise))(params, memory)
+    full = jax.jit(lambda p, drop: model.apply(p, x, t, text, mask, drop))
+    cond, uncond = full(params, jnp.zeros((B, 3), bool)), full(params, jnp.ones((B, 3), bool))
     np.testing.assert_allclose(both[:B], cond, atol=1e-5)
     np.testing.assert_allclose(both[B:], uncond, atol=1e-5)
-    only_null = model.apply(params, x, t, None, 0, method=lambda m, x, t, _, __: m.denoise(x, t, None, B))
+    only_null = jax.jit(lambda p: model.apply(p, x, t, method=lambda m, x, t: m.denoise(x, t, None, B)))(params)
     np.testing.assert_allclose(only_null, uncond, atol=1e-5)
     assert not np.allclose(cond, uncond)
 
