@@ -277,6 +277,11 @@ def test_evaluator_features():
     assert np.all(e5[:, :, sk.RIGHT, 0] == 0)
     np.testing.assert_allclose(e5[:, :, sk.LEFT, 0], j[:, :, sk.LEFT, 0] - j[:, :, sk.RIGHT, 0], atol=1e-7)
     np.testing.assert_allclose(e[..., 3 * 5:3 * 6], (j[:, :, 0, 5] - j[:, :, 1, 0]), atol=1e-7)
+    # float32 in: computed in float32, bit for bit the float64 difference cast back; float64 stays float64
+    p64 = j.astype(np.float32).astype(np.float64)
+    want = (p64 - p64[..., sk.RIGHT:sk.RIGHT + 1, 0:1, :]).reshape(2, sk.CLIP_LEN, 126).astype(np.float32)
+    np.testing.assert_array_equal(rep.to_evaluator(j.astype(np.float32)), want)
+    assert rep.to_evaluator(j.astype(np.float64)).dtype == np.float64
 
 
 def test_evaluator_hand_frames_features():
