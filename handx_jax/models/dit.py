@@ -171,8 +171,8 @@ def init_denoiser(cfg: DiTConfig, rng: jax.Array, text_len: int = 8):
     text = jnp.zeros((NUM_BRANCHES, 1, text_len, cfg.text_dim))
     mask = jnp.ones((NUM_BRANCHES, 1, text_len), bool)
     # jitted: one XLA program rather than one compile per initialiser op (same values, seconds less on CPU)
-    return model, jax.jit(lambda r: model.init(r, x, jnp.zeros((1,), jnp.int32), text, mask,
-                                               jnp.zeros((1, NUM_BRANCHES), bool)))(rng)
+    t, drop = jnp.zeros((1,), jnp.int32), jnp.zeros((1, NUM_BRANCHES), bool)
+    return model, jax.jit(model.init)(rng, x, t, text, mask, drop)
 
 
 def param_count(cfg: DiTConfig) -> int:

@@ -244,7 +244,7 @@ class FSQTokenizer(nn.Module):
 def init_tokenizer(cfg: FSQConfig, rng: jax.Array, frames: int = 60):
     model = FSQTokenizer(cfg)
     # jitted: one XLA program rather than one compile per initialiser op (same values, seconds less on CPU)
-    return model, jax.jit(lambda r: model.init(r, jnp.zeros((1, frames, cfg.in_dim))))(rng)
+    return model, jax.jit(model.init)(rng, jnp.zeros((1, frames, cfg.in_dim)))
 
 
 def param_count(cfg: FSQConfig) -> int:
