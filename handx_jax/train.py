@@ -32,6 +32,7 @@ import math
 import os
 import time
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -114,13 +115,6 @@ def optimizer_for(cfg: OptimConfig, lr_fn: Callable) -> optax.GradientTransforma
     parts.append(optax.adamw(lr_fn, b1=cfg.b1, b2=cfg.b2, eps=cfg.eps, weight_decay=cfg.weight_decay,
                              mask=decay_mask))
     return optax.chain(*parts)
-
-
-def make_optimizer(cfg: OptimConfig, total_steps: int) -> tuple[optax.GradientTransformation, Callable]:
-    """(optimizer, schedule) with the schedule's numbers fixed (for use outside the loop)."""
-    values = schedule_values(cfg, total_steps)
-    sched = lambda count: learning_rate(count, values, cfg.schedule)  # noqa: E731
-    return optimizer_for(cfg, sched), sched
 
 
 def batch_indices(n: int, batch_size: int, seed: int, step: int) -> np.ndarray:
@@ -329,13 +323,15 @@ def train(
     # The run-folder lock (handx_jax.runlock.RunLock, issue 14.8) is taken by `handx train` around the
     # whole family run, before the family writes its first file; library callers take it themselves.
     logger = RunLogger(run_dir, doc, cfg.wandb)
-    if optimizer is not None:  # a family's own recipe, its numbers compiled in
-        hp = np.zeros((3,), np.float32)
-        make_tx, lr_at = (lambda _hp: optimizer[0]), (lambda _hp, count: optimizer[1](count))
-    else:  # the schedule's numbers are an argument of the step (see schedule_values)
-        hp = schedule_values(cfg.optim, cfg.steps)
-        make_tx = lambda v: optimizer_for(cfg.optim, lambda count: learning_rate(count, v, cfg.optim.schedule))  # noqa: E731
-        lr_at = lambda v, count: learning_rate(count, v, cfg.optim.schedule)  # noqa: E731
+    # (optimizer, schedule) as functions of the schedule's numbers, which the step takes as an argument
+    # (see schedule_values); a family's own recipe (``optimizer``) has its numbers compiled in.
+    if optimizer is not None:
+        sched_v = np.zeros((3,), np.float32)
+        schedule_of, tx_of = (lambda _v: optimizer[1]), (lambda _v: optimizer[0])
+    else:
+        sched_v = schedule_values(cfg.optim, cfg.steps)
+        schedule_of = lambda v: partial(learning_rate, values=v, schedule=cfg.optim.schedule)  # noqa: E731
+        tx_of = lambda v: optimizer_for(cfg.optim, schedule_of(v))  # noqa: E731
     mesh = _mesh()
     data_sharding = NamedSharding(mesh, P("data"))
     replicated = NamedSharding(mesh, P())
@@ -346,7 +342,7 @@ def train(
 
     def initial_state(key):
         params = init(key)
-        return {"params": params, "opt_state": make_tx(hp).init(params),
+        return {"params": params, "opt_state": tx_of(sched_v).init(params),
                 # A copy: EMA must not alias params, or donating the state donates one buffer twice.
                 "ema": jax.tree_util.tree_map(jnp.copy, params) if cfg.ema_decay > 0 else {},
                 "step": jnp.zeros((), jnp.int32)}
@@ -354,7 +350,7 @@ def train(
     # One jitted program for the whole initial state: run eagerly, every initialiser and optimiser-state op
     # is its own dispatch and compile (seconds on CPU for the tiny presets); the values are the same.
     state = jax.device_put(jax.jit(initial_state)(jax.random.fold_in(rng, 0)), replicated)
-    hp_dev = jax.device_put(jnp.asarray(hp), replicated)
+    sched_v = jax.device_put(jnp.asarray(sched_v), replicated)
 
     mngr = ocp.CheckpointManager(run_dir / "checkpoints", options=ocp.CheckpointManagerOptions(
         max_to_keep=cfg.keep_checkpoints, create=True, enable_async_checkpointing=False))
@@ -372,8 +368,8 @@ def train(
 
     compute_dtype = jnp.bfloat16 if cfg.bf16 else jnp.float32
 
-    def step_fn(state, batch, step_rng, hp):
-        tx = make_tx(hp)
+    def step_fn(state, batch, step_rng, sched_v):
+        tx, sched = tx_of(sched_v), schedule_of(sched_v)
         def lf(p):
             l, aux = loss(_cast(p, compute_dtype) if cfg.bf16 else p, batch, step_rng, True)
             return l.astype(jnp.float32), aux
@@ -388,7 +384,7 @@ def train(
             d = jnp.minimum(cfg.ema_decay, (1 + k) / (10 + k)) if cfg.ema_warmup else cfg.ema_decay
             ema = jax.tree_util.tree_map(lambda e, p: d * e + (1 - d) * p, ema, params)
         new = {"params": params, "opt_state": opt_state, "ema": ema, "step": state["step"] + 1}
-        metrics = {"loss": l, "grad_norm": optax.tree.norm(grads), "lr": lr_at(hp, state["step"]), **aux}
+        metrics = {"loss": l, "grad_norm": optax.tree.norm(grads), "lr": sched(state["step"]), **aux}
         return new, metrics
 
     jstep = jax.jit(step_fn, donate_argnums=(0,))
@@ -408,7 +404,7 @@ def train(
     for step, local in _host_batches(get_batch, range(start, end), num_examples, cfg.batch_size, cfg.seed,
                                      cfg.prefetch, get_step_batch):
         batch = _global_batch(local, cfg.batch_size, data_sharding)
-        state, metrics = jstep(state, batch, jax.random.fold_in(jax.random.fold_in(rng, 1), step), hp_dev)
+        state, metrics = jstep(state, batch, jax.random.fold_in(jax.random.fold_in(rng, 1), step), sched_v)
         n_since += cfg.batch_size
         done = step + 1
         if done % cfg.log_every == 0 or done == cfg.steps:
