@@ -80,9 +80,10 @@ def runs(preset: str = "cpu", steps: int | None = None, batch: int = BATCH, frac
 
 
 def _cost(spec: RunSpec) -> float:
-    """Steps × the denoiser's forward multiply-adds per sample (``models/dit.forward_flops``'s terms,
-    S = 62 motion tokens, ~40 text tokens), enough to order the runs by cost without importing jax."""
+    """Steps × the denoiser's analytic forward FLOPs per sample (~40 text tokens): enough to order the runs."""
+    from handx_jax.models.dit import DiTConfig, forward_flops
+
     o = dict(x.split("=", 1) for x in spec.overrides)
-    L, D, F = int(o["model.layers"]), int(o["model.dim"]), int(o["model.ff"])
-    S, T = 62, 40
-    return int(o["train.steps"]) * 3 * L * (6 * S * D * D + 2 * S * S * D + 2 * T * D * D + 2 * S * T * D + 2 * S * D * F)
+    cfg = DiTConfig(layers=int(o["model.layers"]), dim=int(o["model.dim"]), heads=int(o["model.heads"]),
+                    ff=int(o["model.ff"]))
+    return int(o["train.steps"]) * forward_flops(cfg, text_len=40)
