@@ -31,6 +31,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import math
+import time
 from dataclasses import dataclass
 from functools import partial
 
@@ -445,15 +446,14 @@ def replicate_embedding_metrics(text_NxD, gen_GxNxD, gt_NxD, cfg: MetricConfig =
     are over groups or a prompt bootstrap, as :func:`ci_method` says (module docstring). ``timings``, if
     given, receives the seconds of each part (rprec_mm_dist, fid, diversity, multimodality).
     """
-    import time
+    last = time.perf_counter()
 
-    clock = [time.perf_counter()]
-
-    def lap(name):
+    def lap(name):  # seconds since the previous lap, into ``timings``
+        nonlocal last
         now = time.perf_counter()
         if timings is not None:
-            timings[name] = timings.get(name, 0.0) + now - clock[0]
-        clock[0] = now
+            timings[name] = timings.get(name, 0.0) + now - last
+        last = now
 
     text = jnp.asarray(text_NxD, jnp.float32)
     gen = jnp.asarray(gen_GxNxD, jnp.float32)
