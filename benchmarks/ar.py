@@ -40,6 +40,7 @@ from handx_jax.models import prefix_lm as P  # noqa: E402
 from handx_jax.train import OptimConfig, TrainConfig, train  # noqa: E402
 from _peak import device_peak, emit, matmul_peak  # noqa: E402
 
+
 def _loop_cfg(batch_size, steps, bf16):
     return TrainConfig(steps=2 * steps, batch_size=batch_size, log_every=steps, ckpt_every=10 * steps, wandb="disabled",
                        bf16=bf16, prefetch=2, optim=OptimConfig(lr=1e-4))

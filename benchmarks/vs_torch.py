@@ -18,7 +18,6 @@ at ``../shared/bench/torch_ref`` from the repository root (``--torch-ref`` to ov
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import platform

@@ -21,7 +21,6 @@ after stage 1.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shlex
 import subprocess
