@@ -49,10 +49,10 @@ sweep-cpu: $(STAMP)
 
 # One pytest worker per core, each test file on one worker (its module fixtures are built once):
 # single-process pytest leaves the second core idle most of the run (wall time ~ user CPU time).
-# --no-loadscope-reorder keeps tests/conftest.py's longest-first file order (HEAVY_FIRST).
+# tests/conftest.py runs the longest files first (HEAVY_FIRST).
 TEST_WORKERS ?= auto
 test: $(STAMP)
-	JAX_PLATFORMS=cpu $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder tests
+	JAX_PLATFORMS=cpu $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile tests
 
 # Rebuild the packaged standard evaluator (corpus -> tokenizer -> tiny T5 -> evaluator -> card); see CARD.md.
 standard-assets: $(STAMP)

@@ -28,8 +28,8 @@ def pytest_unconfigure(config):
 # Longest files first (worker-seconds of one quiet 2-worker run, 2026-11-24): with `--dist loadfile` each file
 # runs whole on one worker, and a heavy file started last runs alone at the end while the other core idles.
 # Starting the longest ones first is the classic longest-processing-time schedule; files not listed keep
-# their order after these. The Makefile passes --no-loadscope-reorder, or xdist (>= 3.6) re-sorts the files
-# by their number of tests instead. test_slurm.py leads: on a fresh machine it first apt-installs slurm,
+# their order after these. xdist (>= 3.6) would re-sort the files by their number of tests instead
+# (--loadscope-reorder, its default); pytest_configure turns that off for every invocation of this suite. test_slurm.py leads: on a fresh machine it first apt-installs slurm,
 # munge and mariadb (~30 s, mostly waiting on the network and the disk), and its jobs run outside the
 # worker, so its waiting overlaps the other worker's compute.
 HEAVY_FIRST = ("test_slurm.py", "test_evaluation.py", "test_generate.py", "test_notebooks.py", "test_ar_family.py",
@@ -37,6 +37,11 @@ HEAVY_FIRST = ("test_slurm.py", "test_evaluation.py", "test_generate.py", "test_
                "test_text_cache.py", "test_prefix_lm.py", "test_standard.py", "test_fsq.py",
                "test_diffusion_sampler.py", "test_text_pretrain.py", "test_train.py", "test_text_t5.py",
                "test_metrics.py", "test_perf_paths.py", "test_benchmarks.py", "test_distributed.py")
+
+
+def pytest_configure(config):
+    if hasattr(config.option, "loadscopereorder"):  # pytest-xdist present: keep HEAVY_FIRST's order
+        config.option.loadscopereorder = False
 
 
 def pytest_collection_modifyitems(session, config, items):
