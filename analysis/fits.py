@@ -13,8 +13,7 @@ paper leaves out:
   log-linear law by leave-one-out error (:func:`compare_models`);
 * :func:`extrapolate`: fit on runs below a compute cut, predict the runs above it.
 
-scipy is not a dependency, so the Student-t quantile is computed here (:func:`t_ppf`): the
-regularized incomplete beta by its continued fraction, inverted by a safeguarded Newton iteration.
+Quantiles come from ``scipy.stats`` (scipy ships with jax; no hand-written special functions).
 """
 
 from __future__ import annotations
@@ -24,154 +23,9 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
 import numpy as np
+from scipy.stats import norm as normal, t as student_t
 
 from analysis.schema import COLUMN_BY_NAME, GROUND_TRUTH, NUMERIC_COLUMNS, config_label
-
-# ----------------------------------------------------------------------------------------------
-# Distributions
-
-
-def betainc(a: float, b: float, x: float) -> float:
-    """Regularized incomplete beta I_x(a, b) (continued fraction, modified Lentz)."""
-    if not (a > 0 and b > 0):
-        raise ValueError(f"betainc needs a, b > 0, got {a}, {b}")
-    if x <= 0.0:
-        return 0.0
-    if x >= 1.0:
-        return 1.0
-    log_front = math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x) + b * math.log1p(-x)
-    # The continued fraction converges fast for x < (a+1)/(a+b+2); use the symmetry otherwise.
-    if x < (a + 1.0) / (a + b + 2.0):
-        return math.exp(log_front) * _betacf(a, b, x) / a
-    return 1.0 - math.exp(log_front) * _betacf(b, a, 1.0 - x) / b
-
-
-def _betacf(a: float, b: float, x: float) -> float:
-    tiny, eps = 1e-300, 1e-16
-    qab, qap, qam = a + b, a + 1.0, a - 1.0
-    c, d = 1.0, 1.0 - qab * x / qap
-    d = 1.0 / (d if abs(d) > tiny else tiny)
-    h = d
-    for m in range(1, 10_000):
-        m2 = 2 * m
-        aa = m * (b - m) * x / ((qam + m2) * (a + m2))
-        d = 1.0 + aa * d
-        d = 1.0 / (d if abs(d) > tiny else tiny)
-        c = 1.0 + aa / c
-        c = c if abs(c) > tiny else tiny
-        h *= d * c
-        aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2))
-        d = 1.0 + aa * d
-        d = 1.0 / (d if abs(d) > tiny else tiny)
-        c = 1.0 + aa / c
-        c = c if abs(c) > tiny else tiny
-        delta = d * c
-        h *= delta
-        if abs(delta - 1.0) < eps:
-            return h
-    raise ArithmeticError(f"betainc continued fraction did not converge (a={a}, b={b}, x={x})")
-
-
-def norm_ppf(p: float) -> float:
-    """Standard normal quantile (Acklam's rational approximation plus one Halley step)."""
-    if not 0.0 < p < 1.0:
-        raise ValueError(f"p must be in (0, 1), got {p}")
-    a = (-3.969683028665376e01, 2.209460984245205e02, -2.759285104469687e02, 1.383577518672690e02,
-         -3.066479806614716e01, 2.506628277459239e00)
-    b = (-5.447609879822406e01, 1.615858368580409e02, -1.556989798598866e02, 6.680131188771972e01,
-         -1.328068155288572e01)
-    c = (-7.784894002430293e-03, -3.223964580411365e-01, -2.400758277161838e00, -2.549732539343734e00,
-         4.374664141464968e00, 2.938163982698783e00)
-    d = (7.784695709041462e-03, 3.224671290700398e-01, 2.445134137142996e00, 3.754408661907416e00)
-    lo = 0.02425
-    if p < lo:
-        q = math.sqrt(-2 * math.log(p))
-        x = (((((c[0] * q + c[1]) * q + c[2]) * q + c[3]) * q + c[4]) * q + c[5]) / \
-            ((((d[0] * q + d[1]) * q + d[2]) * q + d[3]) * q + 1)
-    elif p <= 1 - lo:
-        q = p - 0.5
-        r = q * q
-        x = (((((a[0] * r + a[1]) * r + a[2]) * r + a[3]) * r + a[4]) * r + a[5]) * q / \
-            (((((b[0] * r + b[1]) * r + b[2]) * r + b[3]) * r + b[4]) * r + 1)
-    else:
-        q = math.sqrt(-2 * math.log1p(-p))
-        x = -(((((c[0] * q + c[1]) * q + c[2]) * q + c[3]) * q + c[4]) * q + c[5]) / \
-            ((((d[0] * q + d[1]) * q + d[2]) * q + d[3]) * q + 1)
-    e = 0.5 * math.erfc(-x / math.sqrt(2)) - p
-    u = e * math.sqrt(2 * math.pi) * math.exp(x * x / 2)
-    return x - u / (1 + x * u / 2)
-
-
-def t_sf(t: float, df: float) -> float:
-    """Upper tail P(T > t) of Student's t with ``df`` degrees of freedom (df may be fractional)."""
-    if df <= 0:
-        raise ValueError(f"df must be > 0, got {df}")
-    if math.isinf(df):
-        return 0.5 * math.erfc(t / math.sqrt(2))
-    tail = 0.5 * betainc(df / 2.0, 0.5, df / (df + t * t))
-    return tail if t >= 0 else 1.0 - tail
-
-
-def t_cdf(t: float, df: float) -> float:
-    return 1.0 - t_sf(t, df) if t >= 0 else t_sf(-t, df)
-
-
-def t_pdf(t: float, df: float) -> float:
-    if math.isinf(df):
-        return math.exp(-0.5 * t * t) / math.sqrt(2 * math.pi)
-    return math.exp(math.lgamma((df + 1) / 2) - math.lgamma(df / 2) - 0.5 * math.log(df * math.pi)
-                    - (df + 1) / 2 * math.log1p(t * t / df))
-
-
-def t_ppf(p: float, df: float) -> float:
-    """Student-t quantile: the t with P(T <= t) = p.
-
-    Closed forms for df = 1 and 2; otherwise a Cornish-Fisher start refined by Newton steps on
-    log P(T > t), kept inside a bisection bracket so that it cannot diverge in the heavy tails.
-    """
-    if not 0.0 < p < 1.0:
-        raise ValueError(f"p must be in (0, 1), got {p}")
-    if not df > 0:
-        raise ValueError(f"df must be > 0, got {df}")
-    if p == 0.5:
-        return 0.0
-    q = min(p, 1.0 - p)  # solve P(T > x) = q for x > 0, then restore the sign
-    sign = 1.0 if p > 0.5 else -1.0
-    if math.isinf(df) or df > 1e7:
-        return sign * -norm_ppf(q)
-    if df == 1:
-        return sign * math.tan(math.pi * (0.5 - q))
-    if df == 2:
-        return sign * math.sqrt(2.0 / (4.0 * q * (1.0 - q)) - 2.0) if q < 0.5 else 0.0
-    z = -norm_ppf(q)
-    # Cornish-Fisher expansion of the t quantile in powers of 1/df (Abramowitz & Stegun 26.7.5).
-    g1 = (z ** 3 + z) / 4
-    g2 = (5 * z ** 5 + 16 * z ** 3 + 3 * z) / 96
-    g3 = (3 * z ** 7 + 19 * z ** 5 + 17 * z ** 3 - 15 * z) / 384
-    x = z + g1 / df + g2 / df ** 2 + g3 / df ** 3
-    lo, hi = 0.0, max(2 * x, 1.0)
-    while t_sf(hi, df) > q:
-        lo, hi = hi, 2 * hi
-    if not lo < x < hi:
-        x = 0.5 * (lo + hi)
-    log_q = math.log(q)
-    for _ in range(200):
-        sf = t_sf(x, df)
-        if sf > q:
-            lo = x
-        else:
-            hi = x
-        # Newton on h(x) = log sf(x) - log q, h'(x) = -pdf/sf.
-        step = (math.log(sf) - log_q) * sf / t_pdf(x, df) if sf > 0 else 0.5 * (hi - x)
-        x_new = x + step
-        if not lo < x_new < hi:
-            x_new = 0.5 * (lo + hi)
-        if abs(x_new - x) <= 1e-15 * max(1.0, abs(x)) or hi - lo <= 1e-15 * max(1.0, hi):
-            x = x_new
-            break
-        x = x_new
-    return sign * x
-
 
 # ----------------------------------------------------------------------------------------------
 # Column selection
@@ -260,7 +114,7 @@ class LogLinearFit:
         level = self.level if level is None else level
         u = np.log10(np.asarray(x, dtype=np.float64))
         var = 1.0 / self.n + (u - self.u_mean) ** 2 / self.suu + (1.0 if new_obs else 0.0)
-        half = t_ppf(0.5 + level / 2, self.n - 2) * self.resid_std * np.sqrt(var)
+        half = float(student_t.ppf(0.5 + level / 2, self.n - 2)) * self.resid_std * np.sqrt(var)
         mid = self.predict(x)
         return mid - half, mid + half
 
@@ -346,13 +200,13 @@ def fit_log_linear(x: Any, y: Any, *, level: float = 0.95, n_boot: int = 2000, s
     alpha = 1.0 - level
 
     if n > 3 and abs(r) < 1:
-        z, zq = math.atanh(r), norm_ppf(1 - alpha / 2) / math.sqrt(n - 3)
+        z, zq = math.atanh(r), float(normal.ppf(1 - alpha / 2)) / math.sqrt(n - 3)
         r_ci = (math.tanh(z - zq), math.tanh(z + zq))  # Fisher z
     else:
         r_ci = (float("nan"), float("nan"))
 
     if method == "t":
-        tq = t_ppf(1 - alpha / 2, n - 2)
+        tq = float(student_t.ppf(1 - alpha / 2, n - 2))
         slope_ci = (slope - tq * se_a, slope + tq * se_a)
         intercept_ci = (intercept - tq * se_b, intercept + tq * se_b)
         n_boot = 0
