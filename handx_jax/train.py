@@ -388,6 +388,13 @@ def train(
         return new, metrics
 
     jstep = jax.jit(step_fn, donate_argnums=(0,))
+    # On CPU the "device" is the host's own cores, so dispatching step N+1 while step N runs overlaps
+    # nothing useful; it only keeps a second set of step buffers alive (~1 GB of temporaries for
+    # paper-4L at batch 32: peak RSS 1.9 -> 4-5 GB), and the allocator then cannot hand the same pages
+    # back step after step (handx_jax.hostmem): 5.3M page faults instead of 0.4M in a 32-step run, and
+    # 1.35-1.55 s/step instead of 1.27-1.30 (docs/results/perf_cpu.json, host_malloc). Accelerators
+    # keep JAX's asynchronous dispatch, which is what keeps them fed.
+    one_in_flight = jax.devices()[0].platform == "cpu"
     end = min(cfg.steps, stop_at) if stop_at is not None else cfg.steps
 
     def run_eval(done: int) -> None:
@@ -405,6 +412,8 @@ def train(
                                      cfg.prefetch, get_step_batch):
         batch = _global_batch(local, cfg.batch_size, data_sharding)
         state, metrics = jstep(state, batch, jax.random.fold_in(jax.random.fold_in(rng, 1), step), sched_v)
+        if one_in_flight:
+            jax.block_until_ready(state["step"])
         n_since += cfg.batch_size
         done = step + 1
         if done % cfg.log_every == 0 or done == cfg.steps:

@@ -1,0 +1,65 @@
+"""Host memory policy for XLA on CPU: reuse freed buffers instead of returning them to the kernel.
+
+Why (issue 15, measured in ``docs/results/perf_cpu.json``, ``host_malloc``). XLA's CPU runtime
+mallocs each execution's temporary buffer from a worker thread; for a paper-4L training step at
+batch 32 that buffer is ~1 GB. glibc serves a request that size from a thread's arena by a fresh
+``mmap`` and frees it with ``munmap``. Every step therefore touches ~250k new 4 KiB pages, and the
+kernel zero-fills each one on its first write: ~0.3 CPU-s of page faults per step, a sixth of the
+step on 2 cores (the same holds for every array above glibc's 32 MiB mmap ceiling, such as the
+48 MB output of the feed-forward's first matmul in sampling, which then ran at 105 instead of
+185 GFLOP/s).
+
+The fix is three ``mallopt`` settings, made before XLA starts its threads:
+
+* ``M_ARENA_MAX = 1``: worker threads allocate from the main arena. A thread arena cannot hold a
+  request larger than its 64 MiB heap and falls back to ``mmap`` whatever the other settings say.
+* ``M_MMAP_MAX = 0``: large requests come from the heap (``brk``), not from ``mmap``.
+* ``M_TRIM_THRESHOLD = 2 GiB``: freed memory at the heap's top is kept for the next step unless
+  more than that is free.
+
+The cost is the one a GPU caching allocator has: the process keeps its peak host memory until it
+exits. ``HANDX_HOST_MALLOC=system`` keeps glibc's defaults (set it before Python starts, or before
+the first ``import handx_jax``). Only glibc on Linux is touched; elsewhere :func:`configure` does
+nothing and says so. Calling it after JAX has run a computation is harmless but gains less: the
+worker threads already own their arenas.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import platform
+
+ENV = "HANDX_HOST_MALLOC"
+# mallopt(3) parameter numbers (glibc malloc.h)
+_M_TRIM_THRESHOLD, _M_MMAP_MAX, _M_ARENA_MAX = -1, -4, -8
+TRIM_THRESHOLD = 2**31 - 1  # mallopt takes an int: ~2 GiB is its largest value
+
+# What configure() did, for benchmark and run provenance: {"policy", "applied", "reason"}.
+STATE: dict = {"policy": "system", "applied": False, "reason": "not configured"}
+
+
+def configure(policy: str | None = None) -> dict:
+    """Apply ``policy`` ("reuse", the default, or "system"; ``$HANDX_HOST_MALLOC`` when None) once
+    per process and return :data:`STATE`."""
+    policy = (policy or os.environ.get(ENV) or "reuse").strip().lower()
+    if policy not in ("reuse", "system"):
+        raise ValueError(f"{ENV}={policy!r}: expected 'reuse' or 'system'")
+    if STATE.get("policy") == "reuse" and STATE.get("applied"):
+        return STATE  # glibc has no way back to its dynamic defaults; keep what was applied
+    if policy == "system":
+        STATE.update(policy="system", applied=False, reason=f"{ENV}=system: glibc defaults")
+        return STATE
+    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+        STATE.update(policy="system", applied=False, reason=f"not glibc on Linux ({platform.system()})")
+        return STATE
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        ok = all(libc.mallopt(p, v) == 1 for p, v in ((_M_ARENA_MAX, 1), (_M_MMAP_MAX, 0),
+                                                        (_M_TRIM_THRESHOLD, TRIM_THRESHOLD)))
+    except (OSError, AttributeError) as e:
+        STATE.update(policy="system", applied=False, reason=f"mallopt unavailable ({e})")
+        return STATE
+    STATE.update(policy="reuse", applied=ok, reason="arena_max=1, mmap_max=0, trim_threshold=2GiB" if ok
+                 else "mallopt refused a setting")
+    return STATE

@@ -1,0 +1,73 @@
+"""The host memory policy (handx_jax.hostmem): XLA's large per-call buffers are reused, not page-faulted in."""
+
+import importlib
+import json
+import os
+import platform
+import subprocess
+import sys
+import textwrap
+import warnings
+
+import pytest
+
+import handx_jax
+from handx_jax import hostmem
+
+# A jitted function whose (4096 × 4096) float32 intermediate, 64 MiB = 16,384 pages of 4 KiB, lies above
+# glibc's 32 MiB mmap ceiling: with glibc's defaults every call maps it afresh and the kernel zero-fills
+# each page on first touch; with the reuse policy the pages of the previous call are handed back.
+PROBE = textwrap.dedent("""
+    import json, resource
+    import handx_jax
+    from handx_jax import hostmem
+    import jax, jax.numpy as jnp
+    x = jnp.ones((4096, 256)); w = jnp.full((256, 4096), 1e-3)
+    f = jax.jit(lambda x, w: jnp.sum(jnp.tanh(x @ w) @ w.T))
+    for _ in range(2):
+        f(x, w).block_until_ready()
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for _ in range(5):
+        f(x, w).block_until_ready()
+    faults = (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before) / 5
+    print(json.dumps({"faults_per_call": faults, **hostmem.STATE}))
+""")
+
+glibc_linux = pytest.mark.skipif(platform.system() != "Linux" or platform.libc_ver()[0] != "glibc",
+                                 reason="the policy applies to glibc's malloc on Linux only")
+
+
+def _probe(policy: str) -> dict:
+    env = {**os.environ, "HANDX_HOST_MALLOC": policy, "JAX_PLATFORMS": "cpu"}
+    out = subprocess.run([sys.executable, "-c", PROBE], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+@glibc_linux
+def test_reuse_policy_stops_the_page_faults_of_large_buffers():
+    system, reuse = _probe("system"), _probe("reuse")
+    assert (system["policy"], system["applied"]) == ("system", False)
+    assert (reuse["policy"], reuse["applied"]) == ("reuse", True)
+    # glibc's defaults: at least half the 16,384 pages of the intermediate fault in on every call
+    assert system["faults_per_call"] > 8000, system
+    # the reuse policy: the same memory comes back, so (almost) nothing faults
+    assert reuse["faults_per_call"] < 0.05 * system["faults_per_call"], (reuse, system)
+
+
+def test_policy_names_are_checked_and_a_bad_one_keeps_glibc_defaults(monkeypatch):
+    with pytest.raises(ValueError, match="HANDX_HOST_MALLOC='fast'"):
+        hostmem.configure("fast")
+    monkeypatch.setenv("HANDX_HOST_MALLOC", "fast")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        importlib.reload(handx_jax)  # the package applies the policy at import and must not fail there
+    assert any("keeping glibc's malloc defaults" in str(w.message) for w in caught)
+
+
+@glibc_linux
+def test_the_test_process_runs_under_the_reuse_policy():
+    # conftest leaves HANDX_HOST_MALLOC unset, so the package default applies to the whole suite
+    if os.environ.get("HANDX_HOST_MALLOC", "reuse") != "reuse":
+        pytest.skip("HANDX_HOST_MALLOC is set for this run")
+    assert hostmem.STATE["policy"] == "reuse" and hostmem.STATE["applied"] is True
