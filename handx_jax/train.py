@@ -388,13 +388,16 @@ def train(
         return new, metrics
 
     jstep = jax.jit(step_fn, donate_argnums=(0,))
-    # On CPU the "device" is the host's own cores, so dispatching step N+1 while step N runs overlaps
-    # nothing useful; it only keeps a second set of step buffers alive (~1 GB of temporaries for
-    # paper-4L at batch 32: peak RSS 1.9 -> 4-5 GB), and the allocator then cannot hand the same pages
-    # back step after step (handx_jax.hostmem): 5.3M page faults instead of 0.4M in a 32-step run, and
-    # 1.35-1.55 s/step instead of 1.27-1.30 (docs/results/perf_cpu.json, host_malloc). Accelerators
-    # keep JAX's asynchronous dispatch, which is what keeps them fed.
-    one_in_flight = jax.devices()[0].platform == "cpu"
+    # On CPU the "device" is the host's own cores, so dispatching far ahead overlaps nothing useful: it
+    # only keeps every queued step's buffers alive (~1 GB of temporaries each for paper-4L at batch 32),
+    # and the allocator then cannot hand the same pages back step after step (handx_jax.hostmem). In a
+    # 32-step paper-4L run: unbounded, 5.3M page faults and 5.0 GB peak RSS; two in flight, 1.0M and
+    # 3.9 GB; one, 0.4M and 2.9 GB. So at most two steps are in flight there: once step N is queued,
+    # the loop waits for N - 1. Waiting for each step instead (one in flight) was as fast for paper-4L but cost the tiny
+    # tokenizer, whose steps take ~20 ms, a quarter of its throughput (the Python dispatch no longer
+    # overlaps a running step). docs/results/perf_cpu.json, host_malloc_2026_11_24. Accelerators keep
+    # JAX's unbounded asynchronous dispatch.
+    bounded = jax.devices()[0].platform == "cpu"
     end = min(cfg.steps, stop_at) if stop_at is not None else cfg.steps
 
     def run_eval(done: int) -> None:
@@ -408,12 +411,15 @@ def train(
     if evaluate is not None and start == 0 and end > 0:
         run_eval(0)  # the untrained model's numbers, the start of every curve
     t_last, n_since = time.perf_counter(), 0
+    prev_loss = None
     for step, local in _host_batches(get_batch, range(start, end), num_examples, cfg.batch_size, cfg.seed,
                                      cfg.prefetch, get_step_batch):
         batch = _global_batch(local, cfg.batch_size, data_sharding)
         state, metrics = jstep(state, batch, jax.random.fold_in(jax.random.fold_in(rng, 1), step), sched_v)
-        if one_in_flight:
-            jax.block_until_ready(state["step"])
+        if bounded:  # step `step` is queued: wait for the one before it (its loss; its state was donated)
+            if prev_loss is not None:
+                jax.block_until_ready(prev_loss)
+            prev_loss = metrics["loss"]
         n_since += cfg.batch_size
         done = step + 1
         if done % cfg.log_every == 0 or done == cfg.steps:
