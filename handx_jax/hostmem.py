@@ -36,8 +36,13 @@ ENV = "HANDX_HOST_MALLOC"
 _M_TRIM_THRESHOLD, _M_MMAP_MAX, _M_ARENA_MAX = -1, -4, -8
 TRIM_THRESHOLD = 2**31 - 1  # mallopt takes an int: ~2 GiB is its largest value
 
-# What configure() did, for benchmark and run provenance: {"policy", "applied", "reason"}.
+# What configure() did, recorded by every benchmark's JSON: {"policy", "applied", "reason"}.
 STATE: dict = {"policy": "system", "applied": False, "reason": "not configured"}
+
+
+def supported() -> bool:
+    """The policy applies to glibc's malloc on Linux only."""
+    return platform.system() == "Linux" and platform.libc_ver()[0] == "glibc"
 
 
 def configure(policy: str | None = None) -> dict:
@@ -51,7 +56,7 @@ def configure(policy: str | None = None) -> dict:
     if policy == "system":
         STATE.update(policy="system", applied=False, reason=f"{ENV}=system: glibc defaults")
         return STATE
-    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+    if not supported():
         STATE.update(policy="system", applied=False, reason=f"not glibc on Linux ({platform.system()})")
         return STATE
     try:

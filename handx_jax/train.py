@@ -393,10 +393,10 @@ def train(
     # and the allocator then cannot hand the same pages back step after step (handx_jax.hostmem). In a
     # 32-step paper-4L run: unbounded, 5.3M page faults and 5.0 GB peak RSS; two in flight, 1.0M and
     # 3.9 GB; one, 0.4M and 2.9 GB. So at most two steps are in flight there: once step N is queued,
-    # the loop waits for N - 1. Waiting for each step instead (one in flight) was as fast for paper-4L but cost the tiny
-    # tokenizer, whose steps take ~20 ms, a quarter of its throughput (the Python dispatch no longer
-    # overlaps a running step). docs/results/perf_cpu.json, host_malloc_2026_11_24. Accelerators keep
-    # JAX's unbounded asynchronous dispatch.
+    # the loop waits for N - 1. Waiting for each step (one in flight) was as fast for paper-4L but
+    # cost the tiny tokenizer, whose steps take ~20 ms, a quarter of its throughput: the Python
+    # dispatch no longer overlaps a running step (docs/results/perf_cpu.json, host_malloc_2026_11_24).
+    # Accelerators keep JAX's unbounded asynchronous dispatch.
     bounded = jax.devices()[0].platform == "cpu"
     end = min(cfg.steps, stop_at) if stop_at is not None else cfg.steps
 

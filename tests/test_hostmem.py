@@ -3,7 +3,6 @@
 import importlib
 import json
 import os
-import platform
 import subprocess
 import sys
 import textwrap
@@ -33,8 +32,7 @@ PROBE = textwrap.dedent("""
     print(json.dumps({"faults_per_call": faults, **hostmem.STATE}))
 """)
 
-glibc_linux = pytest.mark.skipif(platform.system() != "Linux" or platform.libc_ver()[0] != "glibc",
-                                 reason="the policy applies to glibc's malloc on Linux only")
+glibc_linux = pytest.mark.skipif(not hostmem.supported(), reason="the policy applies to glibc's malloc on Linux only")
 
 
 def _probe(policy: str) -> dict:
