@@ -1,14 +1,25 @@
-"""JAX against the PyTorch reference (``../shared/bench/torch_ref``), one after the other, same config.
+"""JAX against the PyTorch reference (``../shared/bench/torch_ref``), side by side in one run, same config.
 
     JAX_PLATFORMS=cpu .venv/bin/python benchmarks/vs_torch.py --torch-python ~/venv-torch/bin/python
-    JAX_PLATFORMS=cpu .venv/bin/python benchmarks/vs_torch.py --torch-python P --out docs/results/perf_cpu.json
+    JAX_PLATFORMS=cpu .venv/bin/python benchmarks/vs_torch.py --torch-python P --repeats 5 --out F.json
 
-Runs, in this order: the matmul peak (``_peak.py``), PyTorch training (``bench_train.py``), JAX training
-(``diffusion.bench_train``: the real loop with dropout, AdamW, clipping), PyTorch DDIM + CFG sampling
-(``bench_sample.py``), JAX DDIM + CFG sampling (``diffusion.bench_sample``: the compiled sampler), the
-peak again. Prints one JSON document: both sides' figures, ``ratios`` (JAX / PyTorch throughput) and
-each throughput as a fraction of the measured peak (the larger of the two peak measurements), with
-the load average before and after, since on a shared machine every figure depends on it.
+Each of ``--repeats`` rounds runs, for training and then for sampling, one measurement of each side
+back to back: PyTorch training (``bench_train.py``) and JAX training (``diffusion.bench_train``: the real
+loop with dropout, AdamW, clipping), PyTorch DDIM + CFG sampling (``bench_sample.py``) and JAX DDIM + CFG
+sampling (``diffusion.bench_sample``: the compiled sampler). The side that goes first alternates from
+round to round, so a drift in the machine's speed does not favour either side. The matmul peak
+(``_peak.py``) is measured before the first round and after the last.
+
+Why rounds: on a shared 2-core machine one measurement of either side moves by 20-40% from run to run
+(docs/results/perf_cpu.json), so a single pair gives a ratio anywhere in 0.95-1.40x. The ratios
+reported (``ratios_jax_over_torch``) are of the two sides' medians over the rounds; ``ratio_per_round``
+gives each round's own ratio, whose spread says how far to trust the median. Every throughput is also
+given as a fraction of the measured peak (the larger of the two peak measurements), with the load
+average before and after.
+
+JAX compiles once: the compiled sampler is kept across rounds, and the training step comes from a
+persistent compilation cache in a temporary folder (unless ``JAX_COMPILATION_CACHE_DIR`` is set), so
+only the first round pays for compilation. Neither side's timed interval includes it in any round.
 
 PyTorch is not a dependency of this project: give the interpreter of a separate environment that has
 it (``--torch-python``; default ``$TORCH_PYTHON`` or ``python3``). The reference scripts are looked up
@@ -21,6 +32,7 @@ import argparse
 import json
 import os
 import platform
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -57,6 +69,44 @@ def run_torch(python: str, ref: Path, script: str, a, steps: int) -> dict:
     return json.loads(p.stdout.strip().splitlines()[-1]) | {"command": " ".join(cmd)}
 
 
+def summary(row: dict) -> str:
+    """One round's figures on one line (stderr progress)."""
+    out = []
+    if "jax_train" in row:
+        j, t = row["jax_train"]["samples_per_s"], row["torch_train"]["samples_per_s"]
+        out.append(f"train JAX {j:.2f} / torch {t:.2f} samples/s ({j / t:.2f}x)")
+    if "jax_sample" in row:
+        j, t = row["jax_sample"]["seconds_per_batch"], row["torch_sample"]["seconds"]
+        out.append(f"DDIM JAX {j:.1f} s / torch {t:.1f} s ({t / j:.2f}x)")
+    return "; ".join(out)
+
+
+def aggregate(rounds: list[dict], fwd: int, peak: float, ddim_steps: int, batch: int) -> dict:
+    """Medians over the rounds, the ratio of the medians (JAX over PyTorch; > 1: JAX faster), each
+    round's own ratio, and the medians as fractions of ``peak`` (3 forward passes per training sample;
+    2 complete passes per sampling step and clip, the CFG work as PyTorch does it)."""
+    med, ratios, per_round, frac = {}, {}, {}, {}
+    if "jax_train" in rounds[0]:
+        t = [x["torch_train"]["samples_per_s"] for x in rounds]
+        j = [x["jax_train"]["samples_per_s"] for x in rounds]
+        med["torch_train_samples_per_s"], med["jax_train_samples_per_s"] = statistics.median(t), statistics.median(j)
+        ratios["train_samples_per_s"] = med["jax_train_samples_per_s"] / med["torch_train_samples_per_s"]
+        per_round["train_samples_per_s"] = [jj / tt for jj, tt in zip(j, t)]
+        frac["torch_train"] = 3 * fwd * med["torch_train_samples_per_s"] / peak
+        frac["jax_train"] = 3 * fwd * med["jax_train_samples_per_s"] / peak
+    if "jax_sample" in rounds[0]:
+        t = [x["torch_sample"]["seconds"] for x in rounds]
+        j = [x["jax_sample"]["seconds_per_batch"] for x in rounds]
+        med["torch_sample_seconds"], med["jax_sample_seconds"] = statistics.median(t), statistics.median(j)
+        ratios["ddim_cfg_sampling_speed"] = med["torch_sample_seconds"] / med["jax_sample_seconds"]
+        per_round["ddim_cfg_sampling_speed"] = [tt / jj for jj, tt in zip(j, t)]
+        work = 2 * fwd * ddim_steps * batch
+        frac["torch_sample"] = work / med["torch_sample_seconds"] / peak
+        frac["jax_sample"] = work / med["jax_sample_seconds"] / peak
+    return {"peak_flops_per_s": peak, "medians": med, "ratios_jax_over_torch": ratios, "ratio_per_round": per_round,
+            "fraction_of_peak": frac}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--torch-python", default=os.environ.get("TORCH_PYTHON", "python3"))
@@ -67,15 +117,29 @@ def main(argv=None) -> int:
     ap.add_argument("--train-steps", type=int, default=10, help="timed training steps on each side")
     ap.add_argument("--ddim-steps", type=int, default=50)
     ap.add_argument("--threads", type=int, default=os.cpu_count() or 2, help="torch.set_num_threads")
+    ap.add_argument("--repeats", type=int, default=3,
+                    help="rounds of (PyTorch, JAX) pairs, sides alternating which goes first; medians reported")
     ap.add_argument("--skip", default="", help="comma list of parts to leave out: train, sample")
     ap.add_argument("--out", help="also write the JSON here")
     a = ap.parse_args(argv)
+    if a.repeats < 1:
+        ap.error(f"--repeats must be at least 1, got {a.repeats}")
     ref = Path(a.torch_ref)
     if not (ref / "bench_train.py").exists():
         sys.exit(f"error: no PyTorch reference at {ref} (bench_train.py missing); pass --torch-ref")
     a.m = PRESETS[a.preset]
     skip = set(filter(None, a.skip.split(",")))
     fwd = forward_flops(a.m, a.text_len)
+    with tempfile.TemporaryDirectory() as tmp:
+        # Before anything compiles: JAX reads the cache setting when it first compiles.
+        if not os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+            jax.config.update("jax_compilation_cache_dir", str(Path(tmp) / "jax_cache"))
+        doc = side_by_side(a, ref, skip, fwd, Path(tmp))
+    emit(doc, a.out, indent=1)
+    return 0
+
+
+def side_by_side(a, ref: Path, skip: set, fwd: int, tmp: Path) -> dict:
     doc = {"machine": {"host": platform.node(), "cpus": os.cpu_count(), "platform": platform.platform(),
                        "processor": platform.processor(), "jax_backend": jax.default_backend(),
                        "device": jax.devices()[0].device_kind, "jax": jax.__version__,
@@ -85,32 +149,31 @@ def main(argv=None) -> int:
                       "forward_flops_per_sample": fwd},
            "peak_start": matmul_peak()}
     jcfg = DiffusionRunConfig(preset=a.preset, model=a.m)
-    with tempfile.TemporaryDirectory() as tmp:
-        if "train" not in skip:
-            doc["torch_train"] = run_torch(a.torch_python, ref, "bench_train.py", a, a.train_steps)
-            doc["jax_train"] = bench_train(a.preset, jcfg, a.text_len, a.batch, a.train_steps, False, Path(tmp))
-        if "sample" not in skip:
-            doc["torch_sample"] = run_torch(a.torch_python, ref, "bench_sample.py", a, a.ddim_steps)
-            params = init_denoiser(a.m, jax.random.PRNGKey(0), a.text_len)[1]
-            doc["jax_sample"] = bench_sample(jcfg, params, a.text_len, a.batch, "ddim", a.ddim_steps, False)
+    params = init_denoiser(a.m, jax.random.PRNGKey(0), a.text_len)[1] if "sample" not in skip else None
+    sampler_cache: dict = {}
+
+    def measure(part: str, side: str, r: int) -> dict:
+        if side == "torch":
+            script, steps = ("bench_train.py", a.train_steps) if part == "train" else ("bench_sample.py", a.ddim_steps)
+            return run_torch(a.torch_python, ref, script, a, steps)
+        if part == "train":
+            return bench_train(a.preset, jcfg, a.text_len, a.batch, a.train_steps, False, tmp / f"round{r}")
+        return bench_sample(jcfg, params, a.text_len, a.batch, "ddim", a.ddim_steps, False, cache=sampler_cache)
+
+    doc["rounds"] = []
+    for r in range(a.repeats):
+        row = {"round": r, "first": "torch" if r % 2 == 0 else "jax"}
+        for part in ("train", "sample"):
+            if part not in skip:
+                for side in (("torch", "jax") if r % 2 == 0 else ("jax", "torch")):
+                    row[f"{side}_{part}"] = measure(part, side, r)
+        doc["rounds"].append(row)
+        print(f"[round {r + 1}/{a.repeats}] " + summary(row), file=sys.stderr, flush=True)
     doc["peak_end"] = matmul_peak()
     doc["machine"]["loadavg_after"] = os.getloadavg()
-    peak = max(doc["peak_start"]["flops_per_s"], doc["peak_end"]["flops_per_s"])
-    doc["peak_flops_per_s"] = peak
-    ratios, frac = {}, {}
-    if "train" not in skip:
-        t, j = doc["torch_train"]["samples_per_s"], doc["jax_train"]["samples_per_s"]
-        ratios["train_samples_per_s"] = j / t
-        frac["torch_train"], frac["jax_train"] = 3 * fwd * t / peak, 3 * fwd * j / peak
-    if "sample" not in skip:
-        t, j = doc["torch_sample"]["seconds"], doc["jax_sample"]["seconds_per_batch"]
-        ratios["ddim_cfg_sampling_speed"] = t / j
-        per_s = 2 * fwd * a.ddim_steps * a.batch  # full CFG work per batch (2 complete passes per step)
-        frac["torch_sample"], frac["jax_sample"] = per_s / t / peak, per_s / j / peak
-    doc["ratios_jax_over_torch"] = ratios
-    doc["fraction_of_peak"] = frac
-    emit(doc, a.out, indent=1)
-    return 0
+    doc.update(aggregate(doc["rounds"], fwd, max(doc["peak_start"]["flops_per_s"], doc["peak_end"]["flops_per_s"]),
+                         a.ddim_steps, a.batch))
+    return doc
 
 
 if __name__ == "__main__":

@@ -69,3 +69,32 @@ def test_the_test_process_runs_under_the_reuse_policy():
     if os.environ.get("HANDX_HOST_MALLOC", "reuse") != "reuse":
         pytest.skip("HANDX_HOST_MALLOC is set for this run")
     assert hostmem.STATE["policy"] == "reuse" and hostmem.STATE["applied"] is True
+
+
+# Two steps in flight keep two of those buffers alive, ~2 GB for paper-4L; when both are freed the heap's
+# top holds more than any positive trim threshold mallopt accepts (at most 2^31 - 1), so glibc gave the
+# pages back and the next steps faulted them in again (docs/results/perf_cpu.json, trim_2026_11_24).
+# The probe frees a 2.5 GiB heap block (never touched: no page is faulted in) and reads the heap's end.
+TRIM_PROBE = textwrap.dedent("""
+    import ctypes, json
+    import handx_jax
+    libc = ctypes.CDLL("libc.so.6")
+    libc.sbrk.restype = ctypes.c_void_p; libc.sbrk.argtypes = [ctypes.c_ssize_t]
+    libc.malloc.restype = ctypes.c_void_p; libc.malloc.argtypes = [ctypes.c_size_t]
+    libc.free.argtypes = [ctypes.c_void_p]
+    start = libc.sbrk(0)
+    p = libc.malloc(5 << 29)
+    grown = libc.sbrk(0)
+    libc.free(p)
+    print(json.dumps({"malloc_ok": bool(p), "grown": grown - start, "after_free": libc.sbrk(0) - start}))
+""")
+
+
+@glibc_linux
+def test_reuse_policy_keeps_a_freed_heap_top_larger_than_2_gib():
+    env = {**os.environ, "HANDX_HOST_MALLOC": "reuse", "JAX_PLATFORMS": "cpu"}
+    out = subprocess.run([sys.executable, "-c", TRIM_PROBE], env=env, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr[-2000:]
+    r = json.loads(out.stdout.strip().splitlines()[-1])
+    assert r["malloc_ok"] and r["grown"] >= 5 << 29, r  # served from the heap (no mmap), not vacuous
+    assert r["after_free"] == r["grown"], r  # nothing trimmed
