@@ -27,7 +27,6 @@ synthetic motion/captions; with one, the first N clips of the reference dataset 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -39,6 +38,9 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/_peak.py, also when loaded by path
+from _peak import emit  # noqa: E402
 
 from handx_jax.evaluation import (TextPolicy, TrainedEvaluator, _init_params,  # noqa: E402
                                   evaluate_embeddings_and_motion, load_evaluator, model_config, motion_features,
@@ -144,7 +146,7 @@ def main(argv=None) -> dict:
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "backend": jax.default_backend(),
                     "loadavg_start": load_start, "loadavg_end": os.getloadavg()},
     }
-    print(json.dumps(out, indent=1))
+    emit(out, indent=1)
     return out
 
 

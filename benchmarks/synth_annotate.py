@@ -6,12 +6,16 @@ Prints JSON. Usage: python benchmarks/synth_annotate.py [--clips N] [--workers W
 from __future__ import annotations
 
 import argparse
-import json
 import os
+import sys
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/_peak.py, also when loaded by path
+from _peak import emit  # noqa: E402
 
 
 def main() -> None:
@@ -51,7 +55,7 @@ def main() -> None:
         t = time.perf_counter()
         build_corpus(os.path.join(d, "ds"), cfg, progress=False)
         total = time.perf_counter() - t
-    print(json.dumps({
+    emit({
         "benchmark": "synth_annotate",
         "clips": a.clips,
         "workers": cfg.workers or os.cpu_count(),
@@ -60,7 +64,7 @@ def main() -> None:
         "end_to_end_clips_per_s": round(a.clips / total, 1),
         "projected_100k_minutes": round(100_000 / (a.clips / total) / 60, 1),
         "single_core_stages": stages,
-    }, indent=2))
+    })
 
 
 if __name__ == "__main__":

@@ -11,7 +11,6 @@ Prints one JSON document.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import sys
 import tempfile
@@ -26,6 +25,9 @@ from handx_jax.text.cache import TextCache, build_cache
 from handx_jax.text.pretrain import model_config
 from handx_jax.text.t5 import T5EncoderModel, count_params, save_hf_t5_encoder
 from handx_jax.text.toy import write_toy_dataset
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/_peak.py, also when loaded by path
+from _peak import emit  # noqa: E402
 
 
 def bench(preset: str, data: Path, tok: tk.Tokenizer, work: Path, batch_size: int, dtype: str) -> dict:
@@ -59,10 +61,8 @@ def main(argv=None) -> int:
         data = write_toy_dataset(work / "data", num_clips=a.clips)
         tok = tk.train_for_dataset(data, vocab_size=1000)
         results = [bench(pr, data, tok, work, a.batch_size, a.dtype) for pr in a.presets.split(",")]
-    json.dump({"benchmark": "text_cache", "device": str(jax.devices()[0]), "backend": jax.default_backend(),
-               "cpu": platform.processor() or platform.machine(), "clips": a.clips, "results": results},
-              sys.stdout, indent=2)
-    sys.stdout.write("\n")
+    emit({"benchmark": "text_cache", "device": str(jax.devices()[0]), "backend": jax.default_backend(),
+          "cpu": platform.processor() or platform.machine(), "clips": a.clips, "results": results})
     return 0
 
 
