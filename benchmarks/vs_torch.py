@@ -86,23 +86,20 @@ def aggregate(rounds: list[dict], fwd: int, peak: float, ddim_steps: int, batch:
     round's own ratio, and the medians as fractions of ``peak`` (3 forward passes per training sample;
     2 complete passes per sampling step and clip, the CFG work as PyTorch does it)."""
     med, ratios, per_round, frac = {}, {}, {}, {}
-    if "jax_train" in rounds[0]:
-        t = [x["torch_train"]["samples_per_s"] for x in rounds]
-        j = [x["jax_train"]["samples_per_s"] for x in rounds]
-        med["torch_train_samples_per_s"], med["jax_train_samples_per_s"] = statistics.median(t), statistics.median(j)
-        ratios["train_samples_per_s"] = med["jax_train_samples_per_s"] / med["torch_train_samples_per_s"]
-        per_round["train_samples_per_s"] = [jj / tt for jj, tt in zip(j, t)]
-        frac["torch_train"] = 3 * fwd * med["torch_train_samples_per_s"] / peak
-        frac["jax_train"] = 3 * fwd * med["jax_train_samples_per_s"] / peak
-    if "jax_sample" in rounds[0]:
-        t = [x["torch_sample"]["seconds"] for x in rounds]
-        j = [x["jax_sample"]["seconds_per_batch"] for x in rounds]
-        med["torch_sample_seconds"], med["jax_sample_seconds"] = statistics.median(t), statistics.median(j)
-        ratios["ddim_cfg_sampling_speed"] = med["torch_sample_seconds"] / med["jax_sample_seconds"]
-        per_round["ddim_cfg_sampling_speed"] = [tt / jj for jj, tt in zip(j, t)]
-        work = 2 * fwd * ddim_steps * batch
-        frac["torch_sample"] = work / med["torch_sample_seconds"] / peak
-        frac["jax_sample"] = work / med["jax_sample_seconds"] / peak
+    # part: (PyTorch's field, JAX's field, the unit both are in, the ratio's name, FLOPs per unit of work)
+    parts = {"train": ("samples_per_s", "samples_per_s", "samples_per_s", "train_samples_per_s", 3 * fwd),
+             "sample": ("seconds", "seconds_per_batch", "seconds", "ddim_cfg_sampling_speed",
+                        2 * fwd * ddim_steps * batch)}
+    for part, (t_key, j_key, unit, name, flops) in parts.items():
+        if f"jax_{part}" not in rounds[0]:
+            continue
+        both = {"torch": [x[f"torch_{part}"][t_key] for x in rounds], "jax": [x[f"jax_{part}"][j_key] for x in rounds]}
+        speed = (lambda v: 1.0 / v) if unit == "seconds" else (lambda v: v)  # work per second, up to a constant
+        for side, values in both.items():
+            med[f"{side}_{part}_{unit}"] = statistics.median(values)
+            frac[f"{side}_{part}"] = flops * speed(med[f"{side}_{part}_{unit}"]) / peak
+        ratios[name] = speed(med[f"jax_{part}_{unit}"]) / speed(med[f"torch_{part}_{unit}"])
+        per_round[name] = [speed(j) / speed(t) for t, j in zip(both["torch"], both["jax"])]
     return {"peak_flops_per_s": peak, "medians": med, "ratios_jax_over_torch": ratios, "ratio_per_round": per_round,
             "fraction_of_peak": frac}
 
