@@ -4,6 +4,7 @@
   the unconditional rows) equal ``__call__`` with the text tiled and the drop flags set.
 - The compiled sampler's closure gives the samples of the closure that calls the full model.
 - Hash dropout keeps 1 − rate of the elements, is a pure function of the seed, and scales by 1/(1 − rate).
+- The erf form of exact GELU is exact GELU (values and gradients).
 """
 
 import jax
@@ -14,7 +15,7 @@ import pytest
 from handx_jax import diffusion as D
 from handx_jax.generation import _sample_impl
 from handx_jax.models.dit import NUM_BRANCHES, PRESETS, init_denoiser
-from handx_jax.models.layers import Dropout, keep_mask
+from handx_jax.models.layers import Dropout, gelu_erf, keep_mask
 
 
 def _text(cfg, B, L, seed=0):
@@ -87,3 +88,19 @@ def test_hash_dropout_rate_determinism_and_scale():
     assert Dropout(0.25).apply({}, x, deterministic=True) is x
     y2 = Dropout(0.25, broadcast_dims=(0,)).apply({}, x, deterministic=False, rngs={"dropout": jax.random.PRNGKey(0)})
     assert (np.asarray(y2) == np.asarray(y2)[:1]).all()  # one mask shared along the broadcast axis
+
+
+def test_gelu_erf_is_exact_gelu_in_value_and_gradient():
+    # Known answer independent of the code: 0.5·x·erfc(−x/√2) in float64 (scipy), and its derivative
+    # Φ(x) + x·φ(x). The erf form loses a little relative precision far in the negative tail, where
+    # GELU is ~0 anyway, so the check is absolute.
+    from scipy import special, stats
+
+    x = np.linspace(-12.0, 12.0, 20001)
+    want = 0.5 * x * special.erfc(-x / np.sqrt(2.0))
+    got = np.asarray(gelu_erf(jnp.asarray(x, jnp.float32)), np.float64)
+    np.testing.assert_allclose(got, want, atol=2e-6, rtol=1e-6)
+    grad = np.asarray(jax.vmap(jax.grad(gelu_erf))(jnp.asarray(x, jnp.float32)), np.float64)
+    np.testing.assert_allclose(grad, stats.norm.cdf(x) + x * stats.norm.pdf(x), atol=2e-6)
+    # and it is what jax.nn.gelu(approximate=False) computes, to float32 rounding
+    np.testing.assert_allclose(got, np.asarray(jax.nn.gelu(jnp.asarray(x, jnp.float32), approximate=False)), atol=2e-6)
