@@ -141,9 +141,10 @@ def gelu_erf(x):
 
     ``jax.nn.gelu(approximate=False)`` is the same function through ``erfc``, whose XLA CPU expansion
     (two branches with an exp each) cost twice as much: forward and backward of a (96, 62, 1024)
-    activation took 17.8-19.7 ms against 9.3-11.1 ms with erf; in the DDIM + CFG sampler the four
-    feed-forward blocks ran ~7 ms each faster (docs/results/perf_cpu.json, gelu_2026_11_24). The two
-    agree to 1e-6 absolute on [-12, 12] (tests/test_layers.py).
+    activation took 17.8-19.7 ms against 9.3-11.1 ms with erf, and a feed-forward block at the DDIM +
+    CFG sampler's shapes 79-80 ms against 70-73 (docs/results/perf_cpu.json, gelu_2026_11_24; whole
+    steps gain less than this machine's noise). The two agree to 1e-6 absolute on [-12, 12]
+    (tests/test_perf_paths.py).
     """
     return 0.5 * x * (1.0 + jax.lax.erf(x * jnp.asarray(1.0 / np.sqrt(2.0), x.dtype)))
 
