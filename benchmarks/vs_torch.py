@@ -69,15 +69,23 @@ def run_torch(python: str, ref: Path, script: str, a, steps: int) -> dict:
     return json.loads(p.stdout.strip().splitlines()[-1]) | {"command": " ".join(cmd)}
 
 
+# part: (PyTorch's field, JAX's field, the unit both are in, the name of their ratio)
+PARTS = {"train": ("samples_per_s", "samples_per_s", "samples_per_s", "train_samples_per_s"),
+         "sample": ("seconds", "seconds_per_batch", "seconds", "ddim_cfg_sampling_speed")}
+
+
+def _speed(unit: str, value: float) -> float:
+    """Work per second, up to a constant: a time's inverse, a throughput as it is."""
+    return 1.0 / value if unit == "seconds" else value
+
+
 def summary(row: dict) -> str:
     """One round's figures on one line (stderr progress)."""
     out = []
-    if "jax_train" in row:
-        j, t = row["jax_train"]["samples_per_s"], row["torch_train"]["samples_per_s"]
-        out.append(f"train JAX {j:.2f} / torch {t:.2f} samples/s ({j / t:.2f}x)")
-    if "jax_sample" in row:
-        j, t = row["jax_sample"]["seconds_per_batch"], row["torch_sample"]["seconds"]
-        out.append(f"DDIM JAX {j:.1f} s / torch {t:.1f} s ({t / j:.2f}x)")
+    for part, (t_key, j_key, unit, _) in PARTS.items():
+        if f"jax_{part}" in row:
+            t, j = row[f"torch_{part}"][t_key], row[f"jax_{part}"][j_key]
+            out.append(f"{part} JAX {j:.2f} / torch {t:.2f} {unit} ({_speed(unit, j) / _speed(unit, t):.2f}x)")
     return "; ".join(out)
 
 
@@ -86,20 +94,16 @@ def aggregate(rounds: list[dict], fwd: int, peak: float, ddim_steps: int, batch:
     round's own ratio, and the medians as fractions of ``peak`` (3 forward passes per training sample;
     2 complete passes per sampling step and clip, the CFG work as PyTorch does it)."""
     med, ratios, per_round, frac = {}, {}, {}, {}
-    # part: (PyTorch's field, JAX's field, the unit both are in, the ratio's name, FLOPs per unit of work)
-    parts = {"train": ("samples_per_s", "samples_per_s", "samples_per_s", "train_samples_per_s", 3 * fwd),
-             "sample": ("seconds", "seconds_per_batch", "seconds", "ddim_cfg_sampling_speed",
-                        2 * fwd * ddim_steps * batch)}
-    for part, (t_key, j_key, unit, name, flops) in parts.items():
+    flops = {"train": 3 * fwd, "sample": 2 * fwd * ddim_steps * batch}  # per unit of work
+    for part, (t_key, j_key, unit, name) in PARTS.items():
         if f"jax_{part}" not in rounds[0]:
             continue
         both = {"torch": [x[f"torch_{part}"][t_key] for x in rounds], "jax": [x[f"jax_{part}"][j_key] for x in rounds]}
-        speed = (lambda v: 1.0 / v) if unit == "seconds" else (lambda v: v)  # work per second, up to a constant
         for side, values in both.items():
             med[f"{side}_{part}_{unit}"] = statistics.median(values)
-            frac[f"{side}_{part}"] = flops * speed(med[f"{side}_{part}_{unit}"]) / peak
-        ratios[name] = speed(med[f"jax_{part}_{unit}"]) / speed(med[f"torch_{part}_{unit}"])
-        per_round[name] = [speed(j) / speed(t) for t, j in zip(both["torch"], both["jax"])]
+            frac[f"{side}_{part}"] = flops[part] * _speed(unit, med[f"{side}_{part}_{unit}"]) / peak
+        ratios[name] = _speed(unit, med[f"jax_{part}_{unit}"]) / _speed(unit, med[f"torch_{part}_{unit}"])
+        per_round[name] = [_speed(unit, j) / _speed(unit, t) for t, j in zip(both["torch"], both["jax"])]
     return {"peak_flops_per_s": peak, "medians": med, "ratios_jax_over_torch": ratios, "ratio_per_round": per_round,
             "fraction_of_peak": frac}
 
