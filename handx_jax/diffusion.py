@@ -178,7 +178,10 @@ DenoiseFn = Callable[[jax.Array, jax.Array, jax.Array], jax.Array]  # (x_t, t_B,
 
 
 def guided(denoise: DenoiseFn, scale: float) -> Callable[[jax.Array, jax.Array], jax.Array]:
-    """CFG: x̂0 = u + s·(c − u), with c and u from one batched call (u = null text on all branches)."""
+    """CFG: x̂0 = u + s·(c − u), with c and u from one batched call (u = null text on all branches).
+
+    The batch is [x; x]: the unconditional half repeats the conditional half's x and t exactly, which
+    a denoiser may use to share the work that does not see the text (``TrebleDenoiser.denoise``)."""
     def fn(x, t_B):
         if scale == 1.0:
             return denoise(x, t_B, jnp.zeros(x.shape[0], bool))

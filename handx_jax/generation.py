@@ -115,9 +115,11 @@ def _sample_impl(params, text_KxBxLxD, mask_KxBxL, rng, target, gamma, *, model,
 
     def denoise(x, t_B, uncond_B):
         # ``diffusion.guided`` stacks [conditional; unconditional] on the batch axis (uncond_B says so),
-        # so the rows past B are the null-text pass: one memory token, no text keys/values.
+        # so the rows past B are the null-text pass: one memory token, no text keys/values. Their x and t
+        # repeat the first B rows', so the work before the first cross-attention is shared.
         del uncond_B
-        return model.apply(params, x, t_B, memory, x.shape[0] - B, method=model.denoise)
+        null_rows = x.shape[0] - B
+        return model.apply(params, x, t_B, memory, null_rows, null_rows == B, method=model.denoise)
 
     shape = (B, model.cfg.frames, model.cfg.joints, model.cfg.channels)
     return D.sample(denoise, sched, shape, rng, dcfg, sampler=sampler, steps=steps, guidance=guidance,

@@ -2,6 +2,8 @@
 
 - ``TrebleDenoiser.encode`` + ``denoise`` (text keys/values once per sample, one-token null memory for
   the unconditional rows) equal ``__call__`` with the text tiled and the drop flags set.
+  With guidance's [x; x] batch, sharing the first self-attention block changes nothing.
+- Attention's two layouts (forward-only heads-major matmuls, training einsums) are standard attention.
 - The compiled sampler's closure gives the samples of the closure that calls the full model.
 - Hash dropout keeps 1 − rate of the elements, is a pure function of the seed, and scales by 1/(1 − rate).
 - The erf form of exact GELU is exact GELU (values and gradients).
@@ -15,7 +17,7 @@ import pytest
 from handx_jax import diffusion as D
 from handx_jax.generation import _sample_impl
 from handx_jax.models.dit import NUM_BRANCHES, PRESETS, init_denoiser
-from handx_jax.models.layers import Dropout, gelu_erf, keep_mask
+from handx_jax.models.layers import Attention, Dropout, gelu_erf, keep_mask
 
 
 def _text(cfg, B, L, seed=0):
@@ -50,6 +52,39 @@ def test_encode_denoise_equals_full_forward(tiny):
     only_null = jax.jit(lambda p: model.apply(p, x, t, method=lambda m, x, t: m.denoise(x, t, None, B)))(params)
     np.testing.assert_allclose(only_null, uncond, atol=1e-5)
     assert not np.allclose(cond, uncond)
+    # guidance's [x; x] batch: the first layer's self-attention block runs once and is copied
+    shared = jax.jit(lambda p, m: model.apply(p, jnp.concatenate([x, x]), jnp.concatenate([t, t]), m, B, True,
+                                              method=model.denoise))(params, memory)
+    np.testing.assert_allclose(shared[:B], cond, atol=1e-5)
+    np.testing.assert_allclose(shared[B:], uncond, atol=1e-5)
+    with pytest.raises(ValueError, match="null_repeats needs as many null rows"):
+        model.apply(params, jnp.concatenate([x, x[:1]]), jnp.concatenate([t, t[:1]]), memory, 1, True,
+                    method=model.denoise)
+
+
+def test_attention_layouts_equal_a_numpy_reference():
+    """Forward-only attention (heads-major matmuls) and the training path (einsums) compute standard
+    multi-head attention: checked against numpy, with a key mask."""
+    B, Q, M, D, H = 2, 5, 7, 16, 4
+    r = np.random.default_rng(4)
+    x = r.normal(size=(B, Q, D)).astype(np.float32)
+    mem = r.normal(size=(B, M, D)).astype(np.float32)
+    valid = np.arange(M)[None] < np.array([[7], [3]])  # the second sample sees 3 keys
+    mask = jnp.asarray(valid[:, None, None, :])
+    attn = Attention(D, H, dropout=0.0)
+    params = attn.init(jax.random.PRNGKey(0), jnp.asarray(x), deterministic=True)
+    p = jax.tree.map(np.asarray, params["params"])
+    proj = lambda a, n: np.einsum("bsd,dhk->bshk", a, p[n]["kernel"]) + p[n]["bias"]  # noqa: E731
+    q, k, v = proj(x, "query") / np.sqrt(D // H), proj(mem, "key"), proj(mem, "value")
+    logits = np.einsum("bqhk,bmhk->bhqm", q, k)
+    logits = np.where(valid[:, None, None, :], logits, -np.inf)
+    w = np.exp(logits - logits.max(-1, keepdims=True))
+    w /= w.sum(-1, keepdims=True)
+    ref = np.einsum("bhqm,bmhk,hkd->bqd", w, v, p["out"]["kernel"]) + p["out"]["bias"]
+    for deterministic in (True, False):  # rate 0: the two differ only in layout
+        kv = attn.apply(params, jnp.asarray(mem), method=attn.kv)
+        got = attn.apply(params, jnp.asarray(x), kv, mask, deterministic=deterministic)
+        np.testing.assert_allclose(got, ref, atol=1e-5, err_msg=f"deterministic={deterministic}")
 
 
 @pytest.mark.parametrize("guidance", [2.5, 1.0])

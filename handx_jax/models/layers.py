@@ -96,6 +96,11 @@ class Dropout(nn.Module):
         return jnp.where(keep, x / jnp.asarray(1.0 - self.rate, x.dtype), jnp.zeros((), x.dtype))
 
 
+def _heads_major(x_BxSxHxK):
+    """(B, S, H, K) ↔ (B, H, S, K), so attention's products are plain batched matmuls over (B, H)."""
+    return jnp.swapaxes(x_BxSxHxK, 1, 2)
+
+
 class Attention(nn.Module):
     """Multi-head dot-product attention with flax MultiHeadDotProductAttention's parameters and maths
     (query scaled by 1/√(D/H), float32 softmax, attention-weight dropout shared over batch and heads)."""
@@ -128,11 +133,21 @@ class Attention(nn.Module):
         """Attend from x to ``kv`` (keys, values) or, if None, to x itself (self-attention)."""
         q_BxQxHxK = self.query(x_BxQxD) / jnp.sqrt(self.dim // self.heads).astype(self.dtype)
         k_BxMxHxK, v_BxMxHxK = self.kv(x_BxQxD) if kv is None else kv
-        logits = jnp.einsum("bqhd,bkhd->bhqk", q_BxQxHxK, k_BxMxHxK)
+        # Same values either way; the layout is chosen for speed on XLA CPU (issue 15). Forward only
+        # (deterministic: sampling, evaluation) the products run as batched matmuls over (batch, head):
+        # the DDIM + CFG sampler 4.4-4.9% faster. Under autodiff that layout's backward cost a training
+        # step 2.7-4.6% (docs/results/perf_cpu.json, attention_layout_2026_11_24), so training keeps the einsums.
+        heads_major = deterministic
+        if heads_major:
+            logits = _heads_major(q_BxQxHxK) @ jnp.transpose(k_BxMxHxK, (0, 2, 3, 1))
+        else:
+            logits = jnp.einsum("bqhd,bkhd->bhqk", q_BxQxHxK, k_BxMxHxK)
         if mask_Bx1xQxK is not None:
             logits = jnp.where(mask_Bx1xQxK, logits, jnp.finfo(logits.dtype).min)
         w_BxHxQxM = jax.nn.softmax(logits.astype(jnp.float32)).astype(self.dtype)
         w_BxHxQxM = self.weight_drop(w_BxHxQxM, deterministic=deterministic)
+        if heads_major:
+            return self.out(_heads_major(w_BxHxQxM @ _heads_major(v_BxMxHxK)))
         return self.out(jnp.einsum("bhqk,bkhd->bqhd", w_BxHxQxM, v_BxMxHxK))
 
 
@@ -189,7 +204,9 @@ class DecoderLayer(nn.Module):
     The memory may enter as its cross-attention keys/values ``kv`` (from :meth:`memory_kv`), so a
     fixed memory is projected once. The last ``null_rows`` rows of x attend to the one-token memory
     ``null_mem_D`` (the classifier-free-guidance null text): their cross-attention output is one
-    vector, computed without queries or scores.
+    vector, computed without queries or scores. With ``repeat_for_null`` x holds only the memory
+    rows, and the null rows (inputs identical to the first ``null_rows`` of them) reuse their self-
+    attention block.
 
     ``kernel_init`` initialises the feed-forward and attention-output kernels, ``qkv_init`` the q/k/v
     kernels (flax defaults; the denoiser passes the reference's, see ``REFERENCE_LINEAR_INIT``).
@@ -215,9 +232,11 @@ class DecoderLayer(nn.Module):
         return self.cross_attn.kv(mem_BxMxD)
 
     def __call__(self, x_BxSxD, mem_BxMxD=None, self_mask=None, cross_mask=None, *, deterministic: bool,
-                 kv=None, null_mem_D=None, null_rows: int = 0):
+                 kv=None, null_mem_D=None, null_rows: int = 0, repeat_for_null: bool = False):
         a = self.self_attn(x_BxSxD, None, self_mask, deterministic=deterministic)
         x = self.norm1(x_BxSxD + self.drop1(a, deterministic=deterministic))
+        if repeat_for_null:  # x holds only the memory rows; the null rows are their first null_rows, repeated
+            x = jnp.concatenate([x, x[:null_rows]])
         n_mem = x.shape[0] - null_rows
         parts = []
         if n_mem:
