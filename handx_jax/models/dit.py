@@ -142,15 +142,19 @@ class TrebleDenoiser(nn.Module):
             jnp.broadcast_to(z_BxFxD[None], (NUM_BRANCHES, n_in, F, c.dim)),
         ], axis=2)
         seq = seq + self.pe[: F + 2].astype(seq.dtype)
-        if null_repeats:
-            seq = seq.reshape(-1, F + 2, c.dim)
-            z_BxFxD = jnp.concatenate([z_BxFxD, z_BxFxD])
-        else:
-            seq = jnp.concatenate([seq[:, :nc].reshape(-1, F + 2, c.dim), seq[:, nc:].reshape(-1, F + 2, c.dim)])
+        # (with null_repeats the null group is empty here: it is copied after layer 0's self-attention)
+        seq = jnp.concatenate([seq[:, :nc].reshape(-1, F + 2, c.dim), seq[:, nc:].reshape(-1, F + 2, c.dim)])
         seq = self.embed_drop(seq, deterministic=deterministic)
         for i, (layer, kv) in enumerate(zip(self._layers(), kvs)):
-            seq = layer(seq, None, None, key_mask, deterministic=deterministic, kv=kv, null_mem_D=self.null_text,
-                        null_rows=NUM_BRANCHES * null_rows, repeat_for_null=null_repeats and i == 0)
+            cross = dict(deterministic=deterministic, kv=kv, null_mem_D=self.null_text,
+                         null_rows=NUM_BRANCHES * null_rows)
+            if null_repeats and i == 0:
+                s = layer.self_block(seq, deterministic=deterministic)
+                seq = layer.cross_block(jnp.concatenate([s, s]), None, key_mask, **cross)
+            else:
+                seq = layer(seq, None, None, key_mask, **cross)
+        if null_repeats:
+            z_BxFxD = jnp.concatenate([z_BxFxD, z_BxFxD])
         out_cond = seq[: NUM_BRANCHES * nc].reshape(NUM_BRANCHES, nc, F + 2, c.dim)
         out_null = seq[NUM_BRANCHES * nc:].reshape(NUM_BRANCHES, null_rows, F + 2, c.dim)
         out_KxBxFxD = jnp.concatenate([out_cond, out_null], axis=1)[:, :, 2:]

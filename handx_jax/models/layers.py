@@ -137,8 +137,7 @@ class Attention(nn.Module):
         # (deterministic: sampling, evaluation) the products run as batched matmuls over (batch, head):
         # the DDIM + CFG sampler 4.4-4.9% faster. Under autodiff that layout's backward cost a training
         # step 2.7-4.6% (docs/results/perf_cpu.json, attention_layout_2026_11_24), so training keeps the einsums.
-        heads_major = deterministic
-        if heads_major:
+        if deterministic:
             logits = _heads_major(q_BxQxHxK) @ jnp.transpose(k_BxMxHxK, (0, 2, 3, 1))
         else:
             logits = jnp.einsum("bqhd,bkhd->bhqk", q_BxQxHxK, k_BxMxHxK)
@@ -146,7 +145,7 @@ class Attention(nn.Module):
             logits = jnp.where(mask_Bx1xQxK, logits, jnp.finfo(logits.dtype).min)
         w_BxHxQxM = jax.nn.softmax(logits.astype(jnp.float32)).astype(self.dtype)
         w_BxHxQxM = self.weight_drop(w_BxHxQxM, deterministic=deterministic)
-        if heads_major:
+        if deterministic:
             return self.out(_heads_major(w_BxHxQxM @ _heads_major(v_BxMxHxK)))
         return self.out(jnp.einsum("bhqk,bkhd->bqhd", w_BxHxQxM, v_BxMxHxK))
 
@@ -204,9 +203,8 @@ class DecoderLayer(nn.Module):
     The memory may enter as its cross-attention keys/values ``kv`` (from :meth:`memory_kv`), so a
     fixed memory is projected once. The last ``null_rows`` rows of x attend to the one-token memory
     ``null_mem_D`` (the classifier-free-guidance null text): their cross-attention output is one
-    vector, computed without queries or scores. With ``repeat_for_null`` x holds only the memory
-    rows, and the null rows (inputs identical to the first ``null_rows`` of them) reuse their self-
-    attention block.
+    vector, computed without queries or scores. The block is :meth:`self_block` then
+    :meth:`cross_block`, callable apart so a caller whose rows repeat can run the first half once.
 
     ``kernel_init`` initialises the feed-forward and attention-output kernels, ``qkv_init`` the q/k/v
     kernels (flax defaults; the denoiser passes the reference's, see ``REFERENCE_LINEAR_INIT``).
@@ -231,12 +229,13 @@ class DecoderLayer(nn.Module):
     def memory_kv(self, mem_BxMxD):
         return self.cross_attn.kv(mem_BxMxD)
 
-    def __call__(self, x_BxSxD, mem_BxMxD=None, self_mask=None, cross_mask=None, *, deterministic: bool,
-                 kv=None, null_mem_D=None, null_rows: int = 0, repeat_for_null: bool = False):
+    def self_block(self, x_BxSxD, self_mask=None, *, deterministic: bool):
         a = self.self_attn(x_BxSxD, None, self_mask, deterministic=deterministic)
-        x = self.norm1(x_BxSxD + self.drop1(a, deterministic=deterministic))
-        if repeat_for_null:  # x holds only the memory rows; the null rows are their first null_rows, repeated
-            x = jnp.concatenate([x, x[:null_rows]])
+        return self.norm1(x_BxSxD + self.drop1(a, deterministic=deterministic))
+
+    def cross_block(self, x, mem_BxMxD=None, cross_mask=None, *, deterministic: bool, kv=None, null_mem_D=None,
+                    null_rows: int = 0):
+        """Cross-attention and feed-forward, each with its residual and norm."""
         n_mem = x.shape[0] - null_rows
         parts = []
         if n_mem:
@@ -249,6 +248,12 @@ class DecoderLayer(nn.Module):
         x = self.norm2(x + self.drop2(c, deterministic=deterministic))
         f = self.ff(x, deterministic=deterministic)
         return self.norm3(x + self.drop3(f, deterministic=deterministic))
+
+    def __call__(self, x_BxSxD, mem_BxMxD=None, self_mask=None, cross_mask=None, *, deterministic: bool,
+                 kv=None, null_mem_D=None, null_rows: int = 0):
+        x = self.self_block(x_BxSxD, self_mask, deterministic=deterministic)
+        return self.cross_block(x, mem_BxMxD, cross_mask, deterministic=deterministic, kv=kv, null_mem_D=null_mem_D,
+                                null_rows=null_rows)
 
 
 def count_params(params) -> int:
