@@ -116,10 +116,27 @@ def _cmd_paper(args: argparse.Namespace) -> int:
     return 0
 
 
+def _one_yardstick(rows: Sequence[dict[str, Any]], y: str) -> None:
+    """Refuse to fit one curve through scores of different evaluators (rows whose ``evaluator_id``
+    differ): the same motion scores differently under each, so the slope would mix yardsticks."""
+    ids: dict[str, list[str]] = {}
+    for r in rows:
+        if r.get(y) is not None and r.get("evaluator_id"):
+            eid, name = str(r["evaluator_id"]), r.get("evaluator")
+            ids.setdefault(f"{name} ({eid})" if name and name != eid else eid, []).append(str(r["run_id"]))
+    if len(ids) > 1:
+        found = "; ".join(f"{k}: {', '.join(v[:3])}{' …' if len(v) > 3 else ''}" for k, v in sorted(ids.items()))
+        raise DataError(f"{y} was scored by {len(ids)} different evaluators ({found}); one curve needs one "
+                        f"yardstick: rescore the runs with one evaluator (relaunching a sweep with --evaluator E "
+                        f"rescores only what E did not score), or pass --mixed-evaluators")
+
+
 def _cmd_fit(args: argparse.Namespace) -> int:
     from analysis.fits import FLOPS_CONVENTIONS, compare_models, fit_rows, resolve_column, select_xy
 
     rows = load_inputs(args.results, args.family, strict=False)
+    if not args.mixed_evaluators:
+        _one_yardstick(rows, args.y)
     fit = fit_rows(rows, args.x, args.y, level=args.level, n_boot=args.n_boot, seed=args.seed, method=args.method)
     xcol = resolve_column(args.x, rows)
     convention = FLOPS_CONVENTIONS.get(xcol)
@@ -240,6 +257,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="print JSON with keys slope, intercept, r, n, slope_ci, intercept_ci")
     q.add_argument("--plot", metavar="PATH", help="write the scaling plot (.png, .svg or .pdf)")
     q.add_argument("--name", help="legend name of the runs")
+    q.add_argument("--mixed-evaluators", action="store_true",
+                   help="fit even if the rows were scored by different evaluators (refused by default)")
     q.set_defaults(func=_guard(_cmd_fit))
 
     q = sub.add_parser("table", help="paper-style table (mean ± CI, best in bold)",

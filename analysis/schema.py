@@ -25,7 +25,8 @@ Columns (see :data:`COLUMNS` for the full list and units):
   ``steps``, ``samples_seen``;
 * metrics: each name in :data:`METRICS` as ``<name>`` (the point value) and ``<name>_ci`` (its
   half-width: whatever the evaluator reports as the ± value; the paper's ± values are kept as
-  printed); ``rprec_block`` (R-Precision block size, so chance top-k = k/block);
+  printed); ``rprec_block`` (R-Precision block size, so chance top-k = k/block); ``evaluator`` and
+  ``evaluator_id`` (which evaluator scored the row, from ``eval.json``'s ``_meta``);
 * the paper's FLOPs convention: ``flops_per_sample_paper`` (multiply-adds of the Linear layers plus the
   frozen text encoder, which reproduces Table B; ``handx_jax/flops.py``) and its text-encoder part
   ``text_flops_per_sample_paper``, beside the analytic ``flops_per_sample``;
@@ -138,6 +139,9 @@ COLUMNS: tuple[Column, ...] = (
     Column("samples_seen", int, "training samples processed", nonnegative=True),
     Column("rprec_block", int, "R-Precision block size (32: Tables 2/3, 16: Table B); chance top-k = k/block",
            positive=True),
+    Column("evaluator", str, "the evaluator that scored the row: standard-vN for the packaged one, else its id"),
+    Column("evaluator_id", str, "identity of the scoring evaluator's weights and config "
+           "(handx_jax.evaluation.evaluator_id); rows with different ids are on different yardsticks"),
     *_metric_columns(),
     # Provenance of a launcher row (sweeps/launcher.py).
     Column("sweep", str, "sweep name"),
@@ -522,4 +526,8 @@ def row_from_run_dir(run_dir: str | os.PathLike) -> dict[str, Any]:
         block = _find_key(ev.get("_meta"), "rprec_block")
         if isinstance(block, int) and not isinstance(block, bool):
             values["rprec_block"] = block
+        meta = ev.get("_meta") if isinstance(ev.get("_meta"), dict) else {}
+        if isinstance(meta.get("evaluator_id"), str):
+            values["evaluator_id"] = meta["evaluator_id"]
+            values["evaluator"] = meta.get("evaluator_name") or meta["evaluator_id"]
     return validate_row(values, path=run_dir, row=values["run_id"])

@@ -16,6 +16,14 @@ with the same command picks up where it stopped; finished runs are not redone. O
 recorded (RUN/status.json, the table's ``status``/``error``) and the sweep goes on; ``launch`` reports
 the failures and the command exits non-zero at the end.
 
+Scores belong to an evaluator. ``eval.json`` records the id of the evaluator that made it
+(``handx_jax.evaluation.evaluator_id``: a hash of its weights and config), and a run counts as scored
+only if that is the sweep's evaluator. Relaunching a finished sweep with another ``--evaluator`` (a
+retrained one, a new version of the packaged standard evaluator) therefore rescores every run without
+retraining it, keeps the old scores as ``RUN/eval.<old id>.json``, and regenerates the samples first
+only if the new evaluator scores another caption level. Tables carry ``evaluator``/``evaluator_id``,
+and ``handx analyze fit`` refuses rows scored by two evaluators.
+
 One writer per run folder: the process bringing a run through its stages holds ``RunLock(RUN)``
 (handx_jax/runlock.py), and its children inherit it. A relaunch waits for (adopts) a run whose lock
 is held by a live process instead of starting a second trainer beside it; a lock left by a dead
@@ -194,9 +202,48 @@ def step_dir(cfg: SweepConfig, step: Step) -> Path:
 
 
 def stage_state(cfg: SweepConfig, spec: RunSpec) -> dict[str, bool]:
+    """Which stages are done. Scores are done only if the sweep's evaluator made them: an ``eval.json``
+    from another evaluator (a retrained one, a new standard version) is stale, and so are samples
+    prompted at another caption level than the evaluator scores (:func:`stale_scores`)."""
     d = run_dir(cfg, spec)
-    return {"train": (d / "train_done.json").exists(), "generate": (d / "generated.npz").exists(),
-            "evaluate": (d / "eval.json").exists()}
+    stale = stale_scores(cfg, d)
+    return {"train": (d / "train_done.json").exists(),
+            "generate": (d / "generated.npz").exists() and stale != "generate",
+            "evaluate": (d / "eval.json").exists() and stale is None}
+
+
+@functools.lru_cache(maxsize=8)
+def _evaluator_identity(path: str, stamp: tuple) -> tuple[str, int]:
+    from handx_jax.evaluation.checkpoint import META_FILE, evaluator_id
+
+    return evaluator_id(path), int(json.loads((Path(path) / META_FILE).read_text())["text"]["eval_level"])
+
+
+def evaluator_identity(evaluator: str | os.PathLike) -> tuple[str, int]:
+    """(evaluator_id, caption level it scores) of an evaluator folder; cached until its files change."""
+    p = Path(evaluator)
+    stamp = tuple((f.name, f.stat().st_mtime_ns, f.stat().st_size) for f in sorted(p.iterdir()) if f.is_file())
+    return _evaluator_identity(str(p.resolve()), stamp)
+
+
+def _generated_level(d: Path) -> int | None:
+    argv = _read_json(d / "provenance.json").get("stages", {}).get("generate", {}).get("argv") or []
+    return int(argv[argv.index("--level") + 1]) if "--level" in argv[:-1] else None
+
+
+def stale_scores(cfg: SweepConfig, d: Path) -> str | None:
+    """Why a run's scores cannot stand for the sweep's evaluator: ``"generate"`` (its samples were
+    prompted at another caption level: regenerate, then rescore), ``"evaluate"`` (scored by another
+    evaluator, or by one that did not record its id: rescore), or None (current, or nothing to check)."""
+    if not cfg.evaluator or not ((d / "eval.json").exists() or (d / "generated.npz").exists()):
+        return None
+    want_id, level = evaluator_identity(cfg.evaluator)
+    got = _generated_level(d)
+    if (d / "generated.npz").exists() and got is not None and got != level:
+        return "generate"
+    if (d / "eval.json").exists() and _read_json(d / "eval.json").get("_meta", {}).get("evaluator_id") != want_id:
+        return "evaluate"
+    return None
 
 
 def is_complete(cfg: SweepConfig, spec: RunSpec) -> bool:
@@ -371,6 +418,15 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
             stage("train", argv)
             atomic_write_json(d / "train_done.json", {"spec": dataclasses.asdict(spec)})
         if cfg.evaluator:
+            stale = stale_scores(cfg, d)
+            if stale and (d / "eval.json").exists():
+                # Keep the old yardstick's scores beside the new ones (nothing written is lost).
+                old = _read_json(d / "eval.json").get("_meta", {}).get("evaluator_id") or "unrecorded"
+                keep = d / f"eval.{old}.json"
+                os.replace(d / "eval.json", keep)
+                print(f"   {spec.name}: scored by evaluator {old}, not {evaluator_identity(cfg.evaluator)[0]}: "
+                      f"{'regenerating and ' if stale == 'generate' else ''}rescoring (old scores kept in {keep.name})",
+                      flush=True)
             if not state["generate"]:
                 # Prompt at the caption level the evaluator scores (its text policy), so that the
                 # generated file's captions are the ones the evaluator embeds.
@@ -419,6 +475,10 @@ def run_status(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | 
         return "running", None
     if st.get("status") in ("failed", "running"):  # "running" with no live holder: it died
         return "failed", st.get("error") or "the process running it ended before it finished"
+    stale = stale_scores(cfg, d)
+    if stale:
+        return "pending", ("samples prompted at another caption level than the evaluator scores: regenerate "
+                           "and rescore" if stale == "generate" else "scored by another evaluator: rescore")
     return "pending", None
 
 

@@ -123,6 +123,25 @@ def test_cli_fit_table_extrapolate(capsys, tmp_path):
     assert out_png.stat().st_size > 10_000
 
 
+def test_cli_fit_refuses_two_evaluators(capsys, tmp_path):
+    """Rows scored by different evaluators are on different yardsticks: fit refuses them, names both."""
+    rows = [dict(run_id=f"r{i}", family="diffusion", flops_per_sample=10.0 ** (8 + i), rprec_top3=0.1 + 0.05 * i,
+                 evaluator="standard-v3" if i < 3 else "9f0e1d2c3b4a5968", evaluator_id="a" * 16 if i < 3 else
+                 "9f0e1d2c3b4a5968") for i in range(5)]
+    path = tmp_path / "mixed.jsonl"
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    with pytest.raises(SystemExit, match=r"scored by 2 different evaluators \(9f0e1d2c3b4a5968: r3, r4; "
+                                         r"standard-v3 \(aaaaaaaaaaaaaaaa\): r0, r1, r2\)"):
+        run_cli(["analyze", "fit", str(path), "--x", "flops_analytic", "--json", "--n-boot", "50"], capsys)
+    rc, out = run_cli(["analyze", "fit", str(path), "--x", "flops_analytic", "--json", "--n-boot", "50",
+                       "--mixed-evaluators"], capsys)
+    assert rc == 0 and json.loads(out)["slope"] == pytest.approx(0.05)
+    rows[3]["rprec_top3"] = rows[4]["rprec_top3"] = None  # only one yardstick among the scored rows: fine
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    rc, out = run_cli(["analyze", "fit", str(path), "--x", "flops_analytic", "--json", "--n-boot", "50"], capsys)
+    assert json.loads(out)["n"] == 3
+
+
 def test_cli_help_at_every_level(capsys):
     for argv in (["analyze", "--help"], ["analyze", "paper", "--help"], ["analyze", "fit", "--help"],
                  ["analyze", "table", "--help"], ["analyze", "extrapolate", "--help"],

@@ -294,6 +294,15 @@ def test_cli_run_json_keys_and_eval_json(setup, tmp_path, capsys):
     assert all(f"{k}_ci" in out for k in base)
     ev_json = json.loads((tmp_path / "run" / "eval.json").read_text())
     assert ev_json["_meta"]["groups"] == 2
+    # which evaluator scored, from its files: a copy elsewhere is the same evaluator, other weights are not
+    from handx_jax.evaluation import evaluator_id
+
+    assert ev_json["_meta"]["evaluator_id"] == evaluator_id(E) and "evaluator_name" not in ev_json["_meta"]
+    shutil.copytree(E, tmp_path / "E_copy", ignore=shutil.ignore_patterns("reference_cache", "checkpoints"))
+    assert evaluator_id(tmp_path / "E_copy") == evaluator_id(E)
+    p = tmp_path / "E_copy" / "params.msgpack"
+    p.write_bytes(p.read_bytes()[:-1] + bytes([p.read_bytes()[-1] ^ 1]))
+    assert evaluator_id(tmp_path / "E_copy") != evaluator_id(E)
     assert ev_json["_meta"]["ci_method"] == {k: ("bootstrap_prompts" if k == "multimodality" else "groups") for k in base}
     from analysis.schema import _eval_values
 

@@ -136,6 +136,14 @@ def test_eval_run_without_evaluator_uses_the_standard_one(std, monkeypatch, tmp_
     want = evaluate_ground_truth(ev, prefix, MetricConfig(rprec_block=2, replications=3), cache=False).flat()
     assert row["rprec_top1"] == pytest.approx(want["rprec_top1"]) and row["fid"] == pytest.approx(want["fid"])
     assert list((tmp_path / "cache" / f"standard-v{standard.VERSION}" / "reference_cache").glob("*.npz"))
+    # eval.json names the yardstick: standard-vN and the packaged folder's id
+    assert main(["eval", "run", "--ground-truth", "--reference", str(prefix.root), "--block", "2",
+                 "--replications", "3", "--json", "--out", str(tmp_path / "run")]) == 0
+    meta = json.loads((tmp_path / "run" / "eval.json").read_text())["_meta"]
+    from handx_jax.evaluation import evaluator_id
+
+    assert meta["evaluator_name"] == f"standard-v{standard.VERSION}"
+    assert meta["evaluator_id"] == evaluator_id(assets / "evaluator")
     # the same call on a corpus of another seed is refused with the reason, exit non-zero
     d = _copy(prefix, tmp_path / "other")
     meta = json.loads((d / "meta.json").read_text())

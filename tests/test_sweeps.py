@@ -257,6 +257,99 @@ def test_kill9_of_the_launcher_ends_its_child_and_the_relaunch_finishes(tmp_path
 
 
 # ------------------------------------------------------------------------------------------------
+# Scores from another evaluator are stale
+
+
+def _fake_evaluator(path: Path, *, level: int = 0, weights: bytes = b"w1") -> Path:
+    """An evaluator folder as far as its identity goes (what evaluator_id and the launcher read)."""
+    import numpy as np
+
+    from handx_jax.evaluation import FORMAT, FORMAT_VERSION
+
+    path.mkdir(parents=True, exist_ok=True)
+    meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "evaluator_config": {"latent": 8},
+            "text": {"max_len": 16, "train_levels": [0], "eval_level": level},
+            "encoder": {"fingerprint": "enc", "tokenizer_fingerprint": "tok"}}
+    (path / "evaluator.json").write_text(json.dumps(meta))
+    (path / "params.msgpack").write_bytes(weights * 32)
+    np.savez(path / "norm_stats.npz", evaluator_mean=np.zeros(3, np.float32), evaluator_std=np.ones(3, np.float32))
+    return path
+
+
+def test_scores_of_another_evaluator_are_redone_and_kept(tmp_path, monkeypatch):
+    """Relaunching a sweep with another evaluator rescores every finished run without retraining it,
+    keeps the old scores beside the new, and regenerates only when the caption level changed."""
+    import shutil
+
+    import numpy as np
+
+    import sweeps.launcher as L
+    from analysis.schema import row_from_run_dir
+    from handx_jax.evaluation import evaluator_id
+
+    calls = []
+    real = L.run_command
+
+    def run_command(argv, log, env):
+        argv = list(argv)
+        if "handx_jax" not in argv:  # the fake training stage runs for real
+            calls.append("train")
+            return real(argv, log, env)
+        run = Path(argv[argv.index("--run") + 1] if "--run" in argv else argv[argv.index("--out") + 1])
+        if argv[argv.index("handx_jax") + 1] == "generate":
+            calls.append(("generate", int(argv[argv.index("--level") + 1])))
+            Path(argv[argv.index("--out") + 1]).write_bytes(os.urandom(16))
+        else:
+            E = argv[argv.index("--evaluator") + 1]
+            calls.append(("evaluate", evaluator_id(E)))
+            (run / "eval.json").write_text(json.dumps({"rprec_top3": 0.2, "_meta": {"evaluator_id": evaluator_id(E)}}))
+        return 0.0
+
+    monkeypatch.setattr(L, "run_command", run_command)
+    E1 = _fake_evaluator(tmp_path / "E1")
+    spec = fake("a")
+    cfg = cfg_for(tmp_path, evaluator=str(E1))
+    run = tmp_path / "sweep" / "runs" / "a"
+    L.run_one(spec, cfg)
+    id1 = evaluator_id(E1)
+    assert calls == ["train", ("generate", 0), ("evaluate", id1)] and L.is_complete(cfg, spec)
+    assert row_from_run_dir(run)["evaluator_id"] == id1
+    L.run_one(spec, cfg)  # finished, same evaluator: nothing runs
+    assert len(calls) == 3
+    generated = (run / "generated.npz").read_bytes()
+
+    # Other weights, same caption level: rescored only; the old scores stay as eval.<old id>.json.
+    E2 = _fake_evaluator(tmp_path / "E2", weights=b"w2")
+    id2 = evaluator_id(E2)
+    cfg2 = cfg_for(tmp_path, evaluator=str(E2))
+    assert id2 != id1 and stage_state(cfg2, spec) == {"train": True, "generate": True, "evaluate": False}
+    assert not L.is_complete(cfg2, spec) and L.stale_scores(cfg2, run) == "evaluate"
+    assert L.run_status(tmp_path / "sweep", cfg2, spec) == ("pending", "scored by another evaluator: rescore")
+    L.run_one(spec, cfg2)
+    assert calls[3:] == [("evaluate", id2)] and (run / "generated.npz").read_bytes() == generated
+    assert json.loads((run / f"eval.{id1}.json").read_text())["_meta"]["evaluator_id"] == id1
+    assert row_from_run_dir(run)["evaluator_id"] == id2 and L.stale_scores(cfg2, run) is None
+
+    # A copy of E2 elsewhere is the same evaluator (nothing to redo); the stats are hashed by value.
+    E2b = tmp_path / "copy"
+    shutil.copytree(E2, E2b)
+    np.savez(E2b / "norm_stats.npz", evaluator_mean=np.zeros(3, np.float32), evaluator_std=np.ones(3, np.float32))
+    assert evaluator_id(E2b) == id2 and L.is_complete(cfg_for(tmp_path, evaluator=str(E2b)), spec)
+
+    # An evaluator scoring another caption level: the samples were prompted at the old level, so regenerate.
+    E3 = _fake_evaluator(tmp_path / "E3", level=2, weights=b"w2")
+    cfg3 = cfg_for(tmp_path, evaluator=str(E3))
+    assert L.stale_scores(cfg3, run) == "generate" and not stage_state(cfg3, spec)["generate"]
+    L.run_one(spec, cfg3)
+    assert calls[4:] == [("generate", 2), ("evaluate", evaluator_id(E3))] and calls.count("train") == 1
+
+    # Scores that do not say who made them (written before evaluator ids) are redone too.
+    (run / "eval.json").write_text(json.dumps({"rprec_top3": 0.3, "_meta": {}}))
+    L.run_one(spec, cfg3)
+    assert calls[6:] == [("evaluate", evaluator_id(E3))] and (run / "eval.unrecorded.json").exists()
+
+
+# ------------------------------------------------------------------------------------------------
 # The real diffusion stages
 
 

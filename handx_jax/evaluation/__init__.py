@@ -4,7 +4,7 @@ One module per concern; the public names are re-exported here (``from handx_jax.
 
     features.py    TextPolicy, motion features and their normalisation, the joined caption, training items
     model.py       TrainedEvaluator: embeds motion and captions (jitted), its fingerprint
-    checkpoint.py  the checkpoint folder: read_meta, load_evaluator, save_evaluator
+    checkpoint.py  the checkpoint folder: read_meta, load_evaluator, save_evaluator, evaluator_id
     training.py    EvaluatorRunConfig (+ presets, ``--set`` overrides) and train_evaluator (handx_jax.train)
     reference.py   reference embeddings cached in the evaluator folder
     scoring.py     alignment of generated clips, the Table 2 metrics, the printed table, eval.json
@@ -29,7 +29,7 @@ The checkpoint folder is described in ``evaluation.checkpoint``.
 """
 
 from handx_jax.evaluation.checkpoint import (EVAL_FILE, FORMAT, FORMAT_VERSION, META_FILE, PARAMS_FILE, STATS_FILE,
-                                             load_evaluator, read_meta, save_evaluator)
+                                             evaluator_id, load_evaluator, read_meta, save_evaluator)
 from handx_jax.evaluation.features import (JOINED, STATS_CLIPS, TextPolicy, TrainingData, evaluator_stats,
                                            joined_caption, motion_features)
 from handx_jax.evaluation.model import TrainedEvaluator, _init_params  # noqa: F401  (tests, benchmarks)
@@ -43,7 +43,7 @@ from handx_jax.evaluation.training import (EvaluatorDataConfig, EvaluatorRunConf
                                            model_config, train_evaluator)
 
 __all__ = [
-    "EVAL_FILE", "FORMAT", "FORMAT_VERSION", "META_FILE", "PARAMS_FILE", "STATS_FILE", "load_evaluator", "read_meta",
+    "EVAL_FILE", "FORMAT", "FORMAT_VERSION", "META_FILE", "PARAMS_FILE", "STATS_FILE", "evaluator_id", "load_evaluator", "read_meta",
     "save_evaluator", "JOINED", "STATS_CLIPS", "TextPolicy", "TrainingData", "evaluator_stats", "joined_caption",
     "motion_features", "TrainedEvaluator", "REFERENCE_CACHE_DIR", "REFERENCE_CACHE_VERSION", "ReferenceEmbeddings",
     "read_reference_cache", "reference_embeddings", "reference_key", "write_reference_cache", "TABLE_COLUMNS",

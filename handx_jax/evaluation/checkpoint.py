@@ -18,7 +18,9 @@ and (through :meth:`TrainedEvaluator.check_dataset`) a reference dataset other t
 
 from __future__ import annotations
 
+import hashlib
 import io
+import json
 import os
 from pathlib import Path
 from typing import Mapping
@@ -30,7 +32,7 @@ from handx_jax import representation as rep
 from handx_jax.evaluation.features import TextPolicy
 from handx_jax.evaluation.model import TrainedEvaluator, _init_params
 from handx_jax.io import (DataError, atomic_write_bytes, atomic_write_json, read_format_meta, read_params_msgpack,
-                          write_params_msgpack)
+                          sha256_file, write_params_msgpack)
 from handx_jax.models.evaluator import EvaluatorConfig
 
 FORMAT, FORMAT_VERSION = "handx-jax-evaluator", 1
@@ -50,6 +52,33 @@ def read_meta(root: str | os.PathLike) -> dict:
     return read_format_meta(root / META_FILE, FORMAT, FORMAT_VERSION,
                             missing=f"not an evaluator checkpoint: missing {META_FILE}{hint}",
                             upgrade="; retrain it with `handx eval train-evaluator`")
+
+
+def evaluator_id(root: str | os.PathLike) -> str:
+    """The identity of the scoring function an evaluator folder holds, from its files alone (no JAX, no
+    weights loaded): its config and text policy, its text encoder's and tokenizer's fingerprints, the
+    bytes of ``params.msgpack`` and the values of ``norm_stats.npz``. Two folders with the same id score
+    any motion identically (a copy, the packaged standard evaluator, a moved folder); a retrained one
+    gets a new id. ``eval.json`` records it (``_meta.evaluator_id``), so a sweep relaunched with another
+    evaluator knows which of its scores are stale (sweeps/launcher.py). The stats are hashed by value
+    because ``np.savez`` stamps the write time into the file."""
+    root = Path(root)
+    meta = read_meta(root)
+    h = hashlib.sha256(json.dumps({"config": meta["evaluator_config"], "text": meta["text"],
+                                   "encoder": meta["encoder"]["fingerprint"],
+                                   "tokenizer": meta["encoder"]["tokenizer_fingerprint"]}, sort_keys=True).encode())
+    for name in (PARAMS_FILE, STATS_FILE):
+        if not (root / name).is_file():
+            raise DataError(f"evaluator folder has no {name}", path=root)
+    h.update(sha256_file(root / PARAMS_FILE).encode())
+    try:
+        with np.load(root / STATS_FILE, allow_pickle=False) as z:
+            for k in sorted(z.files):
+                h.update(k.encode())
+                h.update(np.ascontiguousarray(z[k]).tobytes())
+    except (OSError, ValueError) as e:
+        raise DataError(f"unreadable {STATS_FILE}: {e}", path=root / STATS_FILE) from None
+    return h.hexdigest()[:16]
 
 
 def load_evaluator(root: str | os.PathLike, *, encoder=None, batch_size: int = 256) -> TrainedEvaluator:

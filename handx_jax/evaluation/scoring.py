@@ -11,6 +11,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from handx_jax.evaluation.checkpoint import evaluator_id
 from handx_jax.evaluation.model import TrainedEvaluator
 from handx_jax.evaluation.reference import ReferenceEmbeddings, _digest, reference_embeddings
 from handx_jax.io import DataError, atomic_write_json
@@ -69,11 +70,23 @@ def evaluate_embeddings_and_motion(ev: TrainedEvaluator, text_NxD: np.ndarray, g
     metrics = {k: allm[k] for k in order if k in allm}
     m = {"prompts": int(N), "groups": int(G), "replications": cfg.replications, "rprec_block": cfg.rprec_block,
          "seed": cfg.seed, "mpjpe_root": cfg.mpjpe_root, "evaluator": str(ev.root) if ev.root else None,
+         **_evaluator_identity(ev),
          "eval_level": ev.policy.eval_level, "seconds": {"motion_embedding": t1 - t0, "metrics": t2 - t1,
                                                               "metrics_parts": parts},
          "ci_method": {k: ci_method(k, G) for k in metrics}, "bootstrap": cfg.bootstrap,
          **(meta or {})}
     return EvalResult(metrics, m)
+
+
+def _evaluator_identity(ev: TrainedEvaluator) -> dict:
+    """Which evaluator scored: ``evaluator_id`` (checkpoint.evaluator_id, from its folder's files) and, for
+    the packaged standard evaluator, ``evaluator_name`` (``standard-vN``). A results table carries both,
+    so scores from two yardsticks are never mixed silently."""
+    out = {"evaluator_id": evaluator_id(ev.root) if ev.root else None}
+    card = getattr(ev, "card", None)
+    if card and "version" in card:
+        out["evaluator_name"] = f"standard-v{card['version']}"
+    return out
 
 
 def _dataset_reference(ev: TrainedEvaluator, ds, clips: np.ndarray, cache: bool | str | os.PathLike):
