@@ -94,6 +94,25 @@ def _status(a: argparse.Namespace) -> int:
     return 0
 
 
+def _rescore(a: argparse.Namespace) -> int:
+    from handx_jax import standard
+    from handx_jax.io import DataError
+    from sweeps.launcher import rescore
+
+    ev = standard.evaluator_dir() if standard.is_standard(a.evaluator) else a.evaluator
+    try:
+        res = rescore(a.out, ev, data=a.data, executor=a.executor, max_parallel=a.max_parallel)
+    except (DataError, FileNotFoundError, ValueError) as e:
+        print(f"handx sweep rescore: error: {e}", file=sys.stderr)
+        return 2
+    print(f"results: {res.results} (and {res.results.with_suffix('.csv')})")
+    if res.failed:
+        for name, err in res.failed.items():
+            print(f"FAILED {name}: {err.splitlines()[0] if err else ''}", file=sys.stderr)
+        return 1
+    return 0
+
+
 def _collect(a: argparse.Namespace) -> int:
     from sweeps.launcher import collect_results
 
@@ -139,6 +158,18 @@ def add_parser(subparsers) -> None:
     s.add_argument("out", help="sweep folder")
     s.add_argument("--json", action="store_true", help="one JSON object per run")
     s.set_defaults(func=_status)
+    q = sub.add_parser("rescore", help="score a sweep's trained runs with another evaluator (nothing is retrained)",
+                       description="Score every trained run of the sweep in OUT with EVALUATOR (default: the packaged "
+                                   "standard evaluator), with the sweep's own generation settings. Only stale work is "
+                                   "done: runs already scored by it are kept, others are rescored from their samples "
+                                   "(regenerated first only if EVALUATOR scores another caption level); the old "
+                                   "scores stay as RUN/eval.<old id>.json.")
+    q.add_argument("out", help="sweep folder (must exist)")
+    q.add_argument("--evaluator", help="evaluator folder; default (or 'standard'): the packaged standard evaluator")
+    q.add_argument("--data", help="the sweep's dataset, if it moved since the launch")
+    q.add_argument("--executor", choices=("local", "slurm", "debug"), default="local")
+    q.add_argument("--max-parallel", type=int, default=None, help="runs scored at once (default: the sweep's)")
+    q.set_defaults(func=_rescore)
     c = sub.add_parser("collect", help="rebuild OUT/results.jsonl and OUT/results.csv from the run folders")
     c.add_argument("out", help="sweep folder (must exist)")
     c.set_defaults(func=_collect)

@@ -734,6 +734,39 @@ def launch(specs: Sequence[RunSpec], cfg: SweepConfig) -> LaunchResult:
     return LaunchResult(collect_results(out), failed)
 
 
+def rescore(out: str | os.PathLike, evaluator: str | os.PathLike, *, data: str | os.PathLike | None = None,
+            executor: str = "local", max_parallel: int | None = None, log=print) -> LaunchResult:
+    """Score the trained runs of the sweep in ``out`` with ``evaluator`` (e.g. a new standard version):
+    the sweep's own settings (sweep.json: data, samples per prompt, sampler), its runs as launched, only
+    the stages that evaluator's scores need (:func:`stale_scores`); nothing is trained. Runs that have
+    not finished training are left as they are and named. ``data``: the dataset, if it moved."""
+    out = Path(out).absolute()
+    if not out.is_dir():
+        raise FileNotFoundError(f"no sweep folder {out}")
+    cfg, specs = _load_state(out)
+    cfg = dataclasses.replace(cfg, out=str(out), evaluator=str(Path(evaluator).absolute()), executor=executor,
+                              data=str(Path(data).absolute()) if data else cfg.data,
+                              max_parallel=max_parallel or cfg.max_parallel)
+    if not Path(cfg.data).is_dir():
+        raise DataError(f"the sweep's dataset {cfg.data} is gone; pass the dataset it was run on (--data)",
+                        path=out / "sweep.json")
+    trained = [s for s in specs if stage_state(cfg, s)["train"]]
+    untrained = [s.name for s in specs if s not in trained]
+    todo = [s for s in trained if not is_complete(cfg, s)]
+    eid = evaluator_identity(cfg.evaluator)[0]
+    log(f"rescoring {len(todo)} of {len(specs)} run(s) with evaluator {eid} ({cfg.evaluator}); "
+        f"{len(trained) - len(todo)} already scored by it"
+        + (f"; not trained, left alone: {', '.join(untrained)}" if untrained else ""))
+    if executor == "slurm" and "timeout_min" not in cfg.slurm:
+        raise ValueError("SLURM needs a time limit (the sweep was not launched on SLURM): use --executor local")
+    res = launch(trained, cfg)
+    doc = _read_json(out / "sweep.json")  # launch put the relaunched runs last: restore the sweep's order
+    order = {s.name: i for i, s in enumerate(specs)}
+    doc["runs"].sort(key=lambda r: order.get(r["name"], len(order)))
+    atomic_write_json(out / "sweep.json", doc)
+    return LaunchResult(collect_results(out), res.failed)
+
+
 def status(out: str | os.PathLike) -> list[dict]:
     """Per run: name, stages done, and done | running | failed | pending."""
     out = Path(out)

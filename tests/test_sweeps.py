@@ -349,6 +349,52 @@ def test_scores_of_another_evaluator_are_redone_and_kept(tmp_path, monkeypatch):
     assert calls[6:] == [("evaluate", evaluator_id(E3))] and (run / "eval.unrecorded.json").exists()
 
 
+def test_rescore_a_sweep_with_a_new_evaluator(tmp_path, monkeypatch, capsys):
+    """`handx sweep rescore OUT --evaluator E`: the sweep's trained runs are scored by E with the sweep's
+    own settings, in the sweep's order; an untrained run is named and left alone; a second rescore is a no-op."""
+    import sweeps.launcher as L
+    from handx_jax.cli import main
+    from handx_jax.evaluation import evaluator_id
+
+    calls = []
+    real = L.run_command
+
+    def run_command(argv, log, env):
+        argv = list(argv)
+        if "handx_jax" not in argv:
+            calls.append("train")
+            return real(argv, log, env)
+        stage = argv[argv.index("handx_jax") + 1]
+        calls.append(stage)
+        if stage == "generate":
+            assert argv[argv.index("--samples") + 1] == "3"  # the sweep's setting, kept by rescore
+            Path(argv[argv.index("--out") + 1]).write_bytes(b"x")
+        else:
+            E = argv[argv.index("--evaluator") + 1]
+            run = Path(argv[argv.index("--out") + 1])
+            (run / "eval.json").write_text(json.dumps({"rprec_top3": 0.25, "_meta": {"evaluator_id": evaluator_id(E)}}))
+        return 0.0
+
+    monkeypatch.setattr(L, "run_command", run_command)
+    (tmp_path / "data").mkdir()
+    E1, E2 = _fake_evaluator(tmp_path / "E1"), _fake_evaluator(tmp_path / "E2", weights=b"w2")
+    cfg = cfg_for(tmp_path, evaluator=str(E1), eval_samples=3)
+    assert not launch([fake("a"), fake("b", size=2), fake("c", "--fail")], cfg).failed.keys() - {"c"}
+    assert calls.count("eval") == 2
+    calls.clear()
+    assert main(["sweep", "rescore", str(tmp_path / "sweep"), "--evaluator", str(E2)]) == 0
+    out = capsys.readouterr().out
+    assert "rescoring 2 of 3 run(s)" in out and "not trained, left alone: c" in out
+    assert calls == ["eval", "eval"]  # nothing trained, samples reused
+    rows = rows_of(tmp_path / "sweep" / "results.jsonl")
+    assert [r["run_id"] for r in rows] == ["a", "b", "c"]
+    assert [r.get("evaluator_id") for r in rows] == [evaluator_id(E2)] * 2 + [None]
+    assert main(["sweep", "rescore", str(tmp_path / "sweep"), "--evaluator", str(E2)]) == 0
+    assert "rescoring 0 of 3 run(s)" in capsys.readouterr().out and calls == ["eval", "eval"]
+    assert main(["sweep", "rescore", str(tmp_path / "nope"), "--evaluator", str(E2)]) == 2
+    assert "no sweep folder" in capsys.readouterr().err
+
+
 # ------------------------------------------------------------------------------------------------
 # The real diffusion stages
 
