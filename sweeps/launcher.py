@@ -387,8 +387,11 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
                      slurm_job=os.environ.get("SLURM_JOB_ID"))
         prov_path = d / "provenance.json"
         prov = _read_json(prov_path)
-        prov.update(spec=dataclasses.asdict(spec), git_commit=git_commit(), device_kind=device_kind(),
-                    sweep=cfg.name or Path(cfg.out).name)
+        prov.update(spec=dataclasses.asdict(spec), sweep=cfg.name or Path(cfg.out).name)
+        if not (d / "train_done.json").exists() or "git_commit" not in prov:
+            # The table's git_commit and device_kind say what *trained* the run: a later rescore or
+            # regeneration records its own commit under stages/NAME instead of overwriting them.
+            prov.update(git_commit=git_commit(), device_kind=device_kind())
         prov.setdefault("stages", {})
         env = _env(cfg)
         steps = {}
@@ -404,7 +407,8 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
         def stage(name: str, argv: list[str]) -> None:
             print(f"   {spec.name}: {name}", flush=True)
             secs = run_command(argv, d / "logs" / f"{name}.log", env)
-            prov["stages"][name] = {"seconds": secs, "argv": argv, "finished": time.time()}
+            prov["stages"][name] = {"seconds": secs, "argv": argv, "finished": time.time(), "git_commit": git_commit(),
+                                    "device_kind": device_kind()}
             atomic_write_json(prov_path, prov)
 
         if not state["train"]:

@@ -318,6 +318,9 @@ def test_scores_of_another_evaluator_are_redone_and_kept(tmp_path, monkeypatch):
     assert len(calls) == 3
     generated = (run / "generated.npz").read_bytes()
 
+    prov = json.loads((run / "provenance.json").read_text())
+    (run / "provenance.json").write_text(json.dumps({**prov, "git_commit": "commit-that-trained"}))
+
     # Other weights, same caption level: rescored only; the old scores stay as eval.<old id>.json.
     E2 = _fake_evaluator(tmp_path / "E2", weights=b"w2")
     id2 = evaluator_id(E2)
@@ -329,6 +332,8 @@ def test_scores_of_another_evaluator_are_redone_and_kept(tmp_path, monkeypatch):
     assert calls[3:] == [("evaluate", id2)] and (run / "generated.npz").read_bytes() == generated
     assert json.loads((run / f"eval.{id1}.json").read_text())["_meta"]["evaluator_id"] == id1
     assert row_from_run_dir(run)["evaluator_id"] == id2 and L.stale_scores(cfg2, run) is None
+    prov = json.loads((run / "provenance.json").read_text())  # the row says what trained it, not what rescored
+    assert prov["git_commit"] == "commit-that-trained" and prov["stages"]["evaluate"]["git_commit"] == L.git_commit()
 
     # A copy of E2 elsewhere is the same evaluator (nothing to redo); the stats are hashed by value.
     E2b = tmp_path / "copy"
