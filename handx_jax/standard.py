@@ -51,7 +51,7 @@ import numpy as np
 
 from handx_jax.io import DataError, atomic_write_json, atomic_write_text, sha256_file
 
-VERSION = 2  # of the packaged assets; bumped whenever the recipe or any weight changes
+VERSION = 3  # of the packaged assets; bumped whenever the recipe or any weight changes
 ASSETS = Path(__file__).resolve().parent / "assets" / "standard"
 CARD_JSON, CARD_MD, MANIFEST = "card.json", "CARD.md", "test_manifest.npz"
 ENCODER_DIR, EVALUATOR_DIR = "encoder", "evaluator"
@@ -539,8 +539,8 @@ def _check(a: argparse.Namespace) -> int:
 
 def _package(a: argparse.Namespace) -> int:
     training = dict(kv.split("=", 1) for kv in a.note)
-    package(a.data, a.encoder, a.evaluator, a.out, training=training, replications=a.replications)
-    print(f"wrote {a.out}")
+    out = package(a.data, a.encoder, a.evaluator, a.out, training=training, replications=a.replications)
+    print(f"wrote {out}")
     return 0
 
 
