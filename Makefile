@@ -28,7 +28,7 @@ demo: $(STAMP)
 # The CPU scaling study (sweeps/diffusion_cpu_study.py, issue 13 item 7): a prefix of the standard corpus and
 # its text cache (built once, reused), 6 diffusion runs (3 sizes x 2 data fractions at fixed epochs, two at a
 # time), each scored by the packaged standard evaluator, then the table and the fit of top-3 R-Precision
-# against training compute with its plot. 27 min on 2 quiet CPU cores (docs/results/cpu_study/README.md).
+# against training compute with its plot. 18-27 min on 2 quiet CPU cores (docs/results/cpu_study/README.md).
 SWEEP_CPU_DIR ?= runs/sweep-cpu
 SWEEP_CPU_CLIPS ?= 4000
 SWEEP_CPU_ARGS ?= --eval-limit 10000 --eval-samples 4 --sampler-steps 25 --max-parallel 2
