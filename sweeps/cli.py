@@ -62,16 +62,24 @@ def _run(a: argparse.Namespace) -> int:
                       eval_limit=a.eval_limit, eval_samples=a.eval_samples, sampler=a.sampler,
                       sampler_steps=a.sampler_steps, executor=a.executor, slurm=resources,
                       name=a.name or "", preset=preset, max_parallel=a.max_parallel, existing=a.existing)
+    return _launched("run", lambda: launch(specs, cfg), len(specs))
+
+
+def _launched(command: str, go, total: int | None = None) -> int:
+    """Run a launch (``go()``), print where its results are and each failure; the exit status."""
+    from handx_jax.io import DataError
+
     try:
-        res = launch(specs, cfg)
-    except ValueError as e:
-        print(f"handx sweep run: error: {e}", file=sys.stderr)
+        res = go()
+    except (DataError, FileNotFoundError, ValueError) as e:
+        print(f"handx sweep {command}: error: {e}", file=sys.stderr)
         return 2
     print(f"results: {res.results} (and {res.results.with_suffix('.csv')})")
     if res.failed:
         for name, err in res.failed.items():
             print(f"FAILED {name}: {err.splitlines()[0] if err else ''}", file=sys.stderr)
-        print(f"handx sweep run: {len(res.failed)} of {len(specs)} run(s) failed (see their logs/ and status.json)",
+        of = f" of {total}" if total is not None else ""
+        print(f"handx sweep {command}: {len(res.failed)}{of} run(s) failed (see their logs/ and status.json)",
               file=sys.stderr)
         return 1
     return 0
@@ -96,21 +104,11 @@ def _status(a: argparse.Namespace) -> int:
 
 def _rescore(a: argparse.Namespace) -> int:
     from handx_jax import standard
-    from handx_jax.io import DataError
     from sweeps.launcher import rescore
 
     ev = standard.evaluator_dir() if standard.is_standard(a.evaluator) else a.evaluator
-    try:
-        res = rescore(a.out, ev, data=a.data, executor=a.executor, max_parallel=a.max_parallel)
-    except (DataError, FileNotFoundError, ValueError) as e:
-        print(f"handx sweep rescore: error: {e}", file=sys.stderr)
-        return 2
-    print(f"results: {res.results} (and {res.results.with_suffix('.csv')})")
-    if res.failed:
-        for name, err in res.failed.items():
-            print(f"FAILED {name}: {err.splitlines()[0] if err else ''}", file=sys.stderr)
-        return 1
-    return 0
+    return _launched("rescore", lambda: rescore(a.out, ev, data=a.data, executor=a.executor,
+                                                max_parallel=a.max_parallel))
 
 
 def _collect(a: argparse.Namespace) -> int:

@@ -222,6 +222,8 @@ def _evaluator_identity(path: str, stamp: tuple) -> tuple[str, int]:
 def evaluator_identity(evaluator: str | os.PathLike) -> tuple[str, int]:
     """(evaluator_id, caption level it scores) of an evaluator folder; cached until its files change."""
     p = Path(evaluator)
+    if not p.is_dir():
+        raise DataError("no evaluator folder here", path=p)
     stamp = tuple((f.name, f.stat().st_mtime_ns, f.stat().st_size) for f in sorted(p.iterdir()) if f.is_file())
     return _evaluator_identity(str(p.resolve()), stamp)
 
@@ -236,6 +238,8 @@ def stale_scores(cfg: SweepConfig, d: Path) -> str | None:
     prompted at another caption level: regenerate, then rescore), ``"evaluate"`` (scored by another
     evaluator, or by one that did not record its id: rescore), or None (current, or nothing to check)."""
     if not cfg.evaluator or not ((d / "eval.json").exists() or (d / "generated.npz").exists()):
+        return None
+    if not Path(cfg.evaluator).is_dir():  # gone since the launch: nothing to compare (its stage would say so)
         return None
     want_id, level = evaluator_identity(cfg.evaluator)
     got = _generated_level(d)

@@ -357,6 +357,8 @@ def test_scores_of_another_evaluator_are_redone_and_kept(tmp_path, monkeypatch):
 def test_rescore_a_sweep_with_a_new_evaluator(tmp_path, monkeypatch, capsys):
     """`handx sweep rescore OUT --evaluator E`: the sweep's trained runs are scored by E with the sweep's
     own settings, in the sweep's order; an untrained run is named and left alone; a second rescore is a no-op."""
+    import shutil
+
     import sweeps.launcher as L
     from handx_jax.cli import main
     from handx_jax.evaluation import evaluator_id
@@ -398,6 +400,11 @@ def test_rescore_a_sweep_with_a_new_evaluator(tmp_path, monkeypatch, capsys):
     assert "rescoring 0 of 3 run(s)" in capsys.readouterr().out and calls == ["eval", "eval"]
     assert main(["sweep", "rescore", str(tmp_path / "nope"), "--evaluator", str(E2)]) == 2
     assert "no sweep folder" in capsys.readouterr().err
+    assert main(["sweep", "rescore", str(tmp_path / "sweep"), "--evaluator", str(tmp_path / "E9")]) == 2
+    assert "E9: no evaluator folder here" in capsys.readouterr().err
+    # a sweep whose evaluator has since been deleted still reports its status
+    shutil.rmtree(E2)
+    assert [r["status"] for r in status(tmp_path / "sweep")] == ["done", "done", "failed"]
 
 
 # ------------------------------------------------------------------------------------------------
