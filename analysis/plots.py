@@ -165,13 +165,45 @@ def _short_labels(texts: Sequence[str]) -> list[str]:
     return [" ".join(x for x in w if x not in common) or t for w, t in zip(words, texts)]
 
 
+_POINT_LABEL = "point-label"
+# Where a point's label may go, in order of preference (offset in points, alignment): right of the point,
+# left of it, then above or below on either side.
+_LABEL_SPOTS = (((6, 0), "left"), ((-6, 0), "right"), ((6, 10), "left"), ((6, -10), "left"),
+                ((-6, 10), "right"), ((-6, -10), "right"))
+
+
 def _label_points(ax: Any, xs: np.ndarray, ys: np.ndarray, texts: Sequence[str], color: str) -> None:
     # To the right of each point, clear of its vertical error bar, on a faint white box so that a
-    # neighbour's error bar behind it does not make it unreadable.
+    # neighbour's error bar behind it does not make it unreadable (_declutter_labels moves clashing ones).
     for x, y, t in zip(xs, ys, _short_labels(texts)):
-        ax.annotate(t, (x, y), xytext=(6, 0), textcoords="offset points", ha="left", va="center",
-                    fontsize=7.5, color=color, zorder=5,
+        ax.annotate(t, (x, y), xytext=_LABEL_SPOTS[0][0], textcoords="offset points", ha=_LABEL_SPOTS[0][1],
+                    va="center", fontsize=7.5, color=color, zorder=5, gid=_POINT_LABEL,
                     bbox=dict(boxstyle="round,pad=0.1", fc="white", ec="none", alpha=0.75))
+
+
+def _declutter_labels(ax: Any) -> None:
+    """Move each point label that would cover an earlier one to the first free spot of _LABEL_SPOTS inside
+    the axes (two runs of similar compute and score otherwise print one label over the other). Run once
+    the axes' limits are final: the check is in display space."""
+    labels = [t for t in ax.texts if t.get_gid() == _POINT_LABEL]
+    if len(labels) < 2:
+        return
+    renderer = ax.figure.canvas.get_renderer()
+    frame = ax.get_window_extent(renderer)
+    placed: list[Any] = []
+    for t in labels:
+        for offset, ha in _LABEL_SPOTS:
+            t.xyann = offset
+            t.set_horizontalalignment(ha)
+            box = t.get_window_extent(renderer)
+            inside = frame.x0 <= box.x0 and box.x1 <= frame.x1 and frame.y0 <= box.y0 and box.y1 <= frame.y1
+            if inside and not any(box.overlaps(p) for p in placed):
+                break
+        else:  # nowhere free: keep the default spot
+            t.xyann = _LABEL_SPOTS[0][0]
+            t.set_horizontalalignment(_LABEL_SPOTS[0][1])
+            box = t.get_window_extent(renderer)
+        placed.append(box)
 
 
 _ENG_COLUMNS = ("flops_per_sample", "flops_per_sample_paper", "train_flops", "params", "params_non_embedding", "samples_seen")
@@ -247,6 +279,7 @@ def plot_scaling(rows: Sequence[Mapping[str, Any]], x: str = "flops", y: str = "
             ax.set_xlim(*(_curve_x(np.concatenate(all_x), 1.25)[[0, -1]]))
         _format_log_x(ax, xc)
         _ordered_legend(ax, loc="best")
+        _declutter_labels(ax)
     return fig
 
 
@@ -285,6 +318,7 @@ def plot_extrapolation(ext: Extrapolation, rows: Sequence[Mapping[str, Any]], *,
         ax.grid(True, which="minor", alpha=0.12)
         _format_log_x(ax, ext.x_name)
         _ordered_legend(ax, loc="upper left")
+        _declutter_labels(ax)
     return fig
 
 

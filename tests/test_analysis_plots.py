@@ -60,6 +60,27 @@ def test_plots_draw_the_chance_level(table_b):
     assert [ln.get_ydata()[0] for ln in _chance_lines(grid)] == pytest.approx([3 / 32, 3 / 32])
 
 
+def test_point_labels_do_not_cover_each_other():
+    """Runs of nearly the same compute and score (the CPU study's L2-d128 20% and L2-d64 100%) get labels
+    that do not overlap, and a lone point keeps its label to the right of the marker."""
+    rows = [make_row(run_id=f"r{i}", family="diffusion", layers=L, dim=d, heads=4, data_fraction=f, train_flops=x,
+                     rprec_top3=y, rprec_top3_ci=0.02)
+            for i, (L, d, f, x, y) in enumerate([(1, 32, 0.2, 2.8e11, 0.140), (2, 128, 0.2, 5.1e12, 0.194),
+                                                  (2, 64, 1.0, 7.6e12, 0.195), (2, 64, 1.0, 8.0e12, 0.196),
+                                                  (2, 128, 1.0, 2.6e13, 0.221)])]
+    fig = plots.plot_scaling(rows, x="train_flops", y="rprec_top3", n_boot=50)
+    ax = fig.axes[0]
+    r = fig.canvas.get_renderer()
+    labels = [t for t in ax.texts if t.get_gid() == "point-label"]
+    boxes = [t.get_window_extent(r) for t in labels]
+    assert len(boxes) == 5
+    assert not any(boxes[i].overlaps(boxes[j]) for i in range(5) for j in range(i))
+    frame = ax.get_window_extent(r)
+    assert all(frame.x0 <= b.x0 and b.x1 <= frame.x1 for b in boxes[1:4])  # moved ones stay inside the axes
+    assert labels[0].xyann == (6, 0) and labels[0].get_horizontalalignment() == "left"  # nothing near it
+    assert {t.xyann for t in labels[1:4]} != {(6, 0)}  # the crowded ones moved
+
+
 def test_fit_and_plot_any_table_with_the_named_columns(tmp_path, capsys):
     """An analyst's own numbers: columns outside the results schema, no family or run_id columns."""
     import json
