@@ -43,6 +43,7 @@ from handx_jax.families.diffusion import DiffusionRunConfig, apply_overrides, ma
 from handx_jax.generation import _sample_impl
 from handx_jax.models.dit import PRESETS, forward_flops, init_denoiser, param_count
 from handx_jax.train import train
+from handx_jax.xla_options import inference_options, jit_inference
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/_peak.py, also when loaded by path
 from _peak import PEAK_BF16, device_peak, emit, matmul_peak  # noqa: E402
@@ -81,9 +82,9 @@ def bench_sample(cfg: DiffusionRunConfig, params, text_len: int, batch: int, sam
     cache = {} if cache is None else cache
     compile_s = None
     if key not in cache:
-        fn = jax.jit(partial(_sample_impl, model=make_model(m), sched=D.cosine_schedule(cfg.diffusion.steps),
-                             dcfg=cfg.diffusion, sampler=timed_sampler, steps=timed_steps,
-                             guidance=cfg.diffusion.guidance))
+        fn = jit_inference(partial(_sample_impl, model=make_model(m), sched=D.cosine_schedule(cfg.diffusion.steps),
+                                   dcfg=cfg.diffusion, sampler=timed_sampler, steps=timed_steps,
+                                   guidance=cfg.diffusion.guidance))
         r = np.random.default_rng(1)
         text = jnp.asarray(r.normal(size=(3, batch, text_len, m.text_dim)), jnp.float32)
         mask = jnp.ones((3, batch, text_len), bool)
@@ -100,7 +101,8 @@ def bench_sample(cfg: DiffusionRunConfig, params, text_len: int, batch: int, sam
     dt_full = dt * n_steps / n_timed
     return {"sampler": f"{sampler}-{n_steps}", "batch": batch, "guidance": cfg.diffusion.guidance,
             "clips_per_s": batch / dt_full, "seconds_per_batch": dt_full, "first_call_s": compile_s,
-            "estimated_from_steps": None if n_timed == n_steps else n_timed}
+            "estimated_from_steps": None if n_timed == n_steps else n_timed,
+            "compiler_options": inference_options()}  # what handx generate compiles with (xla_options)
 
 
 def add_peak_fractions(res: dict, fwd: float, peak_flops: float) -> None:

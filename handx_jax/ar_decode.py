@@ -16,6 +16,7 @@ from code 1, as the reference returns the single id 1 (§4.6).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from functools import partial
 
@@ -24,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from handx_jax.models.prefix_lm import MOTION_TOKENS, PrefixLM, attention_mask, slot_positions, text_lengths
+from handx_jax.xla_options import jit_inference
 
 
 @partial(jax.tree_util.register_dataclass, data_fields=["temperature", "top_k", "top_p"], meta_fields=["max_tokens"])
@@ -97,14 +99,25 @@ def _full(m: PrefixLM, text, text_mask, tokens_BxT, i):
     return m.logits(jnp.take_along_axis(h, idx[:, None, None], axis=1)[:, 0])
 
 
-@partial(jax.jit, static_argnames=("model", "use_cache"))
 def decode(model: PrefixLM, params, text_BxLxDt, text_mask_BxL, observed_BxO, rng, opts: DecodeOptions = DecodeOptions(),
            use_cache: bool = True):
     """Generate motion tokens after the prefix (and the O observed tokens, O may be 0).
 
     Returns (tokens (B, max_tokens) int32 with the observed ones first and PAD after END, lengths (B,):
-    the number of codes before END).
+    the number of codes before END). One jitted ``while_loop``, compiled with the inference options
+    (``xla_options``: 1.02-1.06× on CPU).
     """
+    return _decode_jit()(model, params, text_BxLxDt, text_mask_BxL, observed_BxO, rng, opts, use_cache)
+
+
+@functools.cache
+def _decode_jit():
+    # built on first use, not at import: the options depend on the backend, which must not start at import
+    return jit_inference(_decode_impl, static_argnames=("model", "use_cache"))
+
+
+def _decode_impl(model: PrefixLM, params, text_BxLxDt, text_mask_BxL, observed_BxO, rng, opts: DecodeOptions,
+                 use_cache: bool):
     c, T = model.cfg, opts.max_tokens
     B, Lp = text_mask_BxL.shape
     n_obs = observed_BxO.shape[1]

@@ -28,6 +28,7 @@ from handx_jax import diffusion as D
 from handx_jax import representation as rep
 from handx_jax.families.diffusion import DiffusionRun
 from handx_jax.io import DataError
+from handx_jax.xla_options import jit_inference
 
 K_INBET = 5  # paper App. D.2 (the code uses 10, reference §9.9)
 K_HOR = 5
@@ -133,7 +134,7 @@ def _compiled(run: DiffusionRun, opts: SampleOptions, masked: bool):
     if key not in cache:
         fn = partial(_sample_impl, model=run.model, sched=D.cosine_schedule(run.cfg.diffusion.steps),
                      dcfg=run.cfg.diffusion, sampler=opts.sampler, steps=opts.steps, guidance=g)
-        cache[key] = jax.jit(fn)
+        cache[key] = jit_inference(fn)  # XLA options for forward-only loops (xla_options: 1.15× on CPU)
     return cache[key]
 
 
