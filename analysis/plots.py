@@ -154,7 +154,7 @@ def _draw_fit(ax: Any, fit: LogLinearFit, xs: np.ndarray, color: str, band: bool
                 label=f"{pct} prediction interval" if name is None else None)
         ax.plot(xc, hi, color=color, lw=0.9, ls=(0, (4, 3)), alpha=0.8)
     sign = "−" if fit.intercept < 0 else "+"
-    eq = f"{fit.slope:.4f}·log$_{{10}}$x {sign} {abs(fit.intercept):.4f}  (r = {fit.r:.2f})"
+    eq = f"{fit.slope:.4f}·log$_{{10}}$x {sign} {abs(fit.intercept):.4f}  (r = {fit.r:.3f})"
     ax.plot(xc, fit.predict(xc), color=color, lw=1.8, label=eq if name is None else f"{name}: {eq}")
 
 
@@ -296,7 +296,7 @@ def plot_extrapolation(ext: Extrapolation, rows: Sequence[Mapping[str, Any]], *,
         lo, hi = ext.fit.prediction_interval(xc)
         pct = f"{100 * ext.fit.level:g}%"
         ax.fill_between(xc, lo, hi, color=c_fit, alpha=0.12, linewidth=0, label=f"{pct} prediction interval")
-        ax.plot(xc, ext.fit.predict(xc), color=c_fit, label=f"fit below cut (n = {ext.fit.n}, r = {ext.fit.r:.2f})")
+        ax.plot(xc, ext.fit.predict(xc), color=c_fit, label=f"fit below cut (n = {ext.fit.n}, r = {ext.fit.r:.3f})")
         ax.errorbar(xs[below], ys[below], yerr=_ci([u for u, b in zip(used, below) if b], ext.y_name),
                     fmt="o", color=c_fit, elinewidth=0.9, zorder=3, label="fitted runs")
         px = np.array([p.x for p in ext.points])

@@ -84,7 +84,7 @@ def bench_sample(cfg: DiffusionRunConfig, params, text_len: int, batch: int, sam
     if key not in cache:
         fn = jit_inference(partial(_sample_impl, model=make_model(m), sched=D.cosine_schedule(cfg.diffusion.steps),
                                    dcfg=cfg.diffusion, sampler=timed_sampler, steps=timed_steps,
-                                   guidance=cfg.diffusion.guidance))
+                                   guidance=cfg.diffusion.guidance), m.dim)
         r = np.random.default_rng(1)
         text = jnp.asarray(r.normal(size=(3, batch, text_len, m.text_dim)), jnp.float32)
         mask = jnp.ones((3, batch, text_len), bool)
@@ -102,7 +102,7 @@ def bench_sample(cfg: DiffusionRunConfig, params, text_len: int, batch: int, sam
     return {"sampler": f"{sampler}-{n_steps}", "batch": batch, "guidance": cfg.diffusion.guidance,
             "clips_per_s": batch / dt_full, "seconds_per_batch": dt_full, "first_call_s": compile_s,
             "estimated_from_steps": None if n_timed == n_steps else n_timed,
-            "compiler_options": inference_options()}  # what handx generate compiles with (xla_options)
+            "compiler_options": inference_options(m.dim)}  # what handx generate compiles with (xla_options)
 
 
 def add_peak_fractions(res: dict, fwd: float, peak_flops: float) -> None:

@@ -134,7 +134,7 @@ def _compiled(run: DiffusionRun, opts: SampleOptions, masked: bool):
     if key not in cache:
         fn = partial(_sample_impl, model=run.model, sched=D.cosine_schedule(run.cfg.diffusion.steps),
                      dcfg=run.cfg.diffusion, sampler=opts.sampler, steps=opts.steps, guidance=g)
-        cache[key] = jit_inference(fn)  # XLA options for forward-only loops (xla_options: 1.15× on CPU)
+        cache[key] = jit_inference(fn, run.model.cfg.dim)  # XLA options for forward-only loops (xla_options)
     return cache[key]
 
 

@@ -7,7 +7,10 @@ both layer norms and the erf GELU inside, fed by three (192, 62, 1024) constant 
 needs materialised (0.5, 1, 1/√2 broadcast), ~100 ms of a ~650 ms step. With YNNPACK off for the
 program (Eigen dots, XLA's own fusion emitters for the rest) the same sampler ran 1.146× faster per
 step, in-process alternating A/B on the quiet 2-core machine; a training step ran 0.965× (slower), so
-only inference programs get it. Measured figures: docs/results/perf_cpu.json, ``inference_xla_options_2026_11_24``.
+only inference programs get it. Narrow models lose instead (DDIM + CFG at batch 256 against XLA's
+defaults: width 32 0.82×, 64 0.87×, 128 0.95-0.98×, 192 1.24×, 256 1.15×), so only models at least
+``MIN_WIDTH`` wide get it: every Table B size, not the CPU study's or the demo's. Measured figures:
+docs/results/perf_cpu.json, ``inference_xla_options_2026_11_24``.
 
 ``HANDX_INFERENCE_XLA=default`` in the environment compiles inference programs with XLA's defaults.
 """
@@ -22,6 +25,7 @@ import numpy as np
 
 # An empty list of library fusion types: no YNNPACK fusions in the program.
 CPU_INFERENCE = {"xla_cpu_experimental_ynn_fusion_type": ""}
+MIN_WIDTH = 192  # model width (hidden size) from which the options pay on CPU (measured crossover: 128-192)
 ENV = "HANDX_INFERENCE_XLA"
 
 
@@ -35,13 +39,15 @@ def _accepted(options: tuple) -> bool:
     return True
 
 
-def inference_options() -> dict | None:
-    """Compiler options for forward-only loops (sampling, decoding) on the default backend, or None."""
-    if os.environ.get(ENV, "").strip().lower() == "default" or jax.default_backend() != "cpu":
+def inference_options(width: int) -> dict | None:
+    """Compiler options for a forward-only loop (sampling, decoding) of a model ``width`` wide on the
+    default backend, or None (XLA's defaults)."""
+    if (os.environ.get(ENV, "").strip().lower() == "default" or width < MIN_WIDTH
+            or jax.default_backend() != "cpu"):
         return None
     return dict(CPU_INFERENCE) if _accepted(tuple(CPU_INFERENCE.items())) else None
 
 
-def jit_inference(fn, **jit_kwargs):
-    """``jax.jit`` with :func:`inference_options`."""
-    return jax.jit(fn, compiler_options=inference_options(), **jit_kwargs)
+def jit_inference(fn, width: int, **jit_kwargs):
+    """``jax.jit`` with :func:`inference_options` for a model ``width`` wide."""
+    return jax.jit(fn, compiler_options=inference_options(width), **jit_kwargs)

@@ -141,10 +141,11 @@ def test_gelu_erf_is_exact_gelu_in_value_and_gradient():
     np.testing.assert_allclose(got, np.asarray(jax.nn.gelu(jnp.asarray(x, jnp.float32), approximate=False)), atol=2e-6)
 
 
-def test_inference_programs_compile_without_ynn_fusions_and_sample_the_same(tiny, monkeypatch):
-    """Sampling and decoding compile with ``xla_options.inference_options`` (no YNNPACK fusions on CPU,
-    1.15× faster sampling there); the samples equal those of XLA's default options up to float rounding,
-    and ``HANDX_INFERENCE_XLA=default`` turns the options off."""
+def test_wide_models_sample_without_ynn_fusions_and_the_same(tiny, monkeypatch):
+    """Sampling and decoding of models at least ``MIN_WIDTH`` wide compile with
+    ``xla_options.inference_options`` (no YNNPACK fusions on CPU: paper-4L samples 1.15× faster); narrower
+    ones keep XLA's defaults; the samples equal those of XLA's defaults up to float rounding, and
+    ``HANDX_INFERENCE_XLA=default`` turns the options off."""
     from functools import partial
 
     from handx_jax import xla_options as XO
@@ -152,10 +153,10 @@ def test_inference_programs_compile_without_ynn_fusions_and_sample_the_same(tiny
 
     if jax.default_backend() != "cpu":
         pytest.skip("the options are CPU options")
-    opts = XO.inference_options()
-    assert opts == XO.CPU_INFERENCE
+    assert XO.inference_options(XO.MIN_WIDTH) == XO.CPU_INFERENCE
+    assert XO.inference_options(XO.MIN_WIDTH - 1) is None  # narrow models sample faster with XLA's defaults
     monkeypatch.setenv(XO.ENV, "default")
-    assert XO.inference_options() is None
+    assert XO.inference_options(512) is None
     monkeypatch.delenv(XO.ENV)
     assert not XO._accepted((("xla_cpu_experimental_ynn_fusion_type", "NOT_A_FUSION_TYPE"),))
 
@@ -166,7 +167,8 @@ def test_inference_programs_compile_without_ynn_fusions_and_sample_the_same(tiny
     fn = partial(_sample_impl, model=model, sched=D.cosine_schedule(dcfg.steps), dcfg=dcfg, sampler="ddim", steps=4,
                  guidance=2.5)
     args = (params, text, mask, jax.random.PRNGKey(3), None, None)
-    ours, default = XO.jit_inference(fn).lower(*args).compile(), jax.jit(fn).lower(*args).compile()
+    # the options for a wide model, compiled on the tiny one (what they do does not depend on its size)
+    ours, default = XO.jit_inference(fn, XO.MIN_WIDTH).lower(*args).compile(), jax.jit(fn).lower(*args).compile()
     assert "__ynn_fusion" not in ours.as_text()
     if "__ynn_fusion" not in default.as_text():
         pytest.skip("this jaxlib makes no YNNPACK fusions by default: nothing to compare")
