@@ -16,9 +16,8 @@ from code 1, as the reference returns the single id 1 (§4.6).
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
-from functools import partial
+from functools import cache, partial
 
 import jax
 import jax.numpy as jnp
@@ -110,7 +109,7 @@ def decode(model: PrefixLM, params, text_BxLxDt, text_mask_BxL, observed_BxO, rn
     return _decode_jit(model.cfg.dim)(model, params, text_BxLxDt, text_mask_BxL, observed_BxO, rng, opts, use_cache)
 
 
-@functools.cache
+@cache
 def _decode_jit(width: int):
     # built on first use, not at import: the options depend on the backend, which must not start at import
     return jit_inference(_decode_impl, width, static_argnames=("model", "use_cache"))
