@@ -4,6 +4,8 @@
   the unconditional rows) equal ``__call__`` with the text tiled and the drop flags set.
   With guidance's [x; x] batch, sharing the first self-attention block changes nothing.
 - Attention's two layouts (forward-only heads-major matmuls, training einsums) are standard attention.
+- Layer 0's self-attention from the tokens the three branches share equals attention over each full
+  branch sequence, and the forward-only denoiser equals the training path's full branch stack.
 - The compiled sampler's closure gives the samples of the closure that calls the full model.
 - Hash dropout keeps 1 − rate of the elements, is a pure function of the seed, and scales by 1/(1 − rate).
 - The erf form of exact GELU is exact GELU (values and gradients).
@@ -85,6 +87,52 @@ def test_attention_layouts_equal_a_numpy_reference():
         kv = attn.apply(params, jnp.asarray(mem), method=attn.kv)
         got = attn.apply(params, jnp.asarray(x), kv, mask, deterministic=deterministic)
         np.testing.assert_allclose(got, ref, atol=1e-5, err_msg=f"deterministic={deterministic}")
+
+
+@pytest.mark.parametrize("class_scale", [1.0, 40.0])
+def test_branch_self_attention_equals_attention_on_each_branch_sequence(class_scale):
+    """The shared-token form of layer 0's self-attention is attention over the K·N full sequences
+    [h_n0, c_k, h_n1..]: with ordinary logits, and with branch tokens so large that their keys take
+    (almost) all the weight, where a naive softmax-merge would overflow or lose the shared part."""
+    N, S, D, H, K = 3, 6, 16, 4, 3
+    r = np.random.default_rng(5)
+    h = jnp.asarray(r.normal(size=(N, S, D)), jnp.float32)
+    c = jnp.asarray(r.normal(size=(K, D)) * class_scale, jnp.float32)
+    full = jnp.concatenate([jnp.broadcast_to(h[None, :, :1], (K, N, 1, D)), jnp.broadcast_to(c[:, None, None], (K, N, 1, D)),
+                            jnp.broadcast_to(h[None, :, 1:], (K, N, S - 1, D))], axis=2)
+    attn = Attention(D, H, dropout=0.0)
+    params = attn.init(jax.random.PRNGKey(1), full.reshape(K * N, S + 1, D), deterministic=True)
+    want = attn.apply(params, full.reshape(K * N, S + 1, D), deterministic=True).reshape(K, N, S + 1, D)
+    got = attn.apply(params, h, c, method=attn.branch_self_attention)
+    assert np.isfinite(np.asarray(got)).all()
+    np.testing.assert_allclose(got, want, atol=2e-5 * class_scale, rtol=1e-5)
+    assert not np.allclose(got[0], got[1])  # the branch token matters at every position
+
+
+def test_forward_only_denoiser_equals_the_plain_branch_stack():
+    """Forward-only calls (sampling, evaluation) run layer 0's self-attention on the shared tokens;
+    the training path (deterministic=False, here with dropout 0) builds the three branch sequences
+    in full. Same outputs, with and without text dropped, with guidance's repeated rows."""
+    from dataclasses import replace
+
+    cfg = replace(PRESETS["tiny"], dropout=0.0)
+    model, params = init_denoiser(cfg, jax.random.PRNGKey(2), 8)
+    B, L = 3, 8
+    text, mask = _text(cfg, B, L, seed=6)
+    r = np.random.default_rng(7)
+    x = jnp.asarray(r.normal(size=(B, cfg.frames, 42, 4)), jnp.float32)
+    t = jnp.asarray([0, 300, 999])
+    drop = jnp.asarray([[False, False, False], [True, False, True], [True, True, True]])
+    run = jax.jit(lambda p, det: model.apply(p, x, t, text, mask, drop, deterministic=det), static_argnums=1)
+    plain, shared = run(params, False), run(params, True)
+    np.testing.assert_allclose(shared, plain, atol=1e-5)
+    memory = jax.jit(lambda p: model.apply(p, text, mask, method=model.encode))(params)
+    both = jax.jit(lambda p, m: model.apply(p, jnp.concatenate([x, x]), jnp.concatenate([t, t]), m, B, True,
+                                            method=model.denoise))(params, memory)
+    for rows, flags in ((slice(0, B), False), (slice(B, 2 * B), True)):
+        ref = jax.jit(lambda p, d: model.apply(p, x, t, text, mask, d, deterministic=False))(
+            params, jnp.full((B, 3), flags))
+        np.testing.assert_allclose(both[rows], ref, atol=1e-5)
 
 
 @pytest.mark.parametrize("guidance", [2.5, 1.0])

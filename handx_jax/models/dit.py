@@ -124,7 +124,12 @@ class TrebleDenoiser(nn.Module):
         ``null_repeats``: the null rows repeat the conditional rows exactly (same x and t, as
         classifier-free guidance stacks them). The two groups' sequences then differ only from the
         first cross-attention on, so the input projection and the first layer's self-attention
-        block run once, on the conditional rows, and are copied (issue 15)."""
+        block run once, on the conditional rows, and are copied (issue 15).
+
+        Forward only (``deterministic``), a sample's three branch sequences [time, class_k, frames]
+        differ in their class token alone until layer 0's self-attention mixes it in, so that block
+        runs on the shared tokens once per sample (``DecoderLayer.branch_self_block``): DDIM + CFG
+        2.0-2.5% faster per step at paper-4L (docs/results/perf_cpu.json, branch_sharing_2026_11_25)."""
         c = self.cfg
         B, F = x_BxFxJxC.shape[:2]
         nc = B - null_rows
@@ -135,24 +140,30 @@ class TrebleDenoiser(nn.Module):
         n_in = x_BxFxJxC.shape[0]
         z_BxFxD = self.input_proj(x_BxFxJxC.reshape(n_in, F, c.motion_features))
         t_tok = self.time_mlp_2(nn.silu(self.time_mlp_1(self.pe[t_B])))[:, None]  # (B, 1, D)
-        # Three branch sequences, stacked on the batch axis: (K, B, F+2, D).
-        seq = jnp.concatenate([
-            jnp.broadcast_to(t_tok[None], (NUM_BRANCHES, n_in, 1, c.dim)),
-            jnp.broadcast_to(self.cls[:, None, None], (NUM_BRANCHES, n_in, 1, c.dim)).astype(z_BxFxD.dtype),
-            jnp.broadcast_to(z_BxFxD[None], (NUM_BRANCHES, n_in, F, c.dim)),
-        ], axis=2)
-        seq = seq + self.pe[: F + 2].astype(seq.dtype)
-        # (with null_repeats the null group is empty here: it is copied after layer 0's self-attention)
-        seq = jnp.concatenate([seq[:, :nc].reshape(-1, F + 2, c.dim), seq[:, nc:].reshape(-1, F + 2, c.dim)])
-        seq = self.embed_drop(seq, deterministic=deterministic)
-        for i, (layer, kv) in enumerate(zip(self._layers(), kvs)):
+        pe = self.pe[: F + 2].astype(z_BxFxD.dtype)
+        cls_KxD = self.cls.astype(z_BxFxD.dtype) + pe[1]
+        # every token but the class token, the same in the three branches: (n_in, F+1, D)
+        h_NxSxD = jnp.concatenate([t_tok, z_BxFxD], axis=1) + jnp.concatenate([pe[:1], pe[2:]])
+        # (K, n_in, F+2, D) -> rows branch-major per group: the conditional samples', then the null rows'
+        group = lambda a_KxNxSxD: jnp.concatenate(  # noqa: E731
+            [a_KxNxSxD[:, :nc].reshape(-1, F + 2, c.dim), a_KxNxSxD[:, nc:].reshape(-1, F + 2, c.dim)])
+        layers = self._layers()
+        if deterministic:
+            seq = group(layers[0].branch_self_block(h_NxSxD, cls_KxD))
+        else:
+            seq = group(jnp.concatenate([  # the three branch sequences, stacked: (K, n_in, F+2, D)
+                jnp.broadcast_to(h_NxSxD[None, :, :1], (NUM_BRANCHES, n_in, 1, c.dim)),
+                jnp.broadcast_to(cls_KxD[:, None, None], (NUM_BRANCHES, n_in, 1, c.dim)),
+                jnp.broadcast_to(h_NxSxD[None, :, 1:], (NUM_BRANCHES, n_in, F, c.dim))], axis=2))
+            seq = layers[0].self_block(self.embed_drop(seq, deterministic=False), deterministic=False)
+        if null_repeats:  # the null group is empty so far: its layer-0 self-attention block is the conditional one's
+            seq = jnp.concatenate([seq, seq])
+        for i, (layer, kv) in enumerate(zip(layers, kvs)):
             cross = dict(deterministic=deterministic, kv=kv, null_mem_D=self.null_text,
                          null_rows=NUM_BRANCHES * null_rows)
-            if null_repeats and i == 0:
-                s = layer.self_block(seq, deterministic=deterministic)
-                seq = layer.cross_block(jnp.concatenate([s, s]), None, key_mask, **cross)
-            else:
-                seq = layer(seq, None, None, key_mask, **cross)
+            if i > 0:
+                seq = layer.self_block(seq, deterministic=deterministic)
+            seq = layer.cross_block(seq, None, key_mask, **cross)
         if null_repeats:
             z_BxFxD = jnp.concatenate([z_BxFxD, z_BxFxD])
         out_cond = seq[: NUM_BRANCHES * nc].reshape(NUM_BRANCHES, nc, F + 2, c.dim)

@@ -129,6 +129,37 @@ class Attention(nn.Module):
         so every query gets out(value(m)), whatever the query."""
         return self.out(self.value(mem_D))
 
+    def branch_self_attention(self, h_NxSxD, c_KxD):
+        """Self-attention (forward only, no mask) of the K·N sequences ``h_n`` with branch token ``c_k``
+        inserted at position 1, as (K, N, S + 1, D), computed from the N shared sequences once.
+
+        The denoiser's first layer sees three branch sequences per sample that differ only in their
+        class token (§3.1: [time, class_k, frames]). So the shared tokens' queries, keys, values and
+        their attention to one another are the same in all three: with LSE_i the log-sum-exp of query
+        i's logits over the shared keys and A_i its attention output over them, adding branch k's key
+        with logit t_ik gives exactly A_i + β_ik (v_k − A_i), β_ik = sigmoid(t_ik − LSE_i), per head.
+        The class-token rows attend to the shared keys and their own. Equal to running the K·N
+        sequences through ``__call__`` up to float rounding (tests/test_perf_paths.py)."""
+        scale = jnp.sqrt(self.dim // self.heads).astype(self.dtype)
+        q_s, (k_s, v_s) = self.query(h_NxSxD) / scale, self.kv(h_NxSxD)  # (N, S, H, K)
+        q_c, (k_c, v_c) = self.query(c_KxD) / scale, self.kv(c_KxD)  # (K, H, K)
+        logits = (_heads_major(q_s) @ jnp.transpose(k_s, (0, 2, 3, 1))).astype(jnp.float32)  # (N, H, S, S)
+        top = jnp.max(logits, axis=-1, keepdims=True)
+        e = jnp.exp(logits - top)
+        z = jnp.sum(e, axis=-1, keepdims=True)
+        a_NxSxHxK = _heads_major((e.astype(self.dtype) @ _heads_major(v_s)) / z.astype(self.dtype))
+        lse_NxSxH = jnp.swapaxes((top + jnp.log(z))[..., 0], 1, 2)
+        t_KxNxSxH = jnp.einsum("nshd,khd->knsh", q_s, k_c).astype(jnp.float32)
+        beta = jax.nn.sigmoid(t_KxNxSxH - lse_NxSxH).astype(self.dtype)[..., None]
+        out_s = a_NxSxHxK + beta * (v_c[:, None, None] - a_NxSxHxK)  # (K, N, S, H, K)
+        # the class-token queries: S shared keys and their own
+        K, N, S = c_KxD.shape[0], h_NxSxD.shape[0], h_NxSxD.shape[1]
+        l_c = jnp.einsum("khd,nshd->knhs", q_c, k_s)
+        l_own = jnp.broadcast_to(jnp.sum(q_c * k_c, axis=-1)[:, None, :, None], (K, N, self.heads, 1))
+        w = jax.nn.softmax(jnp.concatenate([l_c, l_own], axis=-1).astype(jnp.float32)).astype(self.dtype)
+        out_c = jnp.einsum("knhs,nshd->knhd", w[..., :S], v_s) + w[..., S:] * v_c[:, None]
+        return self.out(jnp.concatenate([out_s[:, :, :1], out_c[:, :, None], out_s[:, :, 1:]], axis=2))
+
     def __call__(self, x_BxQxD, kv=None, mask_Bx1xQxK=None, *, deterministic: bool):
         """Attend from x to ``kv`` (keys, values) or, if None, to x itself (self-attention)."""
         q_BxQxHxK = self.query(x_BxQxD) / jnp.sqrt(self.dim // self.heads).astype(self.dtype)
@@ -232,6 +263,15 @@ class DecoderLayer(nn.Module):
     def self_block(self, x_BxSxD, self_mask=None, *, deterministic: bool):
         a = self.self_attn(x_BxSxD, None, self_mask, deterministic=deterministic)
         return self.norm1(x_BxSxD + self.drop1(a, deterministic=deterministic))
+
+    def branch_self_block(self, h_NxSxD, c_KxD):
+        """:meth:`self_block` (forward only) of the K·N sequences ``h_n`` with ``c_k`` inserted at
+        position 1, from the shared tokens (``Attention.branch_self_attention``): (K, N, S + 1, D)."""
+        K, (N, S, D) = c_KxD.shape[0], h_NxSxD.shape
+        x = jnp.concatenate([jnp.broadcast_to(h_NxSxD[None, :, :1], (K, N, 1, D)),
+                             jnp.broadcast_to(c_KxD[:, None, None], (K, N, 1, D)),
+                             jnp.broadcast_to(h_NxSxD[None, :, 1:], (K, N, S - 1, D))], axis=2)
+        return self.norm1(x + self.self_attn.branch_self_attention(h_NxSxD, c_KxD))
 
     def cross_block(self, x, mem_BxMxD=None, cross_mask=None, *, deterministic: bool, kv=None, null_mem_D=None,
                     null_rows: int = 0):
