@@ -157,6 +157,21 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_factors(args: argparse.Namespace) -> int:
+    from analysis.factors import fit_factors
+
+    rows = load_inputs(args.results, args.family, strict=False)
+    if not args.mixed_evaluators:
+        _one_yardstick(rows, args.y)
+    factors = [f.strip() for f in args.factors.split(",") if f.strip()]
+    fit = fit_factors(rows, factors, args.y, level=args.level)
+    if args.json:
+        _emit_json(fit.to_dict())
+    else:
+        print(fit.summary())
+    return 0
+
+
 def _cmd_table(args: argparse.Namespace) -> int:
     from analysis.tables import render_table
 
@@ -260,6 +275,23 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     q.add_argument("--mixed-evaluators", action="store_true",
                    help="fit even if the rows were scored by different evaluators (refused by default)")
     q.set_defaults(func=_guard(_cmd_fit))
+
+    q = sub.add_parser("factors", help="a slope per factor (e.g. model FLOPs and samples seen) vs one axis",
+                       description="Fit y = a + Σ_j b_j·log10(x_j) over the runs, one slope per factor, and test "
+                                   "it against the one-axis fit on the product of the factors (all b_j equal; "
+                                   "with the default factors that is training compute, the --x compute fit): "
+                                   "t CIs per slope, R², leave-one-out RMSE of both models and the F test of "
+                                   "equal slopes. Says which way of spending compute a sweep rewarded.")
+    _add_results(q)
+    q.add_argument("--factors", default="flops_analytic,samples",
+                   help="comma-separated columns or aliases, two or more (default: flops_analytic,samples: "
+                        "per-sample FLOPs and samples seen, whose product is training compute / 3)")
+    q.add_argument("--y", default="rprec_top3", help="metric column (default: rprec_top3)")
+    q.add_argument("--level", type=float, default=0.95, help="confidence level of the CIs (default: 0.95)")
+    q.add_argument("--json", action="store_true", help="print the fit as JSON")
+    q.add_argument("--mixed-evaluators", action="store_true",
+                   help="fit even if the rows were scored by different evaluators (refused by default)")
+    q.set_defaults(func=_guard(_cmd_factors))
 
     q = sub.add_parser("table", help="paper-style table (mean ± CI, best in bold)",
                        description="Render results as a Table 2 / Table 3 style table. Best per column "
