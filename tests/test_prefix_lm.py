@@ -149,6 +149,22 @@ def test_sampling_options():
     assert set(np.unique(np.asarray(draws))) == {0, 1}  # 0.5 + 0.3 reaches 0.7
 
 
+@pytest.mark.parametrize("temperature", [1.0, 0.5])
+def test_temperature_sampling_follows_the_tempered_softmax(temperature):
+    """Plain temperature sampling (no top-k/top-p: the branch that skips the vocabulary sort) draws
+    from softmax(logits / T): p^(1/T) renormalised, here p = (0.5, 0.3, 0.15, 0.05)."""
+    p = np.array([0.5, 0.3, 0.15, 0.05])
+    want = p ** (1 / temperature) / np.sum(p ** (1 / temperature))
+    lg = jnp.log(jnp.asarray([p], jnp.float32))
+    n = 8000
+    draws = np.asarray(jax.vmap(lambda k: AD.sample_logits(lg, k, AD.DecodeOptions(temperature)))(
+        jax.random.split(jax.random.PRNGKey(4), n)))[:, 0]
+    freq = np.bincount(draws, minlength=4) / n
+    assert np.all(np.abs(freq - want) < 4 * np.sqrt(want * (1 - want) / n) + 1e-3), (freq, want)
+    greedy = AD.sample_logits(lg, jax.random.PRNGKey(0), AD.DecodeOptions(0.0))
+    assert greedy.dtype == jnp.int32 and int(greedy[0]) == 0
+
+
 def test_end_stops_and_rows_fill_for_decoding():
     tok = np.array([[5, 6, 37, 38], [37, 38, 38, 38], [1, 2, 3, 4]])
     filled = AD.fill_for_decoding(tok, np.array([2, 0, 4]), 37)
