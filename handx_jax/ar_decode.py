@@ -61,16 +61,47 @@ def sample_logits(logits_BxV, rng, opts: DecodeOptions):
 
 
 def _top_k_top_p(lg_BxV, opts: DecodeOptions):
-    """Logits outside the top-k, then outside the top-p nucleus, set to −inf."""
-    V = lg_BxV.shape[-1]
-    srt = jnp.sort(lg_BxV, axis=-1)[..., ::-1]
-    k = jnp.where(opts.top_k > 0, jnp.minimum(opts.top_k, V), V)
-    kth = jnp.take_along_axis(srt, jnp.broadcast_to(k - 1, srt.shape[:-1])[..., None], axis=-1)
-    srt = jnp.where(srt < kth, -jnp.inf, srt)
-    probs = jax.nn.softmax(srt, axis=-1)
-    keep = jnp.sum(jnp.cumsum(probs, axis=-1) - probs < opts.top_p, axis=-1, keepdims=True)
-    thr = jnp.take_along_axis(srt, jnp.maximum(keep, 1) - 1, axis=-1)
-    return jnp.where(lg_BxV < jnp.maximum(thr, kth), -jnp.inf, lg_BxV)
+    """Logits outside the top-k, then outside the top-p nucleus, set to −inf.
+
+    A token stays in the top-k when fewer than k logits exceed it, and in the nucleus when the
+    probability mass of the tokens above it (after top-k) is below top-p: the sorted-cumsum definition,
+    ties kept together, at least the argmax. Each cut is the smallest logit passing its test, found by
+    bisection over the 2³² ordered float32 bit patterns (32 masked reductions over the vocabulary)
+    instead of a sort: XLA CPU sorts a (16, 4,375) block in ~10.6 ms, the decoding step's bulk."""
+    key = _ordered_key(lg_BxV)
+    none = jnp.zeros(key.shape[:-1], jnp.uint32)  # a cut that keeps every token
+    k = jnp.minimum(opts.top_k, lg_BxV.shape[-1])
+    cut_k = jax.lax.cond(opts.top_k > 0, lambda: _smallest_passing(key, lambda u: jnp.sum(key > u[:, None], -1) < k),
+                         lambda: none)
+    lg = jnp.where(key >= cut_k[:, None], lg_BxV, -jnp.inf)
+
+    def nucleus():
+        p = jax.nn.softmax(lg, axis=-1)
+        return _smallest_passing(key, lambda u: jnp.sum(jnp.where(key > u[:, None], p, 0.0), -1) < opts.top_p)
+
+    cut_p = jax.lax.cond(opts.top_p < 1, nucleus, lambda: none)
+    return jnp.where(key >= cut_p[:, None], lg, -jnp.inf)
+
+
+def _ordered_key(x):
+    """float32 → uint32 with the same order (negative floats' magnitude bits flipped, sign bit set for ≥ 0)."""
+    i = jax.lax.bitcast_convert_type(x.astype(jnp.float32), jnp.uint32)
+    return jnp.where(i >> 31 == 1, ~i, i | jnp.uint32(0x80000000))
+
+
+def _smallest_passing(key_BxV, passes):
+    """Per row, the smallest u (uint32) with ``passes(u)`` true, for a test that is false at 0 and, once
+    true, stays true for every larger u; the row's largest key must pass."""
+    lo = jnp.zeros(key_BxV.shape[:-1], jnp.uint32)
+    hi = jnp.max(key_BxV, axis=-1)
+
+    def step(_, bounds):
+        lo, hi = bounds
+        mid = lo + (hi - lo) // 2
+        ok = passes(mid)
+        return jnp.where(ok, lo, mid), jnp.where(ok, mid, hi)
+
+    return jax.lax.fori_loop(0, 32, step, (lo, hi))[1]
 
 
 def _empty_cache(model: PrefixLM, B: int, S: int, dtype):
