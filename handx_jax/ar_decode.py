@@ -45,7 +45,7 @@ def sample_logits(logits_BxV, rng, opts: DecodeOptions):
 
     The options are traced (no recompiling per setting), so the choice is a ``lax.cond`` that runs
     one branch: greedy decoding, the paper's default (§4.6), is the argmax alone, and plain temperature
-    sampling skips the sort of the vocabulary that top-k/top-p need. Computing every branch and
+    sampling skips the top-k/top-p cuts (:func:`_top_k_top_p`). Computing every branch and
     selecting afterwards made KV-cache decoding 5× slower (small LM, 4,375 codes: 1,005 against
     5,000+ tokens/s, docs/results/perf_cpu.json, decode_branches_2026_11_25)."""
 
