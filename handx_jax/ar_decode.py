@@ -53,15 +53,15 @@ def sample_logits(logits_BxV, rng, opts: DecodeOptions):
         return jnp.argmax(logits_BxV, axis=-1).astype(jnp.int32)
 
     def draw():
-        lg = logits_BxV / jnp.maximum(opts.temperature, 1e-6)
-        lg = jax.lax.cond((opts.top_k > 0) | (opts.top_p < 1), partial(_top_k_top_p, opts=opts), lambda x: x, lg)
+        lg = _top_k_top_p(logits_BxV / jnp.maximum(opts.temperature, 1e-6), opts)
         return jax.random.categorical(rng, lg, axis=-1).astype(jnp.int32)
 
     return jax.lax.cond(opts.temperature <= 0, greedy, draw)
 
 
 def _top_k_top_p(lg_BxV, opts: DecodeOptions):
-    """Logits outside the top-k, then outside the top-p nucleus, set to −inf.
+    """Logits outside the top-k, then outside the top-p nucleus, set to −inf (each cut skipped by a
+    ``lax.cond`` when its option is off).
 
     A token stays in the top-k when fewer than k logits exceed it, and in the nucleus when the
     probability mass of the tokens above it (after top-k) is below top-p: the sorted-cumsum definition,

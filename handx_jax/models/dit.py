@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 
 from handx_jax.models.layers import (REFERENCE_LINEAR_INIT, DecoderLayer, Dropout, packed_in_proj_init,
-                                     sinusoidal_table)
+                                     sinusoidal_table, with_branch_token)
 
 NUM_BRANCHES = 3  # left, right, interaction
 
@@ -151,10 +151,7 @@ class TrebleDenoiser(nn.Module):
         if deterministic:
             seq = group(layers[0].branch_self_block(h_NxSxD, cls_KxD))
         else:
-            seq = group(jnp.concatenate([  # the three branch sequences, stacked: (K, n_in, F+2, D)
-                jnp.broadcast_to(h_NxSxD[None, :, :1], (NUM_BRANCHES, n_in, 1, c.dim)),
-                jnp.broadcast_to(cls_KxD[:, None, None], (NUM_BRANCHES, n_in, 1, c.dim)),
-                jnp.broadcast_to(h_NxSxD[None, :, 1:], (NUM_BRANCHES, n_in, F, c.dim))], axis=2))
+            seq = group(with_branch_token(h_NxSxD, cls_KxD))  # the three branch sequences in full
             seq = layers[0].self_block(self.embed_drop(seq, deterministic=False), deterministic=False)
         if null_repeats:  # the null group is empty so far: its layer-0 self-attention block is the conditional one's
             seq = jnp.concatenate([seq, seq])

@@ -101,6 +101,15 @@ def _heads_major(x_BxSxHxK):
     return jnp.swapaxes(x_BxSxHxK, 1, 2)
 
 
+def with_branch_token(h_NxSxD, c_KxD):
+    """The K·N branch sequences, (K, N, S + 1, D): each shared sequence ``h_n`` with branch token ``c_k``
+    inserted at position 1 (the denoiser's [time, class_k, frames])."""
+    K, (N, S, D) = c_KxD.shape[0], h_NxSxD.shape
+    return jnp.concatenate([jnp.broadcast_to(h_NxSxD[None, :, :1], (K, N, 1, D)),
+                            jnp.broadcast_to(c_KxD[:, None, None], (K, N, 1, D)),
+                            jnp.broadcast_to(h_NxSxD[None, :, 1:], (K, N, S - 1, D))], axis=2)
+
+
 class Attention(nn.Module):
     """Multi-head dot-product attention with flax MultiHeadDotProductAttention's parameters and maths
     (query scaled by 1/√(D/H), float32 softmax, attention-weight dropout shared over batch and heads)."""
@@ -267,11 +276,7 @@ class DecoderLayer(nn.Module):
     def branch_self_block(self, h_NxSxD, c_KxD):
         """:meth:`self_block` (forward only) of the K·N sequences ``h_n`` with ``c_k`` inserted at
         position 1, from the shared tokens (``Attention.branch_self_attention``): (K, N, S + 1, D)."""
-        K, (N, S, D) = c_KxD.shape[0], h_NxSxD.shape
-        x = jnp.concatenate([jnp.broadcast_to(h_NxSxD[None, :, :1], (K, N, 1, D)),
-                             jnp.broadcast_to(c_KxD[:, None, None], (K, N, 1, D)),
-                             jnp.broadcast_to(h_NxSxD[None, :, 1:], (K, N, S - 1, D))], axis=2)
-        return self.norm1(x + self.self_attn.branch_self_attention(h_NxSxD, c_KxD))
+        return self.norm1(with_branch_token(h_NxSxD, c_KxD) + self.self_attn.branch_self_attention(h_NxSxD, c_KxD))
 
     def cross_block(self, x, mem_BxMxD=None, cross_mask=None, *, deterministic: bool, kv=None, null_mem_D=None,
                     null_rows: int = 0):
