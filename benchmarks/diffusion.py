@@ -31,7 +31,6 @@ import platform
 import sys
 import tempfile
 import time
-from functools import partial
 from pathlib import Path
 
 import jax
@@ -40,10 +39,11 @@ import numpy as np
 
 from handx_jax import diffusion as D
 from handx_jax.families.diffusion import DiffusionRunConfig, apply_overrides, make_loss, make_model, params_non_embedding
-from handx_jax.generation import _sample_impl
+from handx_jax import hostdevices
+from handx_jax.generation import compile_sampler
 from handx_jax.models.dit import PRESETS, forward_flops, init_denoiser, param_count
 from handx_jax.train import train
-from handx_jax.xla_options import inference_options, jit_inference
+from handx_jax.xla_options import inference_options
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/_peak.py, also when loaded by path
 from _peak import PEAK_BF16, device_peak, emit, matmul_peak  # noqa: E402
@@ -82,9 +82,8 @@ def bench_sample(cfg: DiffusionRunConfig, params, text_len: int, batch: int, sam
     cache = {} if cache is None else cache
     compile_s = None
     if key not in cache:
-        fn = jit_inference(partial(_sample_impl, model=make_model(m), sched=D.cosine_schedule(cfg.diffusion.steps),
-                                   dcfg=cfg.diffusion, sampler=timed_sampler, steps=timed_steps,
-                                   guidance=cfg.diffusion.guidance), m.dim)
+        fn = compile_sampler(make_model(m), cfg.diffusion, sampler=timed_sampler, steps=timed_steps,
+                             guidance=cfg.diffusion.guidance, batch=batch)
         r = np.random.default_rng(1)
         text = jnp.asarray(r.normal(size=(3, batch, text_len, m.text_dim)), jnp.float32)
         mask = jnp.ones((3, batch, text_len), bool)
@@ -102,7 +101,8 @@ def bench_sample(cfg: DiffusionRunConfig, params, text_len: int, batch: int, sam
     return {"sampler": f"{sampler}-{n_steps}", "batch": batch, "guidance": cfg.diffusion.guidance,
             "clips_per_s": batch / dt_full, "seconds_per_batch": dt_full, "first_call_s": compile_s,
             "estimated_from_steps": None if n_timed == n_steps else n_timed,
-            "compiler_options": inference_options(m.dim)}  # what handx generate compiles with (xla_options)
+            "compiler_options": inference_options(m.dim),  # what handx generate compiles with (xla_options)
+            "devices": int(getattr(fn, "mesh", None).size) if hasattr(fn, "mesh") else 1}  # hostdevices
 
 
 def add_peak_fractions(res: dict, fwd: float, peak_flops: float) -> None:
@@ -131,6 +131,7 @@ def main(argv=None) -> int:
     ap.add_argument("--bf16", choices=["auto", "on", "off"], default="auto", help="training compute (auto: on for GPU)")
     ap.add_argument("--out", help="also write the JSON here")
     args = ap.parse_args(argv)
+    hostdevices.configure()  # before any JAX work: sampling splits its batch over the host's cores
 
     dev = jax.devices()[0]
     on_gpu = dev.platform == "gpu"

@@ -46,6 +46,7 @@ import jax  # noqa: E402
 
 from _peak import emit, matmul_peak  # noqa: E402
 from diffusion import bench_sample, bench_train  # noqa: E402
+from handx_jax import hostdevices  # noqa: E402
 from handx_jax.families.diffusion import DiffusionRunConfig  # noqa: E402
 from handx_jax.models.dit import PRESETS, forward_flops, init_denoiser  # noqa: E402
 
@@ -129,6 +130,7 @@ def main(argv=None) -> int:
     if not (ref / "bench_train.py").exists():
         sys.exit(f"error: no PyTorch reference at {ref} (bench_train.py missing); pass --torch-ref")
     a.m = PRESETS[a.preset]
+    hostdevices.configure()  # before any JAX work: sampling splits its batch over the host's cores
     skip = set(filter(None, a.skip.split(",")))
     fwd = forward_flops(a.m, a.text_len)
     with tempfile.TemporaryDirectory() as tmp:
@@ -143,7 +145,7 @@ def main(argv=None) -> int:
 def side_by_side(a, ref: Path, skip: set, fwd: int, tmp: Path) -> dict:
     doc = {"machine": {"host": platform.node(), "cpus": os.cpu_count(), "platform": platform.platform(),
                        "processor": platform.processor(), "jax_backend": jax.default_backend(),
-                       "device": jax.devices()[0].device_kind, "jax": jax.__version__,
+                       "device": jax.devices()[0].device_kind, "jax": jax.__version__, "jax_devices": jax.device_count(),
                        "loadavg_before": os.getloadavg()},
            "config": {"preset": a.preset, "layers": a.m.layers, "dim": a.m.dim, "heads": a.m.heads, "ff": a.m.ff,
                       "dropout": a.m.dropout, "batch": a.batch, "text_len": a.text_len, "text_dim": a.m.text_dim,

@@ -65,6 +65,13 @@ def main(argv: list[str] | None = None) -> int:
     if extra and not getattr(args, "takes_extra_args", False):
         parser.error(f"unrecognized arguments: {' '.join(extra)}")
     args.extra = extra
+    from handx_jax import hostdevices
+
+    try:  # before any JAX work: the host's cores as CPU devices for sampling (hostdevices, issue 15)
+        hostdevices.configure()
+    except ValueError as e:
+        print(f"handx: error: {e}", file=sys.stderr)
+        return 2
     try:
         rc = args.func(args)
     except (DataError, FileExistsError, FileNotFoundError) as e:

@@ -108,33 +108,87 @@ def task_gamma(task: str, dcfg: D.DiffusionConfig, frames: int = 60, *, keyframe
 
 
 def _sample_impl(params, text_KxBxLxD, mask_KxBxL, rng, target, gamma, *, model, sched, dcfg, sampler, steps,
-                 guidance):
+                 guidance, mesh=None):
+    """The whole sampler as one traced function. ``mesh`` (``hostdevices.inference_mesh``): split every
+    denoiser call's samples over its devices (the noise, the text encoding and the update stay global:
+    the same numbers on one device or several)."""
     B = text_KxBxLxD.shape[1]
     # The text memory is the same at every step: project it and compute each layer's cross-attention
     # keys/values once, outside the scan (issue 15).
     memory = model.apply(params, text_KxBxLxD, mask_KxBxL, method=model.encode)
 
+    def denoise_rows(params, x, t_B, memory, b):
+        # ``diffusion.guided`` stacks [conditional; unconditional] on the batch axis, so the rows past the
+        # first ``b`` are the null-text pass: one memory token, no text keys/values. Their x and t repeat
+        # the first b rows', so the work before the first cross-attention is shared.
+        null_rows = x.shape[0] - b
+        return model.apply(params, x, t_B, memory, null_rows, null_rows == b, method=model.denoise)
+
     def denoise(x, t_B, uncond_B):
-        # ``diffusion.guided`` stacks [conditional; unconditional] on the batch axis (uncond_B says so),
-        # so the rows past B are the null-text pass: one memory token, no text keys/values. Their x and t
-        # repeat the first B rows', so the work before the first cross-attention is shared.
-        del uncond_B
-        null_rows = x.shape[0] - B
-        return model.apply(params, x, t_B, memory, null_rows, null_rows == B, method=model.denoise)
+        del uncond_B  # the layout says it: rows past B are unconditional
+        if mesh is None:
+            return denoise_rows(params, x, t_B, memory, B)
+        return _split_over(mesh, denoise_rows, params, x, t_B, memory, B)
 
     shape = (B, model.cfg.frames, model.cfg.joints, model.cfg.channels)
     return D.sample(denoise, sched, shape, rng, dcfg, sampler=sampler, steps=steps, guidance=guidance,
                     target=target, gamma_FxJ=gamma)
 
 
-def _compiled(run: DiffusionRun, opts: SampleOptions, masked: bool):
+def _split_over(mesh, denoise_rows, params, x_GBxFxJxC, t_GB, memory, B):
+    """``denoise_rows`` with the B samples split over ``mesh`` (hostdevices): each device gets its slice
+    of every group (the conditional rows and, under guidance, the repeated null rows) and of the text
+    memory, whose rows are branch-major (K·B), so the layout each device sees is the unsplit one's."""
+    from jax.sharding import PartitionSpec as P
+
+    G = x_GBxFxJxC.shape[0] // B
+    x = x_GBxFxJxC.reshape(G, B, *x_GBxFxJxC.shape[1:])
+    t = t_GB.reshape(G, B)
+    by_sample = lambda a: a.reshape(-1, B, *a.shape[1:])  # noqa: E731  (K·B, ...) -> (K, B, ...)
+    mem = jax.tree_util.tree_map(by_sample, memory)
+    split = P(None, "b")
+
+    def body(params, x, t, mem):
+        b = x.shape[1]
+        flat = lambda a: a.reshape(-1, *a.shape[2:])  # noqa: E731
+        y = denoise_rows(params, flat(x), flat(t), jax.tree_util.tree_map(flat, mem), b)
+        return y.reshape(G, b, *y.shape[1:])
+
+    y = jax.shard_map(body, mesh=mesh, in_specs=(P(), split, split, split), out_specs=split)(params, x, t, mem)
+    return y.reshape(G * B, *y.shape[2:])
+
+
+def compile_sampler(model, dcfg: D.DiffusionConfig, *, sampler: str, steps: int, guidance: float, batch: int):
+    """The compiled sampler for batches of ``batch`` samples: ``fn(params, text_KxBxLxD, mask_KxBxL, rng,
+    target, gamma) -> x0 (B, F, J, C)``, with the inference XLA options (``xla_options``) and, where the
+    host has several CPU devices, the batch split over them (``hostdevices``)."""
+    from handx_jax import hostdevices
+
+    mesh = hostdevices.inference_mesh(batch)
+    fn = jit_inference(partial(_sample_impl, model=model, sched=D.cosine_schedule(dcfg.steps), dcfg=dcfg,
+                               sampler=sampler, steps=steps, guidance=guidance, mesh=mesh), model.cfg.dim)
+    if mesh is None:
+        return fn
+    from jax.sharding import NamedSharding, PartitionSpec as P
+
+    everywhere = NamedSharding(mesh, P())
+
+    def placed(params, *args):
+        # Arrays committed to one device (restored parameters) cannot enter a program that runs on
+        # several: copy them to every device of the mesh (once per call; a few MB).
+        return fn(*jax.device_put((params, *args), everywhere))
+
+    placed.mesh = mesh
+    return placed
+
+
+def _compiled(run: DiffusionRun, opts: SampleOptions, masked: bool, batch: int):
     cache = run.__dict__.setdefault("_compiled", {})
     g = run.cfg.diffusion.guidance if opts.guidance is None else float(opts.guidance)
-    key = (opts.sampler, opts.steps if opts.sampler == "ddim" else None, g, masked, run.cfg.diffusion)
+    key = (opts.sampler, opts.steps if opts.sampler == "ddim" else None, g, masked, run.cfg.diffusion, batch)
     if key not in cache:
-        fn = partial(_sample_impl, model=run.model, sched=D.cosine_schedule(run.cfg.diffusion.steps),
-                     dcfg=run.cfg.diffusion, sampler=opts.sampler, steps=opts.steps, guidance=g)
-        cache[key] = jit_inference(fn, run.model.cfg.dim)  # XLA options for forward-only loops (xla_options)
+        cache[key] = compile_sampler(run.model, run.cfg.diffusion, sampler=opts.sampler, steps=opts.steps,
+                                     guidance=g, batch=batch)
     return cache[key]
 
 
@@ -144,10 +198,10 @@ def sample_normalised(run: DiffusionRun, prompts: Sequence[Prompt], opts: Sample
     """One sample per prompt, (B, F, 42, 4) in normalised space, in chunks of ``opts.batch_size``."""
     rng = jax.random.PRNGKey(opts.seed) if rng is None else rng
     masked = targets_BxFx42x4 is not None
-    fn = _compiled(run, opts, masked)
     out = []
     n = len(prompts)
     bs = min(opts.batch_size, n)
+    fn = _compiled(run, opts, masked, bs)
     for ci, s in enumerate(range(0, n, bs)):
         chunk = list(prompts[s:s + bs])
         real = len(chunk)

@@ -270,9 +270,19 @@ def check_resume(run_dir: str | os.PathLike, config: dict, keys: Sequence[str] |
 
 
 def _mesh():
+    """The data-parallel mesh: every device, except on CPU, where each process trains on one device.
+    Several CPU devices in one process are the same cores split up (``hostdevices``, for sampling);
+    training across them only adds an all-reduce (paper-4L, batch 32: 14.4 samples/s on two such
+    devices against 26.4 on one, issue 15)."""
     from jax.sharding import Mesh
 
-    return Mesh(np.asarray(jax.devices()), ("data",))
+    devs = jax.devices()
+    if devs[0].platform == "cpu":
+        first: dict[int, jax.Device] = {}
+        for d in devs:
+            first.setdefault(d.process_index, d)
+        devs = list(first.values())
+    return Mesh(np.asarray(devs), ("data",))
 
 
 def _cast(tree, dtype):
@@ -335,8 +345,8 @@ def train(
     mesh = _mesh()
     data_sharding = NamedSharding(mesh, P("data"))
     replicated = NamedSharding(mesh, P())
-    if cfg.batch_size % len(jax.devices()):
-        raise ValueError(f"batch size {cfg.batch_size} is not divisible by {len(jax.devices())} devices")
+    if cfg.batch_size % mesh.size:
+        raise ValueError(f"batch size {cfg.batch_size} is not divisible by {mesh.size} devices")
 
     rng = jax.random.PRNGKey(cfg.seed)
 
