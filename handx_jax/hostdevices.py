@@ -8,9 +8,8 @@ independent) runs those products on every core at once, while the large matmuls 
 intra-op thread pool. DDIM + CFG sampling, one process with 2 devices against one with 1 (2-core machine):
 paper-4L at batch 32 1.09-1.14×, L2-d128 at batch 256 1.12×, L2-d64 1.23×.
 
-Training keeps one device per process (``train._mesh``): data parallelism across virtual devices on the
-same cores adds an all-reduce and gained nothing to share (paper-4L, batch 32: 14.4 samples/s on two
-devices against 26.4 on one).
+Training keeps one device per process (``train._mesh``): the loop's data parallelism across two such
+devices ran paper-4L at batch 32 at 14.4 samples/s against 26.4 on one (see ``train._mesh``).
 
 The device count must be set before JAX starts its backends, so the entry points call :func:`configure`
 first thing (the ``handx`` CLI, the benchmarks); a notebook calls it right after ``import jax``. Without

@@ -271,9 +271,11 @@ def check_resume(run_dir: str | os.PathLike, config: dict, keys: Sequence[str] |
 
 def _mesh():
     """The data-parallel mesh: every device, except on CPU, where each process trains on one device.
-    Several CPU devices in one process are the same cores split up (``hostdevices``, for sampling);
-    training across them only adds an all-reduce (paper-4L, batch 32: 14.4 samples/s on two such
-    devices against 26.4 on one, issue 15)."""
+    Several CPU devices in one process are the same cores split up (``hostdevices``, for sampling).
+    This loop's data parallelism across two of them ran paper-4L at 14.4 samples/s against 26.4 on one;
+    an explicit shard_map step gained 4-10%, but would draw each device's dropout masks from its own
+    slice and cannot split a batch-level loss such as the evaluator's contrastive one (issue 15,
+    perf_cpu.json host_devices_2026_11_25)."""
     from jax.sharding import Mesh
 
     devs = jax.devices()
