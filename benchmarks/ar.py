@@ -35,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/_peak.py
 
 from handx_jax import ar_decode as AD  # noqa: E402
+from handx_jax import hostdevices  # noqa: E402
 from handx_jax.models import fsq as Q  # noqa: E402
 from handx_jax.models import prefix_lm as P  # noqa: E402
 from handx_jax.train import OptimConfig, TrainConfig, train  # noqa: E402
@@ -124,6 +125,7 @@ def main(argv=None) -> int:
     ap.add_argument("--bf16", choices=["auto", "on", "off"], default="auto")
     ap.add_argument("--out", help="also write the JSON here")
     args = ap.parse_args(argv)
+    hostdevices.configure()  # before any JAX work: decoding splits its batch over the host's cores
 
     dev = jax.devices()[0]
     on_gpu = dev.platform == "gpu"
@@ -133,7 +135,8 @@ def main(argv=None) -> int:
     print(f"[peak] {measured['dtype']} {measured['n']}² matmul: {measured['flops_per_s'] / 1e9:.1f} GFLOP/s",
           file=sys.stderr, flush=True)
     nb = Q.real_codebook_size(args.codebook)
-    doc = {"device": dev.device_kind, "platform": dev.platform, "host": platform.node(), "jax": jax.__version__,
+    doc = {"device": dev.device_kind, "platform": dev.platform, "num_devices": jax.device_count(),
+           "host": platform.node(), "jax": jax.__version__,
            "codebook": args.codebook, "nb_code": nb, "text_len": args.text_len, "peak_bf16_flops": peak,
            "measured_peak": measured, "tokenizer": [], "lm": [], "decode": []}
 

@@ -39,9 +39,13 @@ class DecodeOptions:
     max_tokens: int = MOTION_TOKENS
 
 
-def sample_logits(logits_BxV, rng, opts: DecodeOptions):
+def sample_logits(logits_BxV, rng, opts: DecodeOptions, rows_B=None):
     """Greedy when temperature ≤ 0; else sample from softmax(logits / T) restricted to the top-k and
     then to the smallest set of tokens whose probability reaches top-p (always at least one).
+
+    Row b draws with its own key, ``fold_in(rng, rows_B[b])`` (default: its index), so a row's draw does
+    not depend on which other rows share its batch, and a batch split over devices (``hostdevices``)
+    draws what the whole batch draws.
 
     The options are traced (no recompiling per setting), so the choice is a ``lax.cond`` that runs
     one branch: greedy decoding, the paper's default (§4.6), is the argmax alone, and plain temperature
@@ -54,7 +58,9 @@ def sample_logits(logits_BxV, rng, opts: DecodeOptions):
 
     def draw():
         lg = _top_k_top_p(logits_BxV / jnp.maximum(opts.temperature, 1e-6), opts)
-        return jax.random.categorical(rng, lg, axis=-1).astype(jnp.int32)
+        rows = jnp.arange(lg.shape[0]) if rows_B is None else rows_B
+        keys = jax.vmap(lambda r: jax.random.fold_in(rng, r))(rows)
+        return jax.vmap(jax.random.categorical)(keys, lg).astype(jnp.int32)
 
     return jax.lax.cond(opts.temperature <= 0, greedy, draw)
 
@@ -152,21 +158,47 @@ def decode(model: PrefixLM, params, text_BxLxDt, text_mask_BxL, observed_BxO, rn
 
     Returns (tokens (B, max_tokens) int32 with the observed ones first and PAD after END, lengths (B,):
     the number of codes before END). One jitted ``while_loop``, compiled with the inference options
-    (``xla_options``; for 8L-512 1.06× on CPU).
+    (``xla_options``; for 8L-512 1.06× on CPU). Where the host has several CPU devices (``hostdevices``)
+    the rows are split over them, each device running its own loop: the same tokens (sampling draws per
+    row, :func:`sample_logits`); greedy decoding of the small LM 1.10-1.19× faster at batch 16 on 2 cores.
     """
-    return _decode_jit(model.cfg.dim)(model, params, text_BxLxDt, text_mask_BxL, observed_BxO, rng, opts, use_cache)
+    from handx_jax import hostdevices
+
+    mesh = hostdevices.inference_mesh(text_mask_BxL.shape[0])
+    args = (model, params, text_BxLxDt, text_mask_BxL, observed_BxO, rng, opts, use_cache)
+    if mesh is None:
+        return _decode_jit(model.cfg.dim, None)(*args)
+    return _decode_jit(model.cfg.dim, mesh)(model, *hostdevices.replicate(mesh, args[1:-1]), use_cache)
 
 
 @cache
-def _decode_jit(width: int):
+def _decode_jit(width: int, mesh):
     # built on first use, not at import: the options depend on the backend, which must not start at import
-    return jit_inference(_decode_impl, width, static_argnames=("model", "use_cache"))
+    fn = _decode_impl if mesh is None else partial(_decode_split, mesh=mesh)
+    return jit_inference(fn, width, static_argnames=("model", "use_cache"))
+
+
+def _decode_split(model: PrefixLM, params, text_BxLxDt, text_mask_BxL, observed_BxO, rng, opts: DecodeOptions,
+                  use_cache: bool, *, mesh):
+    """:func:`_decode_impl` with the rows split over ``mesh``: every device decodes its slice in its own
+    ``while_loop`` (no communication; each stops when its own rows are done)."""
+    from jax.sharding import PartitionSpec as P
+
+    def body(params, text, mask, observed, rng, opts):
+        row0 = jax.lax.axis_index("b") * text.shape[0]  # the slice's first row in the whole batch
+        return _decode_impl(model, params, text, mask, observed, rng, opts, use_cache, row0=row0)
+
+    rows = P("b")
+    # check_vma off: the loop's carry mixes per-device rows with the replicated key and step counter
+    return jax.shard_map(body, mesh=mesh, in_specs=(P(), rows, rows, rows, P(), P()), out_specs=(rows, rows),
+                         check_vma=False)(params, text_BxLxDt, text_mask_BxL, observed_BxO, rng, opts)
 
 
 def _decode_impl(model: PrefixLM, params, text_BxLxDt, text_mask_BxL, observed_BxO, rng, opts: DecodeOptions,
-                 use_cache: bool):
+                 use_cache: bool, row0=0):
     c, T = model.cfg, opts.max_tokens
     B, Lp = text_mask_BxL.shape
+    rows_B = row0 + jnp.arange(B)
     n_obs = observed_BxO.shape[1]
     S = Lp + T
     tokens = jnp.full((B, T), c.pad_id, jnp.int32).at[:, :n_obs].set(observed_BxO.astype(jnp.int32))
@@ -186,7 +218,7 @@ def _decode_impl(model: PrefixLM, params, text_BxLxDt, text_mask_BxL, observed_B
     def body(s):
         i, toks, done, cache, logits, rng = s
         rng, sub = jax.random.split(rng)
-        tok = jnp.where(done, c.pad_id, sample_logits(logits, sub, opts))
+        tok = jnp.where(done, c.pad_id, sample_logits(logits, sub, opts, rows_B))
         toks = toks.at[:, i].set(tok)
         done = done | (tok == c.end_id)
         if use_cache:

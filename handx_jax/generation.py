@@ -169,14 +169,9 @@ def compile_sampler(model, dcfg: D.DiffusionConfig, *, sampler: str, steps: int,
                                sampler=sampler, steps=steps, guidance=guidance, mesh=mesh), model.cfg.dim)
     if mesh is None:
         return fn
-    from jax.sharding import NamedSharding, PartitionSpec as P
-
-    everywhere = NamedSharding(mesh, P())
 
     def placed(params, *args):
-        # Arrays committed to one device (restored parameters) cannot enter a program that runs on
-        # several: copy them to every device of the mesh (once per call; a few MB).
-        return fn(*jax.device_put((params, *args), everywhere))
+        return fn(*hostdevices.replicate(mesh, (params, *args)))
 
     placed.mesh = mesh
     return placed

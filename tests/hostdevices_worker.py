@@ -33,6 +33,25 @@ def samples() -> tuple[dict, dict]:
             fn = compile_sampler(make_model(m), D.DiffusionConfig(), sampler="ddim", steps=3, guidance=g, batch=B)
             used[str(B)] = int(fn.mesh.size) if hasattr(fn, "mesh") else 1
             out[f"{name}_{B}"] = np.asarray(fn(params, text, mask, jax.random.PRNGKey(3), None, None))
+    # AR decoding (ar_decode.decode): greedy and sampled, one compiled loop (the options are traced)
+    from handx_jax import ar_decode as AD
+    from handx_jax.models import prefix_lm as PL
+
+    from handx_jax import hostdevices
+
+    lm_cfg = PL.PRESETS["tiny"]
+    lm, lm_params = PL.init_lm(lm_cfg, jax.random.PRNGKey(4))
+    lm_params = jax.device_put(lm_params, jax.devices()[0])
+    B = 4
+    text = rng.normal(size=(B, 8, lm_cfg.text_dim)).astype(np.float32)
+    mask = np.ones((B, 8), bool)
+    empty = np.zeros((B, 0), np.int32)
+    for name, opts in (("greedy", AD.DecodeOptions()), ("temperature", AD.DecodeOptions(1.0)),
+                       ("top_k", AD.DecodeOptions(1.0, top_k=5))):
+        toks, lens = AD.decode(lm, lm_params, text, mask, empty, jax.random.PRNGKey(5), opts)
+        out[f"ar_{name}"], out[f"ar_{name}_lengths"] = np.asarray(toks), np.asarray(lens)
+    mesh = hostdevices.inference_mesh(B)
+    used["ar"] = 1 if mesh is None else int(mesh.size)
     return out, used
 
 

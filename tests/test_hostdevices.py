@@ -3,7 +3,8 @@
 Each case runs tests/hostdevices_worker.py in a fresh process, because JAX fixes the CPU device count
 when it starts: with HANDX_CPU_DEVICES=2 the sampler splits a batch the devices divide over both (and
 keeps one device for a batch they do not), and its samples equal one device's up to float rounding (the
-same noise draws, per-sample maths on half the rows); training stays on one device per process.
+same noise draws, per-sample maths on half the rows); AR decoding splits its rows too and gives the same
+tokens, greedy and sampled; training stays on one device per process.
 """
 
 import json
@@ -33,14 +34,19 @@ def test_split_sampling_matches_one_device(tmp_path):
     assert p.returncode == 0, p.stderr[-3000:]
     info = json.loads(p.stdout.strip().splitlines()[-1])
     # two devices: batch 4 split in two, batch 3 (odd) on one device; training on one device (train._mesh)
-    assert info == {"configured": 2, "devices": 2, "train_mesh": 1, "sample_devices": {"4": 2, "3": 1}}
+    assert info == {"configured": 2, "devices": 2, "train_mesh": 1, "sample_devices": {"4": 2, "3": 1, "ar": 2}}
     two = dict(np.load(out))
     # the same cases in this (one-device) process
     spec = importlib.util.spec_from_file_location("hostdevices_worker", WORKER)
     worker = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(worker)
     one, used = worker.samples()
-    assert used == {"4": 1, "3": 1} and sorted(one) == sorted(two) == ["guided_3", "guided_4", "unguided_4"]
+    assert used == {"4": 1, "3": 1, "ar": 1} and sorted(one) == sorted(two)
+    # AR decoding: the same tokens, greedy and sampled (each row draws with its own key)
+    assert not np.array_equal(one["ar_temperature"], one["ar_greedy"])  # sampling really sampled
+    for k in [k for k in one if k.startswith("ar_")]:
+        np.testing.assert_array_equal(two.pop(k), one.pop(k), err_msg=k)
+    assert sorted(one) == ["guided_3", "guided_4", "unguided_4"]
     for k in one:
         assert np.abs(one[k]).max() > 0.1  # real samples, not zeros
         np.testing.assert_allclose(two[k], one[k], atol=2e-5, err_msg=k)
