@@ -37,7 +37,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handx_jax import diffusion as D
 from handx_jax.families.diffusion import DiffusionRunConfig, apply_overrides, make_loss, make_model, params_non_embedding
 from handx_jax import hostdevices
 from handx_jax.generation import compile_sampler
@@ -102,7 +101,7 @@ def bench_sample(cfg: DiffusionRunConfig, params, text_len: int, batch: int, sam
             "clips_per_s": batch / dt_full, "seconds_per_batch": dt_full, "first_call_s": compile_s,
             "estimated_from_steps": None if n_timed == n_steps else n_timed,
             "compiler_options": inference_options(m.dim),  # what handx generate compiles with (xla_options)
-            "devices": int(getattr(fn, "mesh", None).size) if hasattr(fn, "mesh") else 1}  # hostdevices
+            "devices": fn.mesh.size if hasattr(fn, "mesh") else 1}  # split over the host's CPU devices
 
 
 def add_peak_fractions(res: dict, fwd: float, peak_flops: float) -> None:

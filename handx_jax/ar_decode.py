@@ -165,10 +165,10 @@ def decode(model: PrefixLM, params, text_BxLxDt, text_mask_BxL, observed_BxO, rn
     from handx_jax import hostdevices
 
     mesh = hostdevices.inference_mesh(text_mask_BxL.shape[0])
-    args = (model, params, text_BxLxDt, text_mask_BxL, observed_BxO, rng, opts, use_cache)
-    if mesh is None:
-        return _decode_jit(model.cfg.dim, None)(*args)
-    return _decode_jit(model.cfg.dim, mesh)(model, *hostdevices.replicate(mesh, args[1:-1]), use_cache)
+    inputs = (params, text_BxLxDt, text_mask_BxL, observed_BxO, rng, opts)
+    if mesh is not None:
+        inputs = hostdevices.replicate(mesh, inputs)
+    return _decode_jit(model.cfg.dim, mesh)(model, *inputs, use_cache)
 
 
 @cache

@@ -35,9 +35,8 @@ def samples() -> tuple[dict, dict]:
             out[f"{name}_{B}"] = np.asarray(fn(params, text, mask, jax.random.PRNGKey(3), None, None))
     # AR decoding (ar_decode.decode): greedy and sampled, one compiled loop (the options are traced)
     from handx_jax import ar_decode as AD
-    from handx_jax.models import prefix_lm as PL
-
     from handx_jax import hostdevices
+    from handx_jax.models import prefix_lm as PL
 
     lm_cfg = PL.PRESETS["tiny"]
     lm, lm_params = PL.init_lm(lm_cfg, jax.random.PRNGKey(4))
