@@ -131,12 +131,29 @@ def _one_yardstick(rows: Sequence[dict[str, Any]], y: str) -> None:
                         f"rescores only what E did not score), or pass --mixed-evaluators")
 
 
+def _one_block(rows: Sequence[dict[str, Any]], y: str) -> None:
+    """Refuse one curve through R-Precision of different blocks: top-k at block 16 and at block 32 are two
+    metrics (chance k/16 against k/32), whichever evaluator scored them. No flag overrides this."""
+    if not y.startswith("rprec_"):
+        return
+    blocks: dict[int, list[str]] = {}
+    for r in rows:
+        if r.get(y) is not None and r.get("rprec_block") is not None:
+            blocks.setdefault(int(r["rprec_block"]), []).append(str(r.get("run_id")))
+    if len(blocks) > 1:
+        found = "; ".join(f"block {b}: {', '.join(v[:3])}{' …' if len(v) > 3 else ''}"
+                          for b, v in sorted(blocks.items()))
+        raise DataError(f"{y} was scored at {len(blocks)} R-Precision blocks ({found}); they are different "
+                        f"metrics: rescore the runs at one block (handx sweep rescore OUT --rprec-block N)")
+
+
 def _cmd_fit(args: argparse.Namespace) -> int:
     from analysis.fits import FLOPS_CONVENTIONS, compare_models, fit_rows, resolve_column, select_xy
 
     rows = load_inputs(args.results, args.family, strict=False)
     if not args.mixed_evaluators:
         _one_yardstick(rows, args.y)
+    _one_block(rows, args.y)
     fit = fit_rows(rows, args.x, args.y, level=args.level, n_boot=args.n_boot, seed=args.seed, method=args.method)
     xcol = resolve_column(args.x, rows)
     convention = FLOPS_CONVENTIONS.get(xcol)
@@ -157,12 +174,37 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_fig4(args: argparse.Namespace) -> int:
+    from analysis import paper
+    from analysis.fig4 import compare_with_fig4
+
+    rows = load_inputs(args.results, args.family, strict=False)
+    if not args.mixed_evaluators:
+        _one_yardstick(rows, "rprec_top3")
+    _one_block(rows, "rprec_top3")
+    cmp = compare_with_fig4(rows, level=args.level, n_boot=args.n_boot, seed=args.seed)
+    if args.json:
+        _emit_json(cmp.to_dict())
+    else:
+        print(cmp.summary())
+    if args.plot:
+        from analysis.plots import plot_scaling, save_figure
+
+        block = cmp.blocks[0] if len(cmp.blocks) == 1 else None
+        fig = plot_scaling(rows, "flops_paper", "rprec_top3", name=args.name or "runs", fit=cmp.fit,
+                           overlay={"HandX Table B (block 16, 5% data)": paper.load_table("B")}, block=block,
+                           title="Top-3 R-Precision vs FLOPs (paper convention), against Fig. 4")
+        print(f"wrote {save_figure(fig, args.plot)}", file=sys.stderr)
+    return 0
+
+
 def _cmd_factors(args: argparse.Namespace) -> int:
     from analysis.factors import fit_factors
 
     rows = load_inputs(args.results, args.family, strict=False)
     if not args.mixed_evaluators:
         _one_yardstick(rows, args.y)
+    _one_block(rows, args.y)
     factors = [f.strip() for f in args.factors.split(",") if f.strip()]
     fit = fit_factors(rows, factors, args.y, level=args.level)
     if args.json:
@@ -190,6 +232,7 @@ def _cmd_extrapolate(args: argparse.Namespace) -> int:
     from analysis.fits import extrapolate
 
     rows = load_inputs(args.results, args.family, strict=False)
+    _one_block(rows, args.y)
     ext = extrapolate(rows, args.cut, x=args.x, y=args.y, level=args.level, n_boot=args.n_boot, seed=args.seed)
     if args.json:
         _emit_json(ext.to_dict())
@@ -275,6 +318,23 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     q.add_argument("--mixed-evaluators", action="store_true",
                    help="fit even if the rows were scored by different evaluators (refused by default)")
     q.set_defaults(func=_guard(_cmd_fit))
+
+    q = sub.add_parser("fig4", help="a FLOPs ladder against the paper's Fig. 4 (slope, CI, extrapolation)",
+                       description="Fit top-3 R-Precision against per-sample FLOPs in the paper's convention, as "
+                                   "Fig. 4 does, and report the slope next to the paper's 0.4391 (with the CI of "
+                                   "a refit of Table B), their difference, and the extrapolation check (fit all "
+                                   "but the largest run, predict it). Says where the rows are not scored or "
+                                   "sized as Fig. 4 is (R-Precision block 16, 5% data, Table B's 7 sizes).")
+    _add_results(q)
+    q.add_argument("--level", type=float, default=0.95, help="confidence level of CIs and intervals (default: 0.95)")
+    q.add_argument("--n-boot", type=int, default=2000, help="bootstrap resamples (default: 2000)")
+    q.add_argument("--seed", type=int, default=0, help="bootstrap seed (default: 0)")
+    q.add_argument("--json", action="store_true", help="print the report as JSON")
+    q.add_argument("--plot", metavar="PATH", help="write our runs over the paper's Table B points")
+    q.add_argument("--name", help="legend name of the runs")
+    q.add_argument("--mixed-evaluators", action="store_true",
+                   help="fit even if the rows were scored by different evaluators (refused by default)")
+    q.set_defaults(func=_guard(_cmd_fig4))
 
     q = sub.add_parser("factors", help="a slope per factor (e.g. model FLOPs and samples seen) vs one axis",
                        description="Fit y = a + Σ_j b_j·log10(x_j) over the runs, one slope per factor, and test "

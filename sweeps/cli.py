@@ -21,6 +21,16 @@ def _kv(items):
     return out
 
 
+def _block(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        v = 0
+    if v < 2:
+        raise argparse.ArgumentTypeError(f"expected a whole number of at least 2, got {text!r}")
+    return v
+
+
 def _sweep_kwargs(a: argparse.Namespace) -> dict:
     from sweeps.launcher import _import
 
@@ -36,7 +46,7 @@ def _sweep_kwargs(a: argparse.Namespace) -> dict:
 def _run(a: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from sweeps.launcher import SweepConfig, launch, load_resources, load_sweep
+    from sweeps.launcher import SweepConfig, launch, load_resources, load_rprec_block, load_sweep
 
     kw = _sweep_kwargs(a)
     specs = load_sweep(a.sweep, **kw)
@@ -48,10 +58,12 @@ def _run(a: argparse.Namespace) -> int:
         specs = [s for s in specs if s.name in keep]
     preset = kw.get("preset", "")
     resources = {**load_resources(a.sweep, preset), **_kv(a.slurm)}
+    block = a.rprec_block or load_rprec_block(a.sweep)
     if a.dry_run:
         for s in specs:
             print(json.dumps({"name": s.name, "family": s.family, "preset": s.preset, "axes": s.axes,
                               "overrides": list(s.overrides), "needs": [st.key for st in s.needs]}))
+        print(json.dumps({"rprec_block": block}))
         if a.executor == "slurm":
             print(json.dumps({"slurm": resources}))
         return 0
@@ -59,7 +71,7 @@ def _run(a: argparse.Namespace) -> int:
         raise SystemExit("handx sweep run: error: --data (and --encoder for diffusion runs) are required")
     cfg = SweepConfig(data=str(Path(a.data).absolute()), encoder=str(Path(a.encoder).absolute()) if a.encoder else "",
                       out=a.out, evaluator=str(Path(a.evaluator).absolute()) if a.evaluator else None,
-                      eval_limit=a.eval_limit, eval_samples=a.eval_samples, sampler=a.sampler,
+                      eval_limit=a.eval_limit, eval_samples=a.eval_samples, rprec_block=block, sampler=a.sampler,
                       sampler_steps=a.sampler_steps, executor=a.executor, slurm=resources,
                       name=a.name or "", preset=preset, max_parallel=a.max_parallel, existing=a.existing)
     return _launched("run", lambda: launch(specs, cfg), len(specs))
@@ -108,7 +120,7 @@ def _rescore(a: argparse.Namespace) -> int:
 
     ev = standard.evaluator_dir() if standard.is_standard(a.evaluator) else a.evaluator
     return _launched("rescore", lambda: rescore(a.out, ev, data=a.data, executor=a.executor,
-                                                max_parallel=a.max_parallel))
+                                                max_parallel=a.max_parallel, rprec_block=a.rprec_block))
 
 
 def _collect(a: argparse.Namespace) -> int:
@@ -138,6 +150,9 @@ def add_parser(subparsers) -> None:
     r.add_argument("--evaluator", help="evaluator checkpoint; without it runs are trained but not scored")
     r.add_argument("--eval-limit", type=int, default=512, help="test clips generated per run")
     r.add_argument("--eval-samples", type=int, default=1, help="generations per prompt")
+    r.add_argument("--rprec-block", type=_block, default=None,
+                   help="R-Precision block of the evaluate stage (default: the sweep file's RPREC_BLOCK, else 32; "
+                        "the flops ladder's is 16, as the paper's Table B / Fig. 4)")
     r.add_argument("--sampler", choices=("ddim", "ddpm"), default="ddim", help="sampler of the generate stage")
     r.add_argument("--sampler-steps", type=int, default=50, help="denoising steps of the generate stage")
     r.add_argument("--executor", choices=("local", "slurm", "debug"), default="local")
@@ -167,6 +182,9 @@ def add_parser(subparsers) -> None:
     q.add_argument("--data", help="the sweep's dataset, if it moved since the launch")
     q.add_argument("--executor", choices=("local", "slurm", "debug"), default="local")
     q.add_argument("--max-parallel", type=int, default=None, help="runs scored at once (default: the sweep's)")
+    q.add_argument("--rprec-block", type=_block, default=None,
+                   help="R-Precision block to score at (default: the sweep's); runs scored at another block are "
+                        "rescored from their samples, the old scores kept as RUN/eval.<id>.b<block>.json")
     q.set_defaults(func=_rescore)
     c = sub.add_parser("collect", help="rebuild OUT/results.jsonl and OUT/results.csv from the run folders")
     c.add_argument("out", help="sweep folder (must exist)")

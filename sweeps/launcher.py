@@ -61,7 +61,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
 from handx_jax.io import DataError, atomic_write_json
 from handx_jax.runlock import RunLock, RunLocked, is_locked, pdeathsig_preexec
@@ -141,6 +141,9 @@ class SweepConfig:
     eval_split: str = "test"
     eval_limit: int = 512
     eval_samples: int = 1
+    # R-Precision block of the evaluate stage: 32 as in Tables 2-5, 16 for Table B / Fig. 4 (a sweep file's
+    # RPREC_BLOCK). Top-k R-Precision at two blocks are two metrics (chance k/block): never one curve.
+    rprec_block: int = 32
     sampler: str = "ddim"
     sampler_steps: int = 50
     executor: str = "local"  # local | slurm | debug (submitit's in-process executor, for tests)
@@ -177,6 +180,14 @@ def load_sweep(path: str | os.PathLike, **kwargs) -> list[RunSpec]:
     if dup:
         raise ValueError(f"{path}: run names must be unique; repeated: {sorted(dup)}")
     return specs
+
+
+def load_rprec_block(path: str | os.PathLike) -> int:
+    """The sweep file's R-Precision block (``RPREC_BLOCK``; 32, Tables 2-5, if it names none)."""
+    block = getattr(_import(path), "RPREC_BLOCK", 32)
+    if not isinstance(block, int) or isinstance(block, bool) or block < 2:
+        raise ValueError(f"{path}: RPREC_BLOCK must be a whole number of at least 2, got {block!r}")
+    return block
 
 
 def load_resources(path: str | os.PathLike, preset: str) -> dict:
@@ -233,10 +244,31 @@ def _generated_level(d: Path) -> int | None:
     return int(argv[argv.index("--level") + 1]) if "--level" in argv[:-1] else None
 
 
+def _scored_block(eval_json: Path) -> int:
+    """The R-Precision block a scores file (``RUN/eval.json``) was made at (32, the default, where unrecorded)."""
+    return int(_read_json(eval_json).get("_meta", {}).get("rprec_block") or 32)
+
+
+def _keep_old_scores(d: Path, block: int) -> Path:
+    """Move ``d/eval.json`` aside before a rescore: ``eval.<evaluator id>.json``, with ``.b<block>`` when
+    it was scored at another R-Precision block than ``block``; never over an earlier kept file."""
+    stem = f"eval.{_read_json(d / 'eval.json').get('_meta', {}).get('evaluator_id') or 'unrecorded'}"
+    old_block = _scored_block(d / "eval.json")
+    if old_block != block:
+        stem += f".b{old_block}"
+    keep, k = d / f"{stem}.json", 1
+    while keep.exists():
+        k += 1
+        keep = d / f"{stem}.{k}.json"
+    os.replace(d / "eval.json", keep)
+    return keep
+
+
 def stale_scores(cfg: SweepConfig, d: Path) -> str | None:
     """Why a run's scores cannot stand for the sweep's evaluator: ``"generate"`` (its samples were
     prompted at another caption level: regenerate, then rescore), ``"evaluate"`` (scored by another
-    evaluator, or by one that did not record its id: rescore), or None (current, or nothing to check)."""
+    evaluator, or by one that did not record its id: rescore), ``"block"`` (scored at another R-Precision
+    block than the sweep's: rescore the same samples), or None (current, or nothing to check)."""
     if not cfg.evaluator or not ((d / "eval.json").exists() or (d / "generated.npz").exists()):
         return None
     if not Path(cfg.evaluator).is_dir():  # gone since the launch: nothing to compare (its stage would say so)
@@ -247,6 +279,8 @@ def stale_scores(cfg: SweepConfig, d: Path) -> str | None:
         return "generate"
     if (d / "eval.json").exists() and _read_json(d / "eval.json").get("_meta", {}).get("evaluator_id") != want_id:
         return "evaluate"
+    if (d / "eval.json").exists() and _scored_block(d / "eval.json") != cfg.rprec_block:
+        return "block"
     return None
 
 
@@ -429,12 +463,12 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
             stale = stale_scores(cfg, d)
             if stale and (d / "eval.json").exists():
                 # Keep the old yardstick's scores beside the new ones (nothing written is lost).
-                old = _read_json(d / "eval.json").get("_meta", {}).get("evaluator_id") or "unrecorded"
-                keep = d / f"eval.{old}.json"
-                os.replace(d / "eval.json", keep)
-                print(f"   {spec.name}: scored by evaluator {old}, not {evaluator_identity(cfg.evaluator)[0]}: "
-                      f"{'regenerating and ' if stale == 'generate' else ''}rescoring (old scores kept in {keep.name})",
-                      flush=True)
+                keep = _keep_old_scores(d, cfg.rprec_block)
+                why = (f"at R-Precision block {_scored_block(keep)}, not {cfg.rprec_block}" if stale == "block"
+                       else f"by evaluator {_read_json(keep).get('_meta', {}).get('evaluator_id') or 'unrecorded'}, "
+                            f"not {evaluator_identity(cfg.evaluator)[0]}")
+                print(f"   {spec.name}: scored {why}: {'regenerating and ' if stale == 'generate' else ''}"
+                      f"rescoring (old scores kept in {keep.name})", flush=True)
             if not state["generate"]:
                 # Prompt at the caption level the evaluator scores (its text policy), so that the
                 # generated file's captions are the ones the evaluator embeds.
@@ -445,8 +479,8 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
                                           str(cfg.sampler_steps), "--out", str(d / "generated.npz")], {}))
             if not state["evaluate"]:
                 stage("evaluate", _subst(["handx", "eval", "run", "--evaluator", cfg.evaluator, "--generated",
-                                          str(d / "generated.npz"), "--reference", cfg.data, "--json", "--out",
-                                          str(d)], {}))
+                                          str(d / "generated.npz"), "--reference", cfg.data, "--block",
+                                          str(cfg.rprec_block), "--json", "--out", str(d)], {}))
         _update_json(status, status="done", error=None)
         return stage_state(cfg, spec)
     except BaseException as e:
@@ -485,8 +519,11 @@ def run_status(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | 
         return "failed", st.get("error") or "the process running it ended before it finished"
     stale = stale_scores(cfg, d)
     if stale:
-        return "pending", ("samples prompted at another caption level than the evaluator scores: regenerate "
-                           "and rescore" if stale == "generate" else "scored by another evaluator: rescore")
+        return "pending", {"generate": "samples prompted at another caption level than the evaluator scores: "
+                                       "regenerate and rescore",
+                           "evaluate": "scored by another evaluator: rescore",
+                           "block": f"scored at R-Precision block {_scored_block(d / 'eval.json')}, the sweep's is "
+                                    f"{cfg.rprec_block}: rescore"}[stale]
     return "pending", None
 
 
@@ -743,18 +780,21 @@ def launch(specs: Sequence[RunSpec], cfg: SweepConfig) -> LaunchResult:
 
 
 def rescore(out: str | os.PathLike, evaluator: str | os.PathLike, *, data: str | os.PathLike | None = None,
-            executor: str = "local", max_parallel: int | None = None, log=print) -> LaunchResult:
+            executor: str = "local", max_parallel: int | None = None, rprec_block: int | None = None,
+            log=print) -> LaunchResult:
     """Score the trained runs of the sweep in ``out`` with ``evaluator`` (e.g. a new standard version):
     the sweep's own settings (sweep.json: data, samples per prompt, sampler), its runs as launched, only
     the stages that evaluator's scores need (:func:`stale_scores`); nothing is trained. Runs that have
-    not finished training are left as they are and named. ``data``: the dataset, if it moved."""
+    not finished training are left as they are and named. ``data``: the dataset, if it moved;
+    ``rprec_block``: score at this R-Precision block instead of the sweep's (it becomes the sweep's)."""
     out = Path(out).absolute()
     if not out.is_dir():
         raise FileNotFoundError(f"no sweep folder {out}")
     cfg, specs = _load_state(out)
     cfg = dataclasses.replace(cfg, out=str(out), evaluator=str(Path(evaluator).absolute()), executor=executor,
                               data=str(Path(data).absolute()) if data else cfg.data,
-                              max_parallel=max_parallel or cfg.max_parallel)
+                              max_parallel=max_parallel or cfg.max_parallel,
+                              rprec_block=int(rprec_block or cfg.rprec_block))
     if not Path(cfg.data).is_dir():
         raise DataError(f"the sweep's dataset {cfg.data} is gone; pass the dataset it was run on (--data)",
                         path=out / "sweep.json")
@@ -762,7 +802,8 @@ def rescore(out: str | os.PathLike, evaluator: str | os.PathLike, *, data: str |
     untrained = [s.name for s in specs if s not in trained]
     todo = [s for s in trained if not is_complete(cfg, s)]
     eid = evaluator_identity(cfg.evaluator)[0]
-    log(f"rescoring {len(todo)} of {len(specs)} run(s) with evaluator {eid} ({cfg.evaluator}); "
+    log(f"rescoring {len(todo)} of {len(specs)} run(s) with evaluator {eid} ({cfg.evaluator}) at R-Precision "
+        f"block {cfg.rprec_block}; "
         f"{len(trained) - len(todo)} already scored by it"
         + (f"; not trained, left alone: {', '.join(untrained)}" if untrained else ""))
     if executor == "slurm" and "timeout_min" not in cfg.slurm:

@@ -145,7 +145,7 @@ def test_cli_fit_refuses_two_evaluators(capsys, tmp_path):
 def test_cli_help_at_every_level(capsys):
     for argv in (["analyze", "--help"], ["analyze", "paper", "--help"], ["analyze", "fit", "--help"],
                  ["analyze", "table", "--help"], ["analyze", "extrapolate", "--help"],
-                 ["analyze", "plot", "--help"], ["analyze", "factors", "--help"]):
+                 ["analyze", "plot", "--help"], ["analyze", "factors", "--help"], ["analyze", "fig4", "--help"]):
         with pytest.raises(SystemExit) as e:
             run_cli(argv, capsys)
         assert e.value.code == 0

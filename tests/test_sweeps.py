@@ -407,6 +407,73 @@ def test_rescore_a_sweep_with_a_new_evaluator(tmp_path, monkeypatch, capsys):
     assert [r["status"] for r in status(tmp_path / "sweep")] == ["done", "done", "failed"]
 
 
+def test_scores_at_another_block_are_redone_from_the_same_samples(tmp_path, monkeypatch, capsys):
+    """A sweep scores at its R-Precision block (the sweep file's RPREC_BLOCK, or --rprec-block): runs
+    scored at another block are rescored from their samples, the old scores kept as
+    eval.<id>.b<block>.json and never overwritten; the table's rprec_block follows."""
+    import sweeps.launcher as L
+    from analysis.schema import row_from_run_dir
+    from handx_jax.cli import main
+    from handx_jax.evaluation import evaluator_id
+
+    calls = []
+    real = L.run_command
+
+    def run_command(argv, log, env):
+        argv = list(argv)
+        if "handx_jax" not in argv:
+            calls.append("train")
+            return real(argv, log, env)
+        if argv[argv.index("handx_jax") + 1] == "generate":
+            calls.append("generate")
+            Path(argv[argv.index("--out") + 1]).write_bytes(os.urandom(16))
+        else:
+            E, block = argv[argv.index("--evaluator") + 1], int(argv[argv.index("--block") + 1])
+            calls.append(("evaluate", block))
+            (Path(argv[argv.index("--out") + 1]) / "eval.json").write_text(json.dumps(
+                {"rprec_top3": 3.0 / block, "_meta": {"evaluator_id": evaluator_id(E), "rprec_block": block}}))
+        return 0.0
+
+    monkeypatch.setattr(L, "run_command", run_command)
+    (tmp_path / "data").mkdir()
+    E = _fake_evaluator(tmp_path / "E")
+    eid = evaluator_id(E)
+    spec, run = fake("a"), tmp_path / "sweep" / "runs" / "a"
+    assert not launch([spec], cfg_for(tmp_path, evaluator=str(E))).failed  # default block 32
+    assert calls == ["train", "generate", ("evaluate", 32)]
+    samples = (run / "generated.npz").read_bytes()
+
+    cfg16 = cfg_for(tmp_path, evaluator=str(E), rprec_block=16)
+    assert L.stale_scores(cfg16, run) == "block"
+    assert stage_state(cfg16, spec) == {"train": True, "generate": True, "evaluate": False}
+    assert L.run_status(tmp_path / "sweep", cfg16, spec) == (
+        "pending", "scored at R-Precision block 32, the sweep's is 16: rescore")
+    assert main(["sweep", "rescore", str(tmp_path / "sweep"), "--evaluator", str(E), "--rprec-block", "16"]) == 0
+    assert "at R-Precision block 16" in capsys.readouterr().out
+    assert calls[3:] == [("evaluate", 16)] and (run / "generated.npz").read_bytes() == samples
+    assert json.loads((run / f"eval.{eid}.b32.json").read_text())["rprec_top3"] == 3.0 / 32
+    assert row_from_run_dir(run)["rprec_block"] == 16
+    assert rows_of(tmp_path / "sweep" / "results.jsonl")[0]["rprec_block"] == 16
+    # the rescore's block is now the sweep's: a plain relaunch or rescore has nothing to do
+    assert json.loads((tmp_path / "sweep" / "sweep.json").read_text())["config"]["rprec_block"] == 16
+    assert main(["sweep", "rescore", str(tmp_path / "sweep"), "--evaluator", str(E)]) == 0
+    assert "rescoring 0 of 1" in capsys.readouterr().out and len(calls) == 4
+
+    # Back to 32 and to 16 again: each earlier file is kept, none overwritten.
+    L.run_one(spec, cfg_for(tmp_path, evaluator=str(E)))
+    L.run_one(spec, cfg16)
+    assert calls[4:] == [("evaluate", 32), ("evaluate", 16)] and calls.count("train") == 1
+    kept = sorted(p.name for p in run.glob("eval.*.json"))
+    assert kept == [f"eval.{eid}.b16.json", f"eval.{eid}.b32.2.json", f"eval.{eid}.b32.json"]
+
+    # The sweep file names its block; a bad one is refused with one line.
+    assert L.load_rprec_block("sweeps/diffusion_flops_ladder.py") == 16
+    assert L.load_rprec_block("sweeps/diffusion_cpu_study.py") == 32
+    with pytest.raises(SystemExit) as e:
+        main(["sweep", "run", "sweeps/diffusion_flops_ladder.py", "--rprec-block", "1", "--out", str(tmp_path / "x")])
+    assert e.value.code == 2 and "at least 2" in capsys.readouterr().err
+
+
 # ------------------------------------------------------------------------------------------------
 # The real diffusion stages
 
@@ -459,7 +526,9 @@ def test_dry_run_and_slurm_time_limit(tmp_path, capsys):
         assert main(["sweep", "run", f"sweeps/{f}.py", "--preset", "paper", "--executor", "slurm", "--dry-run",
                      "--out", str(tmp_path / f)]) == 0
         lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
-        assert len(lines) == n + 1 and lines[-1]["slurm"]["timeout_min"] == 48 * 60  # the preset's time limit
+        assert len(lines) == n + 2 and lines[-1]["slurm"]["timeout_min"] == 48 * 60  # the preset's time limit
+        # The ladder scores at Table B / Fig. 4's R-Precision block, the others at Table 2-5's.
+        assert lines[-2] == {"rprec_block": 16 if f == "diffusion_flops_ladder" else 32}
         assert not (tmp_path / f).exists()
     # Without a time limit, SLURM is refused rather than left to submitit's 5-minute default.
     with pytest.raises(ValueError, match="time limit"):
