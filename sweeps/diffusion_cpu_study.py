@@ -45,10 +45,17 @@ SIZES = ((1, 32, 2, 64), (2, 64, 4, 128), (2, 128, 4, 256))
 DEMO_SIZES = ((1, 32, 2, 64), (2, 48, 4, 96), (2, 64, 4, 128))
 FRACTIONS = (0.2, 1.0)
 # Optimizer steps at data fraction 1.0 per preset; fraction f trains round(f × STEPS) steps (fixed epochs).
-STEPS = {"cpu": 1500, "demo": 400}
+STEPS = {"cpu": 1500, "demo": 400, "matched": 1500}
+# ``matched``: the steps also grow with model size, ×0.5 / ×1 / ×2 over SIZES (about ∝ √ per-sample FLOPs),
+# so that training data seen grows with capacity, as the paper's closing reading asks ("matched increases in
+# data and capacity", Sec. 6.3) and as a compute-optimal allocation would. Why it exists: at fixed steps per
+# fraction (``cpu``), a decade of samples seen bought about twice the top-3 of a decade of per-sample FLOPs
+# (``handx analyze factors``, docs/results/cpu_study), so compute spent on width alone sat below the line.
+SIZE_STEPS = {"matched": (0.5, 1.0, 2.0)}
 BATCH = 32
 RESOURCES = {**_RESOURCES, "cpu": {"timeout_min": 90, "cpus_per_task": 1, "mem_gb": 4},
-             "demo": {"timeout_min": 30, "cpus_per_task": 1, "mem_gb": 4}}
+             "demo": {"timeout_min": 30, "cpus_per_task": 1, "mem_gb": 4},
+             "matched": {"timeout_min": 120, "cpus_per_task": 1, "mem_gb": 4}}
 
 
 def _train(steps: int, batch: int) -> tuple[str, ...]:
@@ -61,17 +68,21 @@ def runs(preset: str = "cpu", steps: int | None = None, batch: int = BATCH, frac
          sizes: tuple | None = None) -> list[RunSpec]:
     """The study's runs, most expensive first (so ``--max-parallel 2`` packs two cores well).
 
-    ``preset``: ``cpu`` (``make sweep-cpu``) or ``demo`` (``make demo``: ``DEMO_SIZES`` on the largest
-    fraction only, fewer steps); ``steps`` overrides the steps at fraction 1.0."""
+    ``preset``: ``cpu`` (``make sweep-cpu``), ``matched`` (``cpu``'s grid, steps growing with size:
+    ``SIZE_STEPS``) or ``demo`` (``make demo``: ``DEMO_SIZES`` on the largest fraction only, fewer steps);
+    ``steps`` overrides the steps at fraction 1.0 (of the middle size, for ``matched``)."""
     if preset not in STEPS:
         raise ValueError(f"unknown preset {preset!r} ({' | '.join(STEPS)})")
     full = int(steps or STEPS[preset])
     fracs = tuple(float(f) for f in ((max(fractions),) if preset == "demo" else fractions))
     sizes = sizes or (DEMO_SIZES if preset == "demo" else SIZES)
+    scale = SIZE_STEPS.get(preset, (1.0,) * len(sizes))
+    if len(scale) != len(sizes):
+        raise ValueError(f"preset {preset!r} scales the steps of {len(scale)} sizes, got {len(sizes)} sizes")
     out = []
     for frac in fracs:
-        for L, d, H, F in sizes:
-            st = max(int(round(full * frac / max(fracs))), 1)
+        for (L, d, H, F), k in zip(sizes, scale):
+            st = max(int(round(full * k * frac / max(fracs))), 1)
             ov = (*model(L, d, H, F), *data(frac), *_train(st, int(batch)))
             axes = {"layers": L, "dim": d, "data_fraction": frac}
             out.append(RunSpec(run_id(axes, ov), preset="tiny", overrides=ov, axes=axes))
