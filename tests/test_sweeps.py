@@ -91,6 +91,23 @@ def test_sweep_files_define_the_grids(tmp_path):
         load_sweep(bad)
 
 
+def test_cpu_study_presets_fix_epochs_and_match_steps_to_size():
+    """``cpu``: every size takes the same steps, a fraction f takes f of them (fixed epochs). ``matched``: the
+    same grid, steps ×0.5 / ×1 / ×2 over the three sizes; the middle size's runs are the same runs (ids)."""
+    def steps(preset):
+        return {(s.axes["dim"], s.axes["data_fraction"]): int(dict(o.split("=", 1) for o in s.overrides)["train.steps"])
+                for s in load_sweep("sweeps/diffusion_cpu_study.py", preset=preset)}
+
+    assert steps("cpu") == {(d, f): 1500 if f == 1.0 else 300 for d in (32, 64, 128) for f in (0.2, 1.0)}
+    assert steps("matched") == {(32, 1.0): 750, (32, 0.2): 150, (64, 1.0): 1500, (64, 0.2): 300,
+                                (128, 1.0): 3000, (128, 0.2): 600}
+    cpu, matched = (load_sweep("sweeps/diffusion_cpu_study.py", preset=p) for p in ("cpu", "matched"))
+    assert {s.name for s in cpu} & {s.name for s in matched} == {s.name for s in cpu if s.axes["dim"] == 64}
+    assert [s.axes["dim"] for s in matched][:2] == [128, 128]  # most expensive first
+    with pytest.raises(ValueError, match="scales the steps of 3 sizes, got 1"):
+        load_sweep("sweeps/diffusion_cpu_study.py", preset="matched", sizes=((1, 32, 2, 64),))
+
+
 def test_run_names_cannot_leave_out(tmp_path):
     bad = tmp_path / "evil.py"
     bad.write_text("from sweeps.launcher import RunSpec\ndef runs():\n    return [RunSpec('../../escape')]\n")
