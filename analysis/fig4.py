@@ -98,6 +98,11 @@ class Fig4Comparison:
         return "\n".join(lines)
 
 
+def _table_b_span() -> float:
+    x = [r[X] for r in paper.load_table("B")]
+    return max(x) / min(x)
+
+
 def _signed(x: float) -> str:
     return f"{round(x, 4) + 0.0:+.4f}"  # + 0.0: no "-0.0000"
 
@@ -126,6 +131,11 @@ def compare_with_fig4(rows: Sequence[Mapping[str, Any]], *, level: float = 0.95,
     xs, _, _ = select_xy(runs, X, "rprec_top3")
     if np.unique(xs).size < 7:
         caveats.append(f"{np.unique(xs).size} model sizes, Table B has 7")
+    span, paper_span = xs.max() / xs.min(), _table_b_span()
+    if np.log10(span) < 0.5 * np.log10(paper_span):
+        caveats.append(f"FLOPs per sample span {span:.2f}x (Table B: {paper_span:.2f}x); the paper convention counts "
+                       f"the frozen text encoder, which dominates small denoisers, so a slope per decade here is "
+                       f"fitted on a short range")
     ext = None
     if xs.size >= 4 and np.sum(xs < xs.max()) >= 3:
         ext = extrapolate(runs, float(xs.max()), x=X, y="rprec_top3", level=level, n_boot=n_boot, seed=seed)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 # (group, module providing add_parser(subparsers)); a group whose module is absent is skipped, so a
@@ -74,12 +75,17 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         rc = args.func(args)
+        sys.stdout.flush()  # here, not at exit, so that a closed pipe is caught below
     except (DataError, FileExistsError, FileNotFoundError) as e:
         print(f"handx: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("handx: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # `handx analyze fit ... | head`: the reader left; no traceback, as cat and grep do
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # so the interpreter's final flush does not raise again
+        return 141
     except Exception as e:  # a full disk, whichever library hit it, is one clear line (issue 14.8)
         msg = disk_full_message(e)
         if msg is None:

@@ -69,6 +69,12 @@ def test_caveats_name_what_differs_from_fig4(capsys, tmp_path):
     assert "block 32, Fig. 4's is 16" in c.caveats[0] and "--rprec-block 16" in c.caveats[0]
     assert "data fraction 0.2, Fig. 4's is 0.05" in c.caveats[1] and "5 model sizes" in c.caveats[2]
     assert "NOT like for like" in c.summary()
+    # A short FLOPs range (tiny denoisers behind a large text encoder) is named too.
+    short = ladder(0.3)
+    for i, r in enumerate(short):
+        r["flops_per_sample_paper"] = 3.4e9 * (1 + 0.01 * i)
+    (cav,) = compare_with_fig4(short, n_boot=100).caveats
+    assert cav.startswith("FLOPs per sample span 1.06x (Table B: 6.43x)")
     # Three runs: a fit, no extrapolation check (it needs three below the largest).
     assert compare_with_fig4(ladder(0.3, sizes=3), n_boot=100).extrapolation is None
 

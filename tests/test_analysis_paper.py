@@ -150,3 +150,15 @@ def test_cli_help_at_every_level(capsys):
             run_cli(argv, capsys)
         assert e.value.code == 0
     assert cli.parse_amount("10G") == 1e10 and cli.parse_amount("2.5e9") == 2.5e9
+
+
+def test_a_reader_that_leaves_early_gets_no_traceback():
+    """`handx analyze paper | head -1`: the closed pipe ends the command quietly (exit 141, as a shell's
+    SIGPIPE), not with a BrokenPipeError traceback."""
+    import subprocess
+    import sys
+
+    # `true` reads nothing and is gone long before the fit (a second) has printed anything.
+    p = subprocess.run(f"{sys.executable} -m handx_jax analyze paper --n-boot 50 | true; exit ${{PIPESTATUS[0]}}",
+                       shell=True, executable="/bin/bash", capture_output=True, text=True)
+    assert p.returncode == 141 and p.stderr == "", p.stderr
