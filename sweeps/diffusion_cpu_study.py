@@ -65,12 +65,13 @@ def _train(steps: int, batch: int) -> tuple[str, ...]:
 
 
 def runs(preset: str = "cpu", steps: int | None = None, batch: int = BATCH, fractions: tuple = FRACTIONS,
-         sizes: tuple | None = None) -> list[RunSpec]:
+         sizes: tuple | None = None, seed: int | None = None) -> list[RunSpec]:
     """The study's runs, most expensive first (so ``--max-parallel 2`` packs two cores well).
 
     ``preset``: ``cpu`` (``make sweep-cpu``), ``matched`` (``cpu``'s grid, steps growing with size:
     ``SIZE_STEPS``) or ``demo`` (``make demo``: ``DEMO_SIZES`` on the largest fraction only, fewer steps);
-    ``steps`` overrides the steps at fraction 1.0 (of the middle size, for ``matched``)."""
+    ``steps`` overrides the steps at fraction 1.0 (of the middle size, for ``matched``); ``seed``, the
+    training seed (initialisation and data order; default the trainer's 42), for replicates of the study."""
     if preset not in STEPS:
         raise ValueError(f"unknown preset {preset!r} ({' | '.join(STEPS)})")
     full = int(steps or STEPS[preset])
@@ -83,7 +84,8 @@ def runs(preset: str = "cpu", steps: int | None = None, batch: int = BATCH, frac
     for frac in fracs:
         for (L, d, H, F), k in zip(sizes, scale):
             st = max(int(round(full * k * frac / max(fracs))), 1)
-            ov = (*model(L, d, H, F), *data(frac), *_train(st, int(batch)))
+            ov = (*model(L, d, H, F), *data(frac), *_train(st, int(batch)),
+                  *(() if seed is None else (f"train.seed={int(seed)}",)))
             axes = {"layers": L, "dim": d, "data_fraction": frac}
             out.append(RunSpec(run_id(axes, ov), preset="tiny", overrides=ov, axes=axes))
     # training cost ∝ steps × per-sample FLOPs; run the largest first
