@@ -131,6 +131,23 @@ def _one_yardstick(rows: Sequence[dict[str, Any]], y: str) -> None:
                         f"rescores only what E did not score), or pass --mixed-evaluators")
 
 
+def _replicates(rows: list[dict[str, Any]], args: argparse.Namespace) -> list[dict[str, Any]]:
+    """``--mean-replicates``: one row per configuration, metrics averaged over its seeds (analysis/replicates.py)."""
+    if not getattr(args, "mean_replicates", False):
+        return rows
+    from analysis.replicates import describe, mean_replicates
+
+    out = mean_replicates(rows)
+    print(describe(len(rows), out), file=sys.stderr)
+    return out
+
+
+def _add_replicates(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--mean-replicates", action="store_true",
+                   help="fit the mean over replicates (rows of one configuration that differ only in seed) "
+                        "instead of every run; each mean's ± is a t-interval over its seeds")
+
+
 def _one_block(rows: Sequence[dict[str, Any]], y: str) -> None:
     """Refuse one curve through R-Precision of different blocks: top-k at block 16 and at block 32 are two
     metrics (chance k/16 against k/32), whichever evaluator scored them. No flag overrides this."""
@@ -154,6 +171,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if not args.mixed_evaluators:
         _one_yardstick(rows, args.y)
     _one_block(rows, args.y)
+    rows = _replicates(rows, args)
     fit = fit_rows(rows, args.x, args.y, level=args.level, n_boot=args.n_boot, seed=args.seed, method=args.method)
     xcol = resolve_column(args.x, rows)
     convention = FLOPS_CONVENTIONS.get(xcol)
@@ -182,6 +200,7 @@ def _cmd_fig4(args: argparse.Namespace) -> int:
     if not args.mixed_evaluators:
         _one_yardstick(rows, "rprec_top3")
     _one_block(rows, "rprec_top3")
+    rows = _replicates(rows, args)
     cmp = compare_with_fig4(rows, level=args.level, n_boot=args.n_boot, seed=args.seed)
     if args.json:
         _emit_json(cmp.to_dict())
@@ -205,6 +224,7 @@ def _cmd_factors(args: argparse.Namespace) -> int:
     if not args.mixed_evaluators:
         _one_yardstick(rows, args.y)
     _one_block(rows, args.y)
+    rows = _replicates(rows, args)
     factors = [f.strip() for f in args.factors.split(",") if f.strip()]
     fit = fit_factors(rows, factors, args.y, level=args.level)
     if args.json:
@@ -233,6 +253,7 @@ def _cmd_extrapolate(args: argparse.Namespace) -> int:
 
     rows = load_inputs(args.results, args.family, strict=False)
     _one_block(rows, args.y)
+    rows = _replicates(rows, args)
     ext = extrapolate(rows, args.cut, x=args.x, y=args.y, level=args.level, n_boot=args.n_boot, seed=args.seed)
     if args.json:
         _emit_json(ext.to_dict())
@@ -317,6 +338,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     q.add_argument("--name", help="legend name of the runs")
     q.add_argument("--mixed-evaluators", action="store_true",
                    help="fit even if the rows were scored by different evaluators (refused by default)")
+    _add_replicates(q)
     q.set_defaults(func=_guard(_cmd_fit))
 
     q = sub.add_parser("fig4", help="a FLOPs ladder against the paper's Fig. 4 (slope, CI, extrapolation)",
@@ -334,6 +356,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     q.add_argument("--name", help="legend name of the runs")
     q.add_argument("--mixed-evaluators", action="store_true",
                    help="fit even if the rows were scored by different evaluators (refused by default)")
+    _add_replicates(q)
     q.set_defaults(func=_guard(_cmd_fig4))
 
     q = sub.add_parser("factors", help="a slope per factor (e.g. model FLOPs and samples seen) vs one axis",
@@ -351,6 +374,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     q.add_argument("--json", action="store_true", help="print the fit as JSON")
     q.add_argument("--mixed-evaluators", action="store_true",
                    help="fit even if the rows were scored by different evaluators (refused by default)")
+    _add_replicates(q)
     q.set_defaults(func=_guard(_cmd_factors))
 
     q = sub.add_parser("table", help="paper-style table (mean ± CI, best in bold)",
@@ -375,6 +399,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     _add_fit_options(q)
     q.add_argument("--json", action="store_true", help="print the report as JSON")
     q.add_argument("--plot", metavar="PATH", help="write the extrapolation plot")
+    _add_replicates(q)
     q.set_defaults(func=_guard(_cmd_extrapolate))
 
     q = sub.add_parser("plot", help="scaling plot, per-axis trend grid or codebook × size heatmap",

@@ -137,6 +137,8 @@ COLUMNS: tuple[Column, ...] = (
     Column("train_flops", float, "total training compute (FLOPs)", nonnegative=True),
     Column("steps", int, "optimizer steps run", nonnegative=True),
     Column("samples_seen", int, "training samples processed", nonnegative=True),
+    Column("seed", int, "training seed (initialisation and data order); rows that differ only in it are "
+           "replicates (handx analyze fit --mean-replicates)", nonnegative=True),
     Column("rprec_block", int, "R-Precision block size (32: Tables 2/3, 16: Table B); chance top-k = k/block",
            positive=True),
     Column("evaluator", str, "the evaluator that scored the row: standard-vN for the packaged one, else its id"),
@@ -490,7 +492,11 @@ def row_from_run_dir(run_dir: str | os.PathLike) -> dict[str, Any]:
     cfg_path, log_path, eval_path = run_dir / "config.json", run_dir / "metrics.jsonl", run_dir / "eval.json"
     if not cfg_path.exists():
         raise DataError("run folder has no config.json", path=run_dir)
-    values = _config_values(_read_json_object(cfg_path), cfg_path)
+    config = _read_json_object(cfg_path)
+    values = _config_values(config, cfg_path)
+    seed = config.get("train", {}).get("seed") if isinstance(config.get("train"), Mapping) else None
+    if isinstance(seed, int) and not isinstance(seed, bool):
+        values["seed"] = seed
     values.setdefault("run_id", run_dir.name)
     if "family" not in values:
         raise DataError("required key is missing", path=cfg_path, field="family")

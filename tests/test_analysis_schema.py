@@ -86,7 +86,7 @@ def _run_dir(tmp_path, config, logs, ev=None, name="run-1"):
 def test_row_from_run_dir(tmp_path):
     cfg = {"family": "diffusion", "seed": 0, "lr": 1e-4,
            "model": {"layers": 8, "dim": 384, "heads": 6, "ff": 1536, "flops_per_sample": 6.98e9},
-           "data": {"data_fraction": 0.05}}
+           "data": {"data_fraction": 0.05}, "train": {"seed": 7, "steps": 200}}
     logs = [{"step": 0, "loss": 1.0, "params": 1_234_567, "params_non_embedding": 1_000_000},
             {"step": 100, "loss": 0.5, "samples_seen": 6400, "train_flops": 1.3e14},
             {"step": 200, "loss": 0.4, "samples_seen": 12800}]
@@ -97,7 +97,7 @@ def test_row_from_run_dir(tmp_path):
     with open(d / "metrics.jsonl", "a") as f:
         f.write('{"step": 300, "loss"')  # torn last line of a killed run
     row = schema.row_from_run_dir(d)
-    assert row["run_id"] == "run-1" and row["family"] == "diffusion"
+    assert row["run_id"] == "run-1" and row["family"] == "diffusion" and row["seed"] == 7  # the training seed
     assert (row["layers"], row["dim"], row["heads"], row["ff"], row["data_fraction"]) == (8, 384, 6, 1536, 0.05)
     assert row["params"] == 1_234_567 and row["params_non_embedding"] == 1_000_000
     assert row["steps"] == 200 and row["samples_seen"] == 12800 and row["train_flops"] == 1.3e14
