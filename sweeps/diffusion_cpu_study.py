@@ -1,7 +1,7 @@
 """A CPU diffusion scaling study that means something: model size × data fraction at fixed epochs
 (``make sweep-cpu``; the short ``demo`` preset is ``make demo``'s mini sweep).
 
-    handx sweep run sweeps/diffusion_cpu_study.py --preset cpu --data D --encoder E --evaluator standard \\
+    handx sweep run sweeps/diffusion_cpu_study.py --preset matched --data D --encoder E --evaluator standard \\
         --eval-limit 0 --eval-samples 4 --sampler-steps 25 --max-parallel 2 --out runs/sweep-cpu
     handx analyze fit runs/sweep-cpu/results.csv --x compute --y rprec_top3 --plot fit.png
 
@@ -30,6 +30,13 @@ the evaluator can tell which caption produced a motion, and two CPU cores give a
   ``make sweep-cpu`` uses G = 4: at G = 2 it has one degree of freedom, t = 12.7, and says nothing),
   DDIM with fewer steps than the 50 default (a generation option; the same for every run, so it moves
   every score alike).
+
+* **Steps growing with size** (``matched``, ``make sweep-cpu``): ``cpu`` gives every size the same steps;
+  there, a decade of samples seen bought about twice the top-3 of a decade of per-sample FLOPs
+  (``handx analyze factors``), so compute spent on width alone fell under the line (r 0.873).
+  ``matched`` doubles the steps with each size (``SIZE_STEPS``), so data seen grows with capacity, as
+  the paper's "matched increases in data and capacity" and a compute-optimal allocation do (r 0.949;
+  docs/results/cpu_study).
 
 Run ids are deterministic (``run_id``: the axis values, then a hash of every override).
 """
@@ -65,13 +72,15 @@ def _train(steps: int, batch: int) -> tuple[str, ...]:
 
 
 def runs(preset: str = "cpu", steps: int | None = None, batch: int = BATCH, fractions: tuple = FRACTIONS,
-         sizes: tuple | None = None, seed: int | None = None) -> list[RunSpec]:
+         sizes: tuple | None = None, seeds: tuple | int | None = None) -> list[RunSpec]:
     """The study's runs, most expensive first (so ``--max-parallel 2`` packs two cores well).
 
     ``preset``: ``cpu`` (``make sweep-cpu``), ``matched`` (``cpu``'s grid, steps growing with size:
     ``SIZE_STEPS``) or ``demo`` (``make demo``: ``DEMO_SIZES`` on the largest fraction only, fewer steps);
-    ``steps`` overrides the steps at fraction 1.0 (of the middle size, for ``matched``); ``seed``, the
-    training seed (initialisation and data order; default the trainer's 42), for replicates of the study."""
+    ``steps`` overrides the steps at fraction 1.0 (of the middle size, for ``matched``); ``seeds``, one
+    training seed or several (initialisation and data order; default the trainer's 42), for replicates of
+    the study: every configuration is trained once per seed (``handx analyze fit --mean-replicates``). The
+    trainer's default seed adds no override, so its runs keep the ids of a launch without ``seeds``."""
     if preset not in STEPS:
         raise ValueError(f"unknown preset {preset!r} ({' | '.join(STEPS)})")
     full = int(steps or STEPS[preset])
@@ -80,14 +89,20 @@ def runs(preset: str = "cpu", steps: int | None = None, batch: int = BATCH, frac
     scale = SIZE_STEPS.get(preset, (1.0,) * len(sizes))
     if len(scale) != len(sizes):
         raise ValueError(f"preset {preset!r} scales the steps of {len(scale)} sizes, got {len(sizes)} sizes")
+    from handx_jax.train import TrainConfig
+
+    seeds = (TrainConfig.seed,) if seeds is None else (seeds,) if isinstance(seeds, int) else tuple(seeds)
+    if len(set(seeds)) != len(seeds) or not all(isinstance(x, int) and not isinstance(x, bool) for x in seeds):
+        raise ValueError(f"seeds must be distinct whole numbers, got {seeds!r}")
     out = []
-    for frac in fracs:
-        for (L, d, H, F), k in zip(sizes, scale):
-            st = max(int(round(full * k * frac / max(fracs))), 1)
-            ov = (*model(L, d, H, F), *data(frac), *_train(st, int(batch)),
-                  *(() if seed is None else (f"train.seed={int(seed)}",)))
-            axes = {"layers": L, "dim": d, "data_fraction": frac}
-            out.append(RunSpec(run_id(axes, ov), preset="tiny", overrides=ov, axes=axes))
+    for seed in seeds:
+        for frac in fracs:
+            for (L, d, H, F), k in zip(sizes, scale):
+                st = max(int(round(full * k * frac / max(fracs))), 1)
+                ov = (*model(L, d, H, F), *data(frac), *_train(st, int(batch)),
+                      *(() if seed == TrainConfig.seed else (f"train.seed={seed}",)))
+                axes = {"layers": L, "dim": d, "data_fraction": frac}
+                out.append(RunSpec(run_id(axes, ov), preset="tiny", overrides=ov, axes=axes))
     # training cost ∝ steps × per-sample FLOPs; run the largest first
     return sorted(out, key=lambda s: -_cost(s))
 

@@ -105,10 +105,12 @@ def test_cpu_study_presets_fix_epochs_and_match_steps_to_size():
     assert {s.name for s in cpu} & {s.name for s in matched} == {s.name for s in cpu if s.axes["dim"] == 64}
     assert [s.axes["dim"] for s in matched][:2] == [128, 128]  # most expensive first
     # A replicate with another training seed: the same grid, new run ids; the default seed keeps the ids.
-    rep = load_sweep("sweeps/diffusion_cpu_study.py", preset="matched", seed=1)
+    rep = load_sweep("sweeps/diffusion_cpu_study.py", preset="matched", seeds=1)
     assert all("train.seed=1" in s.overrides for s in rep) and not {s.name for s in rep} & {s.name for s in matched}
-    assert [s.name for s in load_sweep("sweeps/diffusion_cpu_study.py", preset="matched", seed=None)] == \
-        [s.name for s in matched]
+    both = load_sweep("sweeps/diffusion_cpu_study.py", preset="matched", seeds=[42, 1])
+    assert {s.name for s in both} == {s.name for s in matched} | {s.name for s in rep}  # 42: the default's ids
+    with pytest.raises(ValueError, match="distinct whole numbers"):
+        load_sweep("sweeps/diffusion_cpu_study.py", preset="matched", seeds=[1, 1])
     with pytest.raises(ValueError, match="scales the steps of 3 sizes, got 1"):
         load_sweep("sweeps/diffusion_cpu_study.py", preset="matched", sizes=((1, 32, 2, 64),))
 
