@@ -570,10 +570,14 @@ def result_row(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | 
 
 
 def _load_state(out: Path) -> tuple[SweepConfig, list[RunSpec]]:
+    """The sweep's config and runs from ``out/sweep.json``. Its ``out`` is the folder read, not the path the
+    launch was given: a relative ``--out`` names another folder from another working directory (or after
+    the sweep folder moved), and collecting from there would rewrite the table with every run missing."""
     doc = _read_json(out / "sweep.json")
     if not doc:
         raise DataError("not a sweep folder (no sweep.json); run `handx sweep run ... --out` first", path=out)
-    return SweepConfig(**doc["config"]), [_spec_of(s) for s in doc["runs"]]
+    cfg = SweepConfig(**{**doc["config"], "out": str(Path(out).absolute())})
+    return cfg, [_spec_of(s) for s in doc["runs"]]
 
 
 def collect_results(out: str | os.PathLike, slurm_active: dict | None = None) -> Path:

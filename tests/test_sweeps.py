@@ -431,6 +431,25 @@ def test_rescore_a_sweep_with_a_new_evaluator(tmp_path, monkeypatch, capsys):
     assert [r["status"] for r in status(tmp_path / "sweep")] == ["done", "done", "failed"]
 
 
+def test_a_sweep_launched_with_a_relative_out_is_read_from_anywhere(tmp_path, monkeypatch):
+    """sweep.json keeps --out as given; reading the sweep from another working directory (or after the
+    folder moved) must find its runs, not rewrite the table with every run pending."""
+    from handx_jax.cli import main
+
+    (tmp_path / "data").mkdir()
+    monkeypatch.chdir(tmp_path)
+    cfg = SweepConfig(data=str(tmp_path / "data"), encoder="", out="rel/sweep")
+    assert not launch([fake("a"), fake("b", size=2)], cfg).failed
+    before = rows_of(tmp_path / "rel/sweep/results.jsonl")
+    assert [r["status"] for r in before] == ["done", "done"]
+    monkeypatch.chdir(REPO)
+    assert main(["sweep", "collect", str(tmp_path / "rel/sweep")]) == 0
+    assert rows_of(tmp_path / "rel/sweep/results.jsonl") == before
+    assert [r["status"] for r in status(tmp_path / "rel/sweep")] == ["done", "done"]
+    (tmp_path / "rel/sweep").rename(tmp_path / "moved")
+    assert [r["status"] for r in status(tmp_path / "moved")] == ["done", "done"]
+
+
 def test_scores_at_another_block_are_redone_from_the_same_samples(tmp_path, monkeypatch, capsys):
     """A sweep scores at its R-Precision block (the sweep file's RPREC_BLOCK, or --rprec-block): runs
     scored at another block are rescored from their samples, the old scores kept as
