@@ -142,6 +142,11 @@ def _replicates(rows: list[dict[str, Any]], args: argparse.Namespace) -> list[di
     return out
 
 
+def _add_mixed_evaluators(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--mixed-evaluators", action="store_true",
+                   help="fit even if the rows were scored by different evaluators (refused by default)")
+
+
 def _add_replicates(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mean-replicates", action="store_true",
                    help="fit the mean over replicates (rows of one configuration that differ only in seed) "
@@ -336,8 +341,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="print JSON with keys slope, intercept, r, n, slope_ci, intercept_ci")
     q.add_argument("--plot", metavar="PATH", help="write the scaling plot (.png, .svg or .pdf)")
     q.add_argument("--name", help="legend name of the runs")
-    q.add_argument("--mixed-evaluators", action="store_true",
-                   help="fit even if the rows were scored by different evaluators (refused by default)")
+    _add_mixed_evaluators(q)
     _add_replicates(q)
     q.set_defaults(func=_guard(_cmd_fit))
 
@@ -348,14 +352,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                                    "but the largest run, predict it). Says where the rows are not scored or "
                                    "sized as Fig. 4 is (R-Precision block 16, 5% data, Table B's 7 sizes).")
     _add_results(q)
-    q.add_argument("--level", type=float, default=0.95, help="confidence level of CIs and intervals (default: 0.95)")
-    q.add_argument("--n-boot", type=int, default=2000, help="bootstrap resamples (default: 2000)")
-    q.add_argument("--seed", type=int, default=0, help="bootstrap seed (default: 0)")
+    _add_fit_options(q, xy=False)
     q.add_argument("--json", action="store_true", help="print the report as JSON")
     q.add_argument("--plot", metavar="PATH", help="write our runs over the paper's Table B points")
     q.add_argument("--name", help="legend name of the runs")
-    q.add_argument("--mixed-evaluators", action="store_true",
-                   help="fit even if the rows were scored by different evaluators (refused by default)")
+    _add_mixed_evaluators(q)
     _add_replicates(q)
     q.set_defaults(func=_guard(_cmd_fig4))
 
@@ -372,8 +373,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     q.add_argument("--y", default="rprec_top3", help="metric column (default: rprec_top3)")
     q.add_argument("--level", type=float, default=0.95, help="confidence level of the CIs (default: 0.95)")
     q.add_argument("--json", action="store_true", help="print the fit as JSON")
-    q.add_argument("--mixed-evaluators", action="store_true",
-                   help="fit even if the rows were scored by different evaluators (refused by default)")
+    _add_mixed_evaluators(q)
     _add_replicates(q)
     q.set_defaults(func=_guard(_cmd_factors))
 

@@ -1,23 +1,15 @@
 """`handx analyze fig4`: a FLOPs ladder fitted as the paper's Fig. 4 is, next to the paper's slope,
 with the extrapolation check and the reasons a comparison is not like for like."""
 
-import argparse
 import json
 
 import numpy as np
 import pytest
 from scipy.stats import norm
 
-from analysis import cli, paper
+from analysis import paper
 from analysis.fig4 import compare_with_fig4
-
-
-def run_cli(argv, capsys):
-    p = argparse.ArgumentParser(prog="handx")
-    cli.add_parser(p.add_subparsers())
-    args = p.parse_args(argv)
-    rc = args.func(args)
-    return rc, capsys.readouterr().out
+from tests.test_analysis_paper import run_cli
 
 
 def ladder(slope, *, block=16, fraction=0.05, sizes=7, wiggle=0.01):

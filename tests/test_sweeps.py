@@ -300,6 +300,25 @@ def _fake_evaluator(path: Path, *, level: int = 0, weights: bytes = b"w1") -> Pa
     return path
 
 
+def _fake_handx_stages(monkeypatch, on_stage):
+    """Run the fake training stage for real and hand each handx stage to ``on_stage(name, argv)`` (it
+    writes the stage's output and returns what to record); returns the list of recorded calls."""
+    import sweeps.launcher as L
+
+    calls, real = [], L.run_command
+
+    def run_command(argv, log, env):
+        argv = list(argv)
+        if "handx_jax" not in argv:
+            calls.append("train")
+            return real(argv, log, env)
+        calls.append(on_stage(argv[argv.index("handx_jax") + 1], argv))
+        return 0.0
+
+    monkeypatch.setattr(L, "run_command", run_command)
+    return calls
+
+
 def test_scores_of_another_evaluator_are_redone_and_kept(tmp_path, monkeypatch):
     """Relaunching a sweep with another evaluator rescores every finished run without retraining it,
     keeps the old scores beside the new, and regenerates only when the caption level changed."""
@@ -383,20 +402,10 @@ def test_rescore_a_sweep_with_a_new_evaluator(tmp_path, monkeypatch, capsys):
     own settings, in the sweep's order; an untrained run is named and left alone; a second rescore is a no-op."""
     import shutil
 
-    import sweeps.launcher as L
     from handx_jax.cli import main
     from handx_jax.evaluation import evaluator_id
 
-    calls = []
-    real = L.run_command
-
-    def run_command(argv, log, env):
-        argv = list(argv)
-        if "handx_jax" not in argv:
-            calls.append("train")
-            return real(argv, log, env)
-        stage = argv[argv.index("handx_jax") + 1]
-        calls.append(stage)
+    def on_stage(stage, argv):
         if stage == "generate":
             assert argv[argv.index("--samples") + 1] == "3"  # the sweep's setting, kept by rescore
             Path(argv[argv.index("--out") + 1]).write_bytes(b"x")
@@ -404,9 +413,9 @@ def test_rescore_a_sweep_with_a_new_evaluator(tmp_path, monkeypatch, capsys):
             E = argv[argv.index("--evaluator") + 1]
             run = Path(argv[argv.index("--out") + 1])
             (run / "eval.json").write_text(json.dumps({"rprec_top3": 0.25, "_meta": {"evaluator_id": evaluator_id(E)}}))
-        return 0.0
+        return stage
 
-    monkeypatch.setattr(L, "run_command", run_command)
+    calls = _fake_handx_stages(monkeypatch, on_stage)
     (tmp_path / "data").mkdir()
     E1, E2 = _fake_evaluator(tmp_path / "E1"), _fake_evaluator(tmp_path / "E2", weights=b"w2")
     cfg = cfg_for(tmp_path, evaluator=str(E1), eval_samples=3)
@@ -459,25 +468,16 @@ def test_scores_at_another_block_are_redone_from_the_same_samples(tmp_path, monk
     from handx_jax.cli import main
     from handx_jax.evaluation import evaluator_id
 
-    calls = []
-    real = L.run_command
-
-    def run_command(argv, log, env):
-        argv = list(argv)
-        if "handx_jax" not in argv:
-            calls.append("train")
-            return real(argv, log, env)
-        if argv[argv.index("handx_jax") + 1] == "generate":
-            calls.append("generate")
+    def on_stage(stage, argv):
+        if stage == "generate":
             Path(argv[argv.index("--out") + 1]).write_bytes(os.urandom(16))
-        else:
-            E, block = argv[argv.index("--evaluator") + 1], int(argv[argv.index("--block") + 1])
-            calls.append(("evaluate", block))
-            (Path(argv[argv.index("--out") + 1]) / "eval.json").write_text(json.dumps(
-                {"rprec_top3": 3.0 / block, "_meta": {"evaluator_id": evaluator_id(E), "rprec_block": block}}))
-        return 0.0
+            return "generate"
+        E, block = argv[argv.index("--evaluator") + 1], int(argv[argv.index("--block") + 1])
+        (Path(argv[argv.index("--out") + 1]) / "eval.json").write_text(json.dumps(
+            {"rprec_top3": 3.0 / block, "_meta": {"evaluator_id": evaluator_id(E), "rprec_block": block}}))
+        return ("evaluate", block)
 
-    monkeypatch.setattr(L, "run_command", run_command)
+    calls = _fake_handx_stages(monkeypatch, on_stage)
     (tmp_path / "data").mkdir()
     E = _fake_evaluator(tmp_path / "E")
     eid = evaluator_id(E)
