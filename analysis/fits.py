@@ -131,7 +131,10 @@ class LogLinearFit:
                                "slope_ci": list(self.slope_ci), "intercept_ci": list(self.intercept_ci)}
         if full:
             out.update(level=self.level, slope_se=self.slope_se, intercept_se=self.intercept_se,
-                       resid_std=self.resid_std, r_ci=list(self.r_ci), method=self.method,
+                       resid_std=self.resid_std,
+                       # None, not NaN, where undefined (n < 4): NaN is not JSON
+                       r_ci=list(self.r_ci) if all(math.isfinite(v) for v in self.r_ci) else None,
+                       method=self.method,
                        n_boot=self.n_boot, x=self.x_name, y=self.y_name)
         return out
 
@@ -143,7 +146,9 @@ class LogLinearFit:
         pct = f"{100 * self.level:g}%"
         return "\n".join([
             self.equation(),
-            f"  n = {self.n}, r = {self.r:.4f} ({pct} CI [{self.r_ci[0]:.3f}, {self.r_ci[1]:.3f}])",
+            f"  n = {self.n}, r = {self.r:.4f} "
+            + (f"({pct} CI [{self.r_ci[0]:.3f}, {self.r_ci[1]:.3f}])" if all(math.isfinite(v) for v in self.r_ci)
+               else "(its CI needs n ≥ 4)"),
             f"  slope     {self.slope:.4f} ± {self.slope_se:.4f} (se); {pct} {self.method} CI "
             f"[{self.slope_ci[0]:.4f}, {self.slope_ci[1]:.4f}]",
             f"  intercept {self.intercept:.4f} ± {self.intercept_se:.4f} (se); {pct} {self.method} CI "

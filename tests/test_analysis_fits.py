@@ -40,6 +40,17 @@ def test_classical_intervals_match_textbook_formulas(n):
     assert f.r_ci == pytest.approx((math.tanh(math.atanh(r) - zq), math.tanh(math.atanh(r) + zq)), rel=1e-8)
 
 
+def test_three_points_have_no_r_interval_and_still_give_json():
+    """Fisher's z needs n ≥ 4: with three runs (make demo's mini sweep) the interval is said to be
+    undefined, not printed as [nan, nan], and the JSON stays valid (no NaN)."""
+    import json
+
+    f = fits.fit_log_linear([1e9, 1e10, 1e11], [0.2, 0.25, 0.33], n_boot=50)
+    assert "r = 0.9" in f.summary() and "its CI needs n ≥ 4" in f.summary() and "nan" not in f.summary()
+    d = json.loads(json.dumps(f.to_dict(full=True), allow_nan=False))
+    assert d["r_ci"] is None and d["n"] == 3
+
+
 def _synthetic(n, rng, a=0.4, b=-3.5, sigma=0.03):
     x = np.geomspace(1e9, 1e11, n)
     return x, a * np.log10(x) + b + rng.normal(0.0, sigma, n)
