@@ -12,7 +12,7 @@ items as the reference's loader does (reference §1.2), so a clip may appear wit
 
 from __future__ import annotations
 
-from sweeps.common import FRACTIONS, RESOURCES, TABLE_C, budget, data, model  # noqa: F401 (RESOURCES)
+from sweeps.common import FRACTIONS, PAPER_SIZED, RESOURCES, TABLE_C, budget, data, model  # noqa: F401 (RESOURCES)
 from sweeps.launcher import RunSpec, run_id
 
 TINY_DEPTHS = {1: (32, 64), 2: (32, 64), 3: (32, 64), 4: (32, 64)}
@@ -20,7 +20,7 @@ TINY_DEPTHS = {1: (32, 64), 2: (32, 64), 3: (32, 64), 4: (32, 64)}
 
 def runs(preset: str = "tiny", steps: int | None = None, sampling: str = "clips",
          fractions: tuple = FRACTIONS) -> list[RunSpec]:
-    depths = TABLE_C if preset == "paper" else TINY_DEPTHS
+    depths = TABLE_C if preset in PAPER_SIZED else TINY_DEPTHS
     out = []
     for frac in fractions:
         for L, (d, F) in depths.items():

@@ -1,13 +1,15 @@
 """Diffusion FLOPs ladder at 5% data (paper Table B / Fig. 4).
 
 ``paper``: Table B's seven (L, d, H, FFN) sizes, 3.83 → 24.62 GFLOPs in the paper's convention
-(``handx params diffusion --convention paper``). ``tiny``: a seven-step CPU ladder with the same
+(``handx params diffusion --convention paper``), for the paper's ~100k steps. ``short``: the same seven
+sizes for 1,000 steps × 128 at lr 5e-4 (``sweeps.common.budget``): the ladder one short GPU lease trains
+(docs/results/fig4_gpu). ``tiny``: a seven-step CPU ladder with the same
 shape (depth and width grow in turn), for checking train → evaluate → fit end to end.
 """
 
 from __future__ import annotations
 
-from sweeps.common import RESOURCES, TABLE_B, budget, data, model  # noqa: F401 (RESOURCES)
+from sweeps.common import PAPER_SIZED, RESOURCES, TABLE_B, budget, data, model  # noqa: F401 (RESOURCES)
 from sweeps.launcher import RunSpec, run_id
 
 # Table B and Fig. 4 report R-Precision at block 16 (Tables 2-5: 32); the paper's slope 0.4391 is in those units.
@@ -19,7 +21,7 @@ TINY_LADDER = ((1, 32, 4, 64), (2, 32, 4, 64), (2, 48, 4, 96), (3, 48, 4, 96), (
 
 def runs(preset: str = "tiny", steps: int | None = None, fraction: float = 0.05,
          sampling: str = "clips") -> list[RunSpec]:
-    ladder = TABLE_B if preset == "paper" else TINY_LADDER
+    ladder = TABLE_B if preset in PAPER_SIZED else TINY_LADDER
     out = []
     for L, d, H, F in ladder:
         ov = (*model(L, d, H, F), *data(fraction, sampling), *budget(preset, steps))

@@ -6,17 +6,18 @@ d ∈ {16, 32, 64, 128}.
 
 from __future__ import annotations
 
-from sweeps.common import RESOURCES, budget, data, model  # noqa: F401 (RESOURCES)
+from sweeps.common import PAPER_SIZED, RESOURCES, budget, data, model  # noqa: F401 (RESOURCES)
 from sweeps.launcher import RunSpec, run_id
 
 
 def runs(preset: str = "tiny", steps: int | None = None, layers: int | None = None, fraction: float = 0.05,
          sampling: str = "clips") -> list[RunSpec]:
-    L = layers or (8 if preset == "paper" else 2)
-    widths = (256, 384, 512, 768) if preset == "paper" else (16, 32, 64, 128)
+    big = preset in PAPER_SIZED
+    L = layers or (8 if big else 2)
+    widths = (256, 384, 512, 768) if big else (16, 32, 64, 128)
     out = []
     for d in widths:
-        H = max(d // 64, 4) if preset == "paper" else 4
+        H = max(d // 64, 4) if big else 4
         ov = (*model(L, d, H, 4 * d), *data(fraction, sampling), *budget(preset, steps))
         axes = {"layers": L, "dim": d, "data_fraction": fraction}
         out.append(RunSpec(run_id(axes, ov), preset="tiny" if preset == "tiny" else "paper-4L", overrides=ov,

@@ -1,0 +1,124 @@
+#!/usr/bin/env bash
+# One GPU lease, one command (issue 13): the standard evaluator v4 and the Fig. 4 ladder, side by side on one
+# accelerator, everything that must last packed under $OUT.
+#
+#   OUT=DIR scripts/gpu_lease.sh            (on the GPU machine, from the repository root)
+#
+# Two branches run at once (the GPU is shared; the CPU cores are split between them):
+#   evaluator  the standard corpus (recipe: handx_jax.standard.Recipe, 120k clips) -> joined text cache ->
+#              small evaluator, EV_STEPS x EV_BATCH -> `handx standard package` (test manifest, card, GT rows
+#              at blocks 32 and 16) -> $OUT/standard_assets.tar
+#   ladder     the first LADDER_CLIPS clips of the same recipe (a prefix: 6,000 = 5% of the standard corpus)
+#              -> text cache -> sweeps/diffusion_flops_ladder.py (LADDER_PRESET, all seven sizes at once),
+#              scored by the packaged evaluator (v3) while the new one trains
+# then: the new assets replace the package's, the ladder is rescored by them (same samples), and the sweep's
+# tables, logs and metrics (no checkpoints, no samples) go to $OUT/ladder.tar.gz.
+#
+# Knobs (environment): CLIPS LADDER_CLIPS EV_STEPS EV_BATCH EV_LR EV_WARMUP LADDER_PRESET LADDER_STEPS
+# LADDER_ARGS SAMPLER_STEPS EVAL_SAMPLES SYNTH_WORKERS DEADLINE (seconds after start at which an unfinished
+# ladder is stopped so that what exists is still packed), RECIPE_CLIPS (dry runs: package against a prefix),
+# PY, WORK. A dry run on a CPU: CLIPS=1500 LADDER_CLIPS=600 EV_STEPS=20 LADDER_PRESET=tiny LADDER_STEPS=4
+# SAMPLER_STEPS=4 RECIPE_CLIPS=1500 OUT=/tmp/lease-out scripts/gpu_lease.sh
+set -uo pipefail
+OUT=${OUT:?set OUT to the folder that comes back}
+W=${WORK:-/tmp/lease}
+PY=${PY:-python3}
+CLIPS=${CLIPS:-120000}
+LADDER_CLIPS=${LADDER_CLIPS:-6000}
+EV_STEPS=${EV_STEPS:-8000}
+EV_BATCH=${EV_BATCH:-256}
+EV_LR=${EV_LR:-1e-3}
+EV_WARMUP=${EV_WARMUP:-500}
+LADDER_PRESET=${LADDER_PRESET:-short}
+LADDER_STEPS=${LADDER_STEPS:-1000}
+SAMPLER_STEPS=${SAMPLER_STEPS:-50}
+EVAL_SAMPLES=${EVAL_SAMPLES:-4}
+SYNTH_WORKERS=${SYNTH_WORKERS:-12}
+DEADLINE=${DEADLINE:-500}
+RESCORE_END=${RESCORE_END:-575}
+ENC=handx_jax/assets/standard/encoder
+H=("$PY" -m handx_jax)
+# Several JAX processes share one GPU: none may take 75% of its memory up front. The CPU malloc policy
+# (handx_jax.hostmem) is for XLA's CPU runtime; on a GPU machine glibc's defaults return memory.
+export XLA_PYTHON_CLIENT_PREALLOCATE=false HANDX_HOST_MALLOC=system WANDB_MODE=disabled PYTHONUNBUFFERED=1
+mkdir -p "$W" "$OUT"
+t0=$(date +%s)
+say() { echo "[$(( $(date +%s) - t0 )) s] $*"; }
+
+say "start: $(nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null || echo no GPU)," \
+    "$(nproc) cores; $("$PY" -c 'import sys, jax, numpy, flax; print(sys.version.split()[0], "jax", jax.__version__, "numpy", numpy.__version__, "flax", flax.__version__, jax.devices()[0].device_kind)')"
+(nvidia-smi --query-gpu=timestamp,utilization.gpu,memory.used --format=csv -l 5 > "$W/gpu_util.csv" 2>/dev/null &)
+
+evaluator_branch() {
+  set -e
+  local a b c d
+  a=$(date +%s)
+  "${H[@]}" data synth --clips "$CLIPS" --seed 0 --out "$W/std" --workers "$SYNTH_WORKERS" --quiet
+  b=$(date +%s); say "evaluator: corpus $CLIPS clips in $((b - a)) s"
+  "${H[@]}" text cache --data "$W/std" --encoder "$ENC" --joined --max-len 256 --batch-size 1024
+  c=$(date +%s); say "evaluator: joined text cache in $((c - b)) s"
+  "${H[@]}" eval train-evaluator --data "$W/std" --encoder "$ENC" --out "$W/evaluator" --preset small \
+    --steps "$EV_STEPS" --batch-size "$EV_BATCH" --lr "$EV_LR" --warmup "$EV_WARMUP" --train-levels 0 --no-final-eval \
+    --set train.optim.weight_decay=0.01 --set train.prefetch=8 --set text.max_len=256 --set data.text_bucket=256 \
+    --set train.log_every=200 --set train.ckpt_every=100000 --set train.wandb=disabled
+  d=$(date +%s); say "evaluator: trained in $((d - c)) s"
+  local dev
+  dev=$("$PY" -c 'import jax; print(jax.devices()[0].device_kind)')
+  "${H[@]}" standard package --data "$W/std" --encoder "$ENC" --evaluator "$W/evaluator" --out "$W/assets" \
+    ${RECIPE_CLIPS:+--recipe-clips "$RECIPE_CLIPS"} \
+    --note "machine=one $dev, $(nproc) CPU cores (the GPU shared with the Fig. 4 ladder's seven runs, scripts/gpu_lease.sh)" \
+    --note "corpus build=$((b - a)) s wall ($SYNTH_WORKERS synthesis workers)" \
+    --note "joined text cache=$((c - b)) s wall (max_len 256)" \
+    --note "evaluator training=$((d - c)) s wall, compilation included" \
+    --note "command=scripts/gpu_lease.sh (EV_STEPS=$EV_STEPS EV_BATCH=$EV_BATCH EV_LR=$EV_LR EV_WARMUP=$EV_WARMUP, train levels 0, no dropout, weight decay 0.01)" \
+    --note "status=trained on a GPU; the text encoder and tokenizer are v3's, unchanged"
+  say "evaluator: packaged in $(( $(date +%s) - d )) s"
+  (cd "$W" && tar cf "$OUT/standard_assets.tar" -C "$W/assets" . && \
+   tar cf "$OUT/evaluator_run.tar" -C "$W/evaluator" config.json metrics.jsonl evaluator.json)
+}
+
+ladder_branch() {
+  set -e
+  local ev3
+  ev3=$("$PY" -c "from handx_jax import standard; print(standard.evaluator_dir())")
+  "${H[@]}" data synth --clips "$LADDER_CLIPS" --seed 0 --out "$W/ladder_data" --workers 4 --quiet
+  say "ladder: corpus prefix $LADDER_CLIPS clips"
+  "${H[@]}" text cache --data "$W/ladder_data" --encoder "$ENC" --batch-size 512
+  say "ladder: text cache"
+  HANDX_CACHE_DIR="$W/cache_v3" "${H[@]}" sweep run sweeps/diffusion_flops_ladder.py --preset "$LADDER_PRESET" \
+    --arg fraction=1.0 --arg steps="$LADDER_STEPS" ${LADDER_ARGS:-} --data "$W/ladder_data" --encoder "$ENC" \
+    --evaluator "$ev3" --eval-limit 100000 --eval-samples "$EVAL_SAMPLES" --sampler-steps "$SAMPLER_STEPS" \
+    --max-parallel 7 --out "$W/ladder"
+  say "ladder: trained, sampled, scored by v3"
+}
+
+evaluator_branch > "$W/evaluator.log" 2>&1 &
+PE=$!
+ladder_branch > "$W/ladder.log" 2>&1 &
+PL=$!
+
+wait "$PE"; rc_ev=$?
+say "evaluator branch exit $rc_ev"; tail -n 25 "$W/evaluator.log"
+# The ladder gets until DEADLINE; then it is stopped (its finished runs are still packed and rescored).
+while kill -0 "$PL" 2>/dev/null && [ $(( $(date +%s) - t0 )) -lt "$DEADLINE" ]; do sleep 2; done
+if kill -0 "$PL" 2>/dev/null; then
+  say "ladder past the deadline ($DEADLINE s): stopping it"; pkill -TERM -P "$PL"; kill "$PL"; sleep 3
+fi
+wait "$PL"; rc_l=$?
+say "ladder branch exit $rc_l"; tail -n 30 "$W/ladder.log"
+
+if [ "$rc_ev" = 0 ] && [ -d "$W/ladder" ]; then
+  # The device's copy of the tree takes the new assets, so the rescore goes through the standard path
+  # (card, manifest check of the prefix) exactly as a user's `--evaluator standard` will.
+  rm -rf handx_jax/assets/standard && cp -r "$W/assets" handx_jax/assets/standard
+  left=$(( RESCORE_END - ($(date +%s) - t0) )); [ "$left" -lt 20 ] && left=20
+  HANDX_CACHE_DIR="$W/cache_v4" timeout "$left" "${H[@]}" sweep rescore "$W/ladder" \
+    --evaluator "$PWD/handx_jax/assets/standard/evaluator" --max-parallel 7 > "$W/rescore.log" 2>&1
+  say "rescore exit $?"; tail -n 12 "$W/rescore.log"
+fi
+[ -d "$W/ladder" ] && "${H[@]}" sweep collect "$W/ladder" > /dev/null 2>&1
+mkdir -p "$W/lease_logs" && cp "$W"/*.log "$W/gpu_util.csv" "$W/lease_logs/" 2>/dev/null
+tar czf "$OUT/logs.tar.gz" -C "$W" lease_logs
+[ -d "$W/ladder" ] && tar czf "$OUT/ladder.tar.gz" -C "$W" --exclude='checkpoints' --exclude='generated.npz' \
+  --exclude='jax_cache' --exclude='*.msgpack' --exclude='.wandb-cache' ladder
+say "done"; ls -la "$OUT"
