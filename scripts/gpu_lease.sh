@@ -11,8 +11,8 @@
 #   ladder     the first LADDER_CLIPS clips of the same recipe (a prefix: 6,000 = 5% of the standard corpus)
 #              -> text cache -> sweeps/diffusion_flops_ladder.py (LADDER_PRESET, all seven sizes at once),
 #              scored by the packaged evaluator (v3) while the new one trains
-# then: the new assets replace the package's, the ladder is rescored by them (same samples), and the sweep's
-# tables, logs and metrics (no checkpoints, no samples) go to $OUT/ladder.tar.gz.
+# then: a copy of the code takes the new assets (the checkout is never changed), the ladder is rescored by them
+# (same samples), and the sweep's tables, logs and metrics (no checkpoints, no samples) go to $OUT/ladder.tar.gz.
 #
 # Knobs (environment): CLIPS LADDER_CLIPS EV_STEPS EV_BATCH EV_LR EV_WARMUP LADDER_PRESET LADDER_STEPS
 # LADDER_ARGS SAMPLER_STEPS EVAL_SAMPLES SYNTH_WORKERS DEADLINE (seconds after start at which an unfinished
@@ -33,7 +33,7 @@ LADDER_PRESET=${LADDER_PRESET:-short}
 LADDER_STEPS=${LADDER_STEPS:-1000}
 SAMPLER_STEPS=${SAMPLER_STEPS:-50}
 EVAL_SAMPLES=${EVAL_SAMPLES:-4}
-SYNTH_WORKERS=${SYNTH_WORKERS:-12}
+SYNTH_WORKERS=${SYNTH_WORKERS:-13}
 DEADLINE=${DEADLINE:-500}
 RESCORE_END=${RESCORE_END:-575}
 ENC=handx_jax/assets/standard/encoder
@@ -92,32 +92,38 @@ ladder_branch() {
   say "ladder: trained, sampled, scored by v3"
 }
 
-evaluator_branch > "$W/evaluator.log" 2>&1 &
+# The branch logs are written straight into $OUT: they come back even if the command is killed at its limit.
+evaluator_branch > "$OUT/evaluator.log" 2>&1 &
 PE=$!
-ladder_branch > "$W/ladder.log" 2>&1 &
+ladder_branch > "$OUT/ladder.log" 2>&1 &
 PL=$!
 
+while kill -0 "$PE" 2>/dev/null && [ $(( $(date +%s) - t0 )) -lt "$RESCORE_END" ]; do sleep 2; done
+kill -0 "$PE" 2>/dev/null && { say "evaluator past $RESCORE_END s: stopping it"; pkill -TERM -P "$PE"; kill "$PE"; }
 wait "$PE"; rc_ev=$?
-say "evaluator branch exit $rc_ev"; tail -n 25 "$W/evaluator.log"
+say "evaluator branch exit $rc_ev"; tail -n 25 "$OUT/evaluator.log"
 # The ladder gets until DEADLINE; then it is stopped (its finished runs are still packed and rescored).
 while kill -0 "$PL" 2>/dev/null && [ $(( $(date +%s) - t0 )) -lt "$DEADLINE" ]; do sleep 2; done
 if kill -0 "$PL" 2>/dev/null; then
   say "ladder past the deadline ($DEADLINE s): stopping it"; pkill -TERM -P "$PL"; kill "$PL"; sleep 3
 fi
 wait "$PL"; rc_l=$?
-say "ladder branch exit $rc_l"; tail -n 30 "$W/ladder.log"
+say "ladder branch exit $rc_l"; tail -n 30 "$OUT/ladder.log"
 
 if [ "$rc_ev" = 0 ] && [ -d "$W/ladder" ]; then
-  # The device's copy of the tree takes the new assets, so the rescore goes through the standard path
-  # (card, manifest check of the prefix) exactly as a user's `--evaluator standard` will.
-  rm -rf handx_jax/assets/standard && cp -r "$W/assets" handx_jax/assets/standard
+  # A copy of the code takes the new assets (the checkout is left as it is), so the rescore goes through the
+  # standard path (card, manifest check of the prefix) exactly as a user's `--evaluator standard` will.
+  rm -rf "$W/tree" && mkdir -p "$W/tree" && cp -r handx_jax sweeps analysis "$W/tree/" && \
+    rm -rf "$W/tree/handx_jax/assets/standard" && cp -r "$W/assets" "$W/tree/handx_jax/assets/standard"
   left=$(( RESCORE_END - ($(date +%s) - t0) )); [ "$left" -lt 20 ] && left=20
-  HANDX_CACHE_DIR="$W/cache_v4" timeout "$left" "${H[@]}" sweep rescore "$W/ladder" \
-    --evaluator "$PWD/handx_jax/assets/standard/evaluator" --max-parallel 7 > "$W/rescore.log" 2>&1
+  (cd "$W/tree" && HANDX_CACHE_DIR="$W/cache_v4" PYTHONPATH="$W/tree" timeout "$left" "$PY" -m handx_jax sweep \
+    rescore "$W/ladder" --evaluator "$W/tree/handx_jax/assets/standard/evaluator" --max-parallel 7) \
+    > "$W/rescore.log" 2>&1
   say "rescore exit $?"; tail -n 12 "$W/rescore.log"
 fi
 [ -d "$W/ladder" ] && "${H[@]}" sweep collect "$W/ladder" > /dev/null 2>&1
 mkdir -p "$W/lease_logs" && cp "$W"/*.log "$W/gpu_util.csv" "$W/lease_logs/" 2>/dev/null
+[ -d "$W/evaluator" ] && cp "$W/evaluator/metrics.jsonl" "$W/lease_logs/evaluator_metrics.jsonl" 2>/dev/null
 tar czf "$OUT/logs.tar.gz" -C "$W" lease_logs
 [ -d "$W/ladder" ] && tar czf "$OUT/ladder.tar.gz" -C "$W" --exclude='checkpoints' --exclude='generated.npz' \
   --exclude='jax_cache' --exclude='*.msgpack' --exclude='.wandb-cache' ladder
