@@ -20,11 +20,21 @@ TINY_LADDER = ((1, 32, 4, 64), (2, 32, 4, 64), (2, 48, 4, 96), (3, 48, 4, 96), (
 
 
 def runs(preset: str = "tiny", steps: int | None = None, fraction: float = 0.05,
-         sampling: str = "clips") -> list[RunSpec]:
+         sampling: str = "clips", lr: float | None = None, sizes: tuple | None = None) -> list[RunSpec]:
+    """``lr`` replaces the preset's learning rate (one for every size); ``sizes`` keeps only the ladder's
+    sizes given as (layers, dim) pairs, e.g. ``sizes=[(12, 768)]``."""
     ladder = TABLE_B if preset in PAPER_SIZED else TINY_LADDER
+    if sizes is not None:
+        keep = {tuple(int(v) for v in s) for s in sizes}
+        missing = keep - {(L, d) for L, d, _, _ in ladder}
+        if missing:
+            raise ValueError(f"sizes {sorted(missing)} are not on the {preset} ladder "
+                             f"{[(L, d) for L, d, _, _ in ladder]}")
+        ladder = tuple(x for x in ladder if (x[0], x[1]) in keep)
     out = []
     for L, d, H, F in ladder:
-        ov = (*model(L, d, H, F), *data(fraction, sampling), *budget(preset, steps))
+        ov = (*model(L, d, H, F), *data(fraction, sampling), *budget(preset, steps),
+              *(() if lr is None else (f"train.optim.lr={float(lr):g}",)))
         axes = {"layers": L, "dim": d, "heads": H, "ff": F, "data_fraction": fraction}
         out.append(RunSpec(run_id(axes, ov), preset="tiny" if preset == "tiny" else "paper-4L", overrides=ov,
                            axes=axes))
