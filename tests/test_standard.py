@@ -57,6 +57,7 @@ def test_package_writes_card_manifest_and_relative_paths(std):
     assert man["ids"].tolist() == test_ids and man["moments"].shape == (len(test_ids), 2, 3, 2)
     meta = json.loads((assets / "evaluator" / "evaluator.json").read_text())
     assert meta["encoder"]["path"] == "encoder"  # nothing points into the packaging machine
+    assert card["packaged"]["machine"].endswith("CPU cores, no accelerator")  # JAX_PLATFORMS=cpu
     standard.verify_assets(assets)
     (assets / "test_manifest.npz").write_bytes((assets / "test_manifest.npz").read_bytes() + b"x")
     with pytest.raises(DataError, match="corrupt"):
@@ -165,3 +166,38 @@ def test_packaged_standard_evaluator_matches_this_code():
     ev = standard.load()
     man = standard.read_manifest()
     assert ev.cfg.latent > 0 and len(man["ids"]) == card["corpus"]["test_clips"]
+
+
+def test_package_recipe_clips_is_a_dry_run_of_a_prefix(std, monkeypatch, tmp_path, capsys):
+    """`handx standard package --recipe-clips N` packages against the first N clips of this code's recipe (a
+    dry run of the maintainers' pipeline, e.g. scripts/gpu_lease.sh on a CPU), never into the package's own
+    assets; bad uses are one line and exit 2, not a traceback."""
+    from handx_jax.cli import main
+
+    root, full, prefix, assets = std
+    seen = {}
+    monkeypatch.setattr(standard, "code_recipe", lambda: RECIPE)
+    monkeypatch.setattr(standard, "package", lambda *a, **k: seen.update(args=a, **k) or Path(a[3]))
+    base = ["standard", "package", "--data", str(full.root), "--encoder", str(ENCODER), "--evaluator", str(root / "E")]
+    assert main([*base, "--recipe-clips", "70", "--out", str(tmp_path / "dry")]) == 0
+    assert seen["recipe"] == dataclasses.replace(RECIPE, clips=70) and seen["args"][3] == str(tmp_path / "dry")
+    seen.clear()
+    assert main(base + ["--recipe-clips", "70"]) == 2 and not seen
+    assert "give --out" in capsys.readouterr().err
+    assert main([*base, "--recipe-clips", "0", "--out", str(tmp_path / "dry")]) == 2 and not seen
+    err = capsys.readouterr().err
+    assert err.startswith("handx: error: --recipe-clips must be 1 or more") and "Traceback" not in err
+    # and the real packaging of a recipe that is not the corpus's is refused, naming both
+    monkeypatch.undo()
+    with pytest.raises(DataError, match="clips=70"):
+        standard.package(full.root, ENCODER, root / "E", tmp_path / "x", recipe=dataclasses.replace(RECIPE, clips=70))
+
+
+def test_standard_corpus_outside_the_recipe_is_one_line(tmp_path, capsys):
+    from handx_jax.cli import main
+
+    n = standard.code_recipe().clips
+    assert main(["standard", "corpus", "--clips", str(n + 1), "--out", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"handx: error: --clips must be in [1, {n}]") and "Traceback" not in err
+    assert not (tmp_path / "c").exists()

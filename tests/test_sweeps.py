@@ -587,10 +587,38 @@ def test_diffusion_sweep_overrides_are_valid_configs():
         return mk(s.preset, list(s.overrides), data="", encoder="")
 
     for f in ("diffusion_depth_data", "diffusion_flops_ladder", "diffusion_width"):
-        for preset in ("tiny", "paper"):
+        for preset in ("tiny", "short", "paper"):
             for s in load_sweep(f"sweeps/{f}.py", preset=preset, sampling="pairs"):
                 c = build(s)
                 assert (c.model.layers, c.model.dim) == (s.axes["layers"], s.axes["dim"])
                 assert c.data.fraction == s.axes["data_fraction"] and c.data.sampling == "pairs"
                 assert c.model.dim % c.model.heads == 0
-                assert c.train.bf16 == (preset == "paper")
+                assert c.train.bf16 == (preset != "tiny")
+
+
+def test_short_preset_trains_the_paper_sizes_on_a_short_schedule():
+    """``short``: the paper's sizes (the same seven Table B rows as ``paper``), 1,000 steps × 128, lr 5e-4 with
+    a 100-step warm-up and a cosine decay, no dropout; ``lr`` replaces the lr for every size, ``sizes`` keeps a
+    subset of the ladder, and each gives new run ids."""
+    from handx_jax.families.diffusion import make_config as mk
+
+    paper = load_sweep("sweeps/diffusion_flops_ladder.py", preset="paper")
+    short = load_sweep("sweeps/diffusion_flops_ladder.py", preset="short")
+    assert [s.axes for s in short] == [s.axes for s in paper]
+    c = mk(short[-1].preset, list(short[-1].overrides))
+    assert (c.model.layers, c.model.dim, c.model.heads, c.model.ff) == (12, 768, 12, 3072)
+    assert (c.train.steps, c.train.batch_size, c.train.optim.lr, c.train.optim.warmup_steps) == (1000, 128, 5e-4, 100)
+    assert c.train.optim.schedule == "cosine" and c.model.dropout == 0.0 and c.train.bf16
+    assert mk(paper[-1].preset, list(paper[-1].overrides)).train.steps == 100_000
+    # Table C's depths and the width sweep's widths at the short schedule
+    assert [s.axes["layers"] for s in load_sweep("sweeps/diffusion_depth_data.py", preset="short")][:4] == [4, 8, 12, 16]
+    assert [s.axes["dim"] for s in load_sweep("sweeps/diffusion_width.py", preset="short")] == [256, 384, 512, 768]
+
+    low = load_sweep("sweeps/diffusion_flops_ladder.py", preset="short", lr=2.5e-4, sizes=[(12, 768), [2, 256]])
+    assert [(s.axes["layers"], s.axes["dim"]) for s in low] == [(2, 256), (12, 768)]  # the ladder's order
+    assert all(mk(s.preset, list(s.overrides)).train.optim.lr == 2.5e-4 for s in low)
+    assert {s.name for s in low}.isdisjoint({s.name for s in short})
+    with pytest.raises(ValueError, match=r"\(12, 1024\)\] are not on the short ladder"):
+        load_sweep("sweeps/diffusion_flops_ladder.py", preset="short", sizes=[(12, 1024)])
+    with pytest.raises(ValueError, match=r"\(tiny \| short \| paper\)"):
+        load_sweep("sweeps/diffusion_flops_ladder.py", preset="long")
