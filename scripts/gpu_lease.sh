@@ -18,8 +18,9 @@
 # 1,000 steps, the sweep's runs), so a command cut at its limit is finished by running the same command again
 # on the still-warm machine (it keeps /tmp for 30 s after a call). Measured on one H200 (2026-11-26, both
 # branches together): 120k-clip corpus 313 s (synthesis 176 s of it), joined cache of 600k captions 149 s,
-# evaluator ~19k samples/s (8,000 x 256: ~110 s), the short ladder 516 s. Alone, the evaluator branch needs
-# ~600 s: run it with LADDER=0, and again if it was cut.
+# evaluator ~19k samples/s (8,000 x 256: ~110 s), the short ladder 516 s. The joined cache now holds level 0
+# only (`--levels 0`, a fifth of the captions), so the evaluator branch alone should take ~450 s: run it with
+# LADDER=0 first, and again at once if it was cut.
 #
 # Knobs (environment): EVALUATOR=0|1 LADDER=0|1 CLIPS (default: the code's recipe) LADDER_CLIPS EV_STEPS
 # EV_BATCH EV_LR EV_WARMUP LADDER_PRESET LADDER_STEPS LADDER_ARGS SAMPLER_STEPS EVAL_SAMPLES SYNTH_WORKERS
@@ -73,7 +74,9 @@ evaluator_branch() {
   set -e
   [ -f "$W/std/meta.json" ] || \
     stage corpus "${H[@]}" data synth --clips "$CLIPS" --seed 0 --out "$W/std" --workers "$SYNTH_WORKERS" --quiet
-  stage joined_cache "${H[@]}" text cache --data "$W/std" --encoder "$ENC" --joined --max-len 256 --batch-size 1024
+  # Level 0 only: the evaluator trains and scores there (the full cache, all five levels, took 149 s).
+  stage joined_cache "${H[@]}" text cache --data "$W/std" --encoder "$ENC" --joined --levels 0 --max-len 256 \
+    --batch-size 1024
   [ -f "$W/evaluator/evaluator.json" ] || \
     stage evaluator_training "${H[@]}" eval train-evaluator --data "$W/std" --encoder "$ENC" --out "$W/evaluator" \
       --preset small --steps "$EV_STEPS" --batch-size "$EV_BATCH" --lr "$EV_LR" --warmup "$EV_WARMUP" \
@@ -87,7 +90,7 @@ evaluator_branch() {
       --out "$W/assets" ${RECIPE_CLIPS:+--recipe-clips "$RECIPE_CLIPS"} \
       --note "machine=one $dev, $(nproc) CPU cores (scripts/gpu_lease.sh; LADDER=$LADDER: the GPU $( [ "$LADDER" = 1 ] && echo shared with || echo without) the Fig. 4 ladder)" \
       --note "corpus build=$(secs corpus) s wall ($SYNTH_WORKERS synthesis workers)" \
-      --note "joined text cache=$(secs joined_cache) s wall (max_len 256)" \
+      --note "joined text cache=$(secs joined_cache) s wall (level 0, max_len 256)" \
       --note "evaluator training=$(secs evaluator_training) s wall, compilation (and any resumption) included" \
       --note "command=scripts/gpu_lease.sh (EV_STEPS=$EV_STEPS EV_BATCH=$EV_BATCH EV_LR=$EV_LR EV_WARMUP=$EV_WARMUP, train levels 0, no dropout, weight decay 0.01)" \
       --note "status=trained on a GPU; the text encoder and tokenizer are v3's, unchanged"

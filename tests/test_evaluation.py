@@ -443,3 +443,22 @@ def test_evaluator_config_checks_and_legacy_meta(setup, tmp_path):
     (old / "evaluator.json").write_text(json.dumps(meta))
     with pytest.raises(DataError, match="motion_dim is 130"):
         load_evaluator(old)
+
+
+def test_training_encodes_only_the_levels_it_reads(setup, tmp_path):
+    """Trained on level 0 and scored at level 4, the run builds a joined cache of exactly those two levels
+    (not all five), and its training reads nothing else."""
+    import shutil
+
+    from handx_jax.text.cache import CACHE_DIRNAME, TextCache, open_cache
+
+    root, data, _ = setup
+    mine = tmp_path / "ds"
+    shutil.copytree(data, mine, ignore=shutil.ignore_patterns(CACHE_DIRNAME))
+    cfg = tiny_evaluator(mine, "train.steps=4", "text.train_levels=0", "text.eval_level=-1")
+    E = train_evaluator(tmp_path / "E", cfg, log=lambda s: None)
+    caches = [TextCache.open(p) for p in (mine / CACHE_DIRNAME).iterdir() if p.is_dir()]
+    assert [c.cached_levels for c in caches] == [[0, 4]] and caches[0].meta["fields"] == [JOINED]
+    assert json.loads((E / "evaluator.json").read_text())["text_cache"]["fingerprint"] == caches[0].fingerprint
+    with pytest.raises(DataError, match="no text cache"):  # no full cache was built
+        open_cache(mine, ENCODER, joined=True, max_len=64)

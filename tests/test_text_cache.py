@@ -180,3 +180,56 @@ def test_cache_follows_check_compatible_on_captions(setup, tmp_path):
     write_dataset(tmp_path / "recaptioned", ds.motion, texts, splits=splits, stats=False)
     with pytest.raises(DataError, match="the captions differ"):
         TextCache.open(root, dataset=Dataset.open(tmp_path / "recaptioned"))
+
+
+def test_level_subset_cache_equals_the_full_cache_on_its_levels(setup, tmp_path, capsys):
+    """``levels``: only those caption levels are encoded; their rows read back exactly what the full cache
+    holds (direct encoding), other levels are refused by name, the subset has its own fingerprint, and a full
+    cache, once it exists, serves a subset request instead of a second build."""
+    import shutil
+
+    data = tmp_path / "data"
+    shutil.copytree(setup[0], data, ignore=shutil.ignore_patterns("text_cache"))
+    enc_dir = setup[1]
+    ds = Dataset.open(data)
+    sub_root = build_cache(data, enc_dir, dtype="float32", joined=True, levels=[4, 0, -1], log=lambda s: None)
+    sub = TextCache.open(sub_root)
+    assert sub.cached_levels == [0, 4] and sub.meta["num_captions"] == 2 * len(ds)
+    from handx_jax.text.cache import joined_texts
+
+    assert sub.meta["num_rows"] == len({x["joined"][lv] for x in joined_texts(ds.texts) for lv in (0, 4)})
+    with pytest.raises(DataError, match=r"caption level\(s\) \[2\] are not in this text cache \(it holds levels \[0, 4\]\)"):
+        sub.lookup(np.arange(3), "joined", np.array([0, 2, 4]))
+    # the same rows as a full joined cache, to float32 rounding of the one encoder (different padded length)
+    full = TextCache.open(build_cache(data, enc_dir, dtype="float32", joined=True, log=lambda s: None))
+    assert full.fingerprint != sub.fingerprint and full.cached_levels == [0, 1, 2, 3, 4]
+    clips = np.arange(len(ds))
+    for lv in (0, 4):
+        hs, ms = sub.lookup(clips, "joined", np.full(len(clips), lv))
+        hf, mf = full.lookup(clips, "joined", np.full(len(clips), lv))
+        n = min(hs.shape[1], hf.shape[1])
+        np.testing.assert_array_equal(ms[:, :n], mf[:, :n])
+        assert not ms[:, n:].any() and not mf[:, n:].any()
+        assert np.abs(hs[:, :n] - hf[:, :n]).max() < 1e-5
+        assert [sub.texts[r] for r in sub.row(clips, "joined", lv)] == [full.texts[r] for r in full.row(clips, "joined", lv)]
+    # both exist: open_cache with levels prefers the full one; build_cache with levels reuses it
+    assert open_cache(data, enc_dir, dtype="float32", joined=True, levels=[0]).fingerprint == full.fingerprint
+    assert build_cache(data, enc_dir, dtype="float32", joined=True, levels=[0], log=lambda s: None) == full.root
+    shutil.rmtree(full.root)
+    assert open_cache(data, enc_dir, dtype="float32", joined=True, levels=[0, 4]).fingerprint == sub.fingerprint
+    with pytest.raises(DataError, match="no text cache"):
+        open_cache(data, enc_dir, dtype="float32", joined=True, levels=[1])
+    with pytest.raises(ValueError, match="caption level 5 out of range"):
+        build_cache(data, enc_dir, dtype="float32", joined=True, levels=[5], log=lambda s: None)
+    assert neighbour_accuracy(sub, ds.split("val"), 50)["n"] > 0  # samples only the levels it holds
+    # the CLI: --levels, and a bad value is one line with exit 2
+    p = argparse.ArgumentParser()
+    cli.add_parser(p.add_subparsers())
+    for bad, msg in (("x", "expected comma-separated caption levels"), ("7", "caption level 7 out of range")):
+        a = p.parse_args(["text", "cache", "--data", str(data), "--encoder", str(enc_dir), "--levels", bad])
+        assert a.func(a) == 2
+        assert msg in capsys.readouterr().err
+    a = p.parse_args(["text", "cache", "--data", str(data), "--encoder", str(enc_dir), "--joined", "--levels", "0",
+                      "--dtype", "float32", "--nn-check", "0"])
+    assert a.func(a) == 0
+    assert json.loads(capsys.readouterr().out.splitlines()[-1])["captions"] == len(ds)

@@ -113,9 +113,12 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
     levels = int(ds.meta.get("levels", len(ds.texts[0]["left"])))
     train_levels = tuple(range(levels)) if policy.train_levels is None else tuple(
         _level_index(lv, levels) for lv in policy.train_levels)
-    _level_index(policy.eval_level, levels)
-    build_cache(data, enc, joined=True, max_len=policy.max_len, dtype=policy.cache_dtype, log=log)
-    cache = open_cache(data, enc, joined=True, max_len=policy.max_len, dtype=policy.cache_dtype)
+    eval_level = _level_index(policy.eval_level, levels)
+    # Only the levels the run reads are encoded (a full joined cache, where one exists, serves too): trained
+    # and scored at level 0, a fifth of the full cache (600k captions of a 120k corpus took 149 s on an H200).
+    read = sorted(set(train_levels) | {eval_level})
+    build_cache(data, enc, joined=True, max_len=policy.max_len, dtype=policy.cache_dtype, levels=read, log=log)
+    cache = open_cache(data, enc, joined=True, max_len=policy.max_len, dtype=policy.cache_dtype, levels=read)
     mcfg = dataclasses.replace(cfg.model, text_dim=enc.cfg.d_model)
     clips = ds.split("train")
     if len(clips) < 2:

@@ -38,26 +38,53 @@ JOINED = "joined"  # the three prompts in one sequence (evaluator text side, AR 
 
 
 def cache_fingerprint(dataset_fp: str, encoder_fp: str, tokenizer_fp: str, max_len: int, dtype: str,
-                      joined: bool = False) -> str:
+                      joined: bool = False, levels: Sequence[int] | None = None) -> str:
+    """``levels``: a cache of only these caption levels (None: all; the fingerprint of a full cache is the
+    same as before level subsets existed)."""
     doc = {"format": FORMAT, "version": FORMAT_VERSION, "dataset": dataset_fp, "encoder": encoder_fp,
            "tokenizer": tokenizer_fp, "max_len": int(max_len), "dtype": dtype}
     if joined:
         doc["fields"] = JOINED
+    if levels is not None:
+        doc["levels"] = sorted({int(v) for v in levels})
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def caption_table(texts: Sequence[dict], fields: Sequence[str]) -> tuple[list[str], np.ndarray]:
-    """Distinct caption strings (first-appearance order) and ``rows[clip, field, level]`` into them."""
-    levels = len(texts[0][fields[0]]) if texts else 0
-    rows = np.zeros((len(texts), len(fields), levels), np.int32)
+MISSING = -1  # rows[clip, field, level] of a level the cache does not hold
+
+
+def caption_table(texts: Sequence[dict], fields: Sequence[str], levels: Sequence[int] | None = None
+                  ) -> tuple[list[str], np.ndarray]:
+    """Distinct caption strings (first-appearance order) and ``rows[clip, field, level]`` into them; with
+    ``levels``, only those levels are listed and the others' rows are :data:`MISSING`."""
+    n_levels = len(texts[0][fields[0]]) if texts else 0
+    keep = range(n_levels) if levels is None else sorted({int(v) for v in levels})
+    rows = np.full((len(texts), len(fields), n_levels), MISSING, np.int32)
     uniq: dict[str, int] = {}
     for i, t in enumerate(texts):
         for f, name in enumerate(fields):
-            if len(t[name]) != levels:
-                raise DataError(f"{len(t[name])} levels, expected {levels}", clip=t.get("id", i), field=name)
-            for j, s in enumerate(t[name]):
-                rows[i, f, j] = uniq.setdefault(s, len(uniq))
+            if len(t[name]) != n_levels:
+                raise DataError(f"{len(t[name])} levels, expected {n_levels}", clip=t.get("id", i), field=name)
+            for j in keep:
+                rows[i, f, j] = uniq.setdefault(t[name][j], len(uniq))
     return list(uniq), rows
+
+
+def level_subset(levels: Sequence[int] | None, n_levels: int) -> list[int] | None:
+    """``levels`` checked against a dataset of ``n_levels`` caption levels (negative = from the most
+    detailed), sorted and de-duplicated; None where they are all of them (a full cache)."""
+    if levels is None:
+        return None
+    out = set()
+    for v in levels:
+        v = int(v)
+        if not -n_levels <= v < n_levels:
+            raise ValueError(f"caption level {v} out of range: the dataset has {n_levels} levels "
+                             f"(0..{n_levels - 1}, or -{n_levels}..-1)")
+        out.add(v % n_levels)
+    if not out:
+        raise ValueError("levels: give at least one caption level")
+    return None if len(out) == n_levels else sorted(out)
 
 
 def bucket_length(n: int, step: int, cap: int) -> int:
@@ -81,12 +108,15 @@ CHUNK_BYTES = 256 << 20  # RAM staging of the cache build: rows per chunk = this
 
 def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, max_len: int = 128,
                 dtype: str = "float16", batch_size: int = 128, overwrite: bool = False, joined: bool = False,
-                log: Callable[[str], None] = print) -> Path:
+                levels: Sequence[int] | None = None, log: Callable[[str], None] = print) -> Path:
     """Encode every caption of the dataset at ``data_dir`` with the encoder folder; return the cache dir.
 
     ``joined`` caches one sequence per (clip, level) holding the three prompts behind separators
-    (field name ``"joined"``) instead of one row per field. An existing cache with the same
-    fingerprint is complete by construction (atomic write) and is reused unless ``overwrite``.
+    (field name ``"joined"``) instead of one row per field. ``levels`` encodes only those caption levels
+    (an evaluator trained and scored at level 0 needs a fifth of the full joined cache: 120k clips' full
+    cache took 149 s of a GPU lease); a full cache, where one exists, serves such a request too. An
+    existing cache with the same fingerprint is complete by construction (atomic write) and is reused
+    unless ``overwrite``.
     """
     from handx_jax.data.dataset import TEXT_FIELDS, Dataset, dataset_record
     from handx_jax.text.hf import as_encoder
@@ -95,14 +125,20 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
         raise ValueError(f"dtype must be one of {DTYPES}, got {dtype!r}")
     ds = Dataset.open(data_dir)
     enc = as_encoder(encoder_dir)  # a folder, or an encoder the command already loaded
-    fp = cache_fingerprint(ds.fingerprint, enc.fingerprint, enc.tokenizer.fingerprint, max_len, dtype, joined)
+    levels = level_subset(levels, _dataset_levels(ds))
+    full = Path(data_dir) / CACHE_DIRNAME / cache_fingerprint(ds.fingerprint, enc.fingerprint,
+                                                              enc.tokenizer.fingerprint, max_len, dtype, joined)
+    if levels is not None and full.exists() and not overwrite:
+        log(f"text cache {full} (all levels) is up to date")
+        return full
+    fp = cache_fingerprint(ds.fingerprint, enc.fingerprint, enc.tokenizer.fingerprint, max_len, dtype, joined, levels)
     out = Path(data_dir) / CACHE_DIRNAME / fp
     if out.exists() and not overwrite:
         log(f"text cache {out} is up to date")
         return out
 
     fields = (JOINED,) if joined else TEXT_FIELDS
-    texts, rows = caption_table(joined_texts(ds.texts) if joined else ds.texts, fields)
+    texts, rows = caption_table(joined_texts(ds.texts) if joined else ds.texts, fields, levels)
     seqs = [enc.tokenizer.encode_one(t) for t in texts]
     lengths = np.array([len(s) for s in seqs], np.int64)
     L = int(min(max_len, lengths.max(initial=1)))
@@ -159,8 +195,9 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
             "dataset_fingerprint": ds.fingerprint, "dataset": dataset_record(ds), "encoder_fingerprint": enc.fingerprint,
             "tokenizer_fingerprint": enc.tokenizer.fingerprint, "encoder_path": str(Path(enc.path or encoder_dir).absolute()),
             "encoder_config": dataclasses.asdict(enc.cfg), "max_len": int(max_len), "Lmax": L,
-            "d_model": D, "dtype": dtype, "num_rows": len(texts), "num_captions": int(rows.size),
+            "d_model": D, "dtype": dtype, "num_rows": len(texts), "num_captions": int((rows != MISSING).sum()),
             "num_clips": int(rows.shape[0]), "levels": int(rows.shape[2]), "fields": list(fields),
+            "cached_levels": list(range(rows.shape[2])) if levels is None else levels,
             "num_truncated": num_truncated, "mean_tokens": float(kept.mean()) if len(kept) else 0.0,
             "encoder_flops_per_caption": {
                 "mean": float(flops.mean()) if len(kept) else 0.0, "at_Lmax": int(enc.flops(L)),
@@ -170,9 +207,14 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
         atomic_write_json(tmp / "index.json", {"fields": list(fields), "levels": int(rows.shape[2]),
                                                "clip_ids": ds.ids, "rows": rows.tolist(), "texts": texts}, indent=None)
         atomic_write_json(tmp / "meta.json", meta)
-    log(f"text cache {out}: {len(texts)} distinct of {rows.size} captions, Lmax {L} ({num_truncated} truncated), "
+    log(f"text cache {out}: {len(texts)} distinct of {int((rows != MISSING).sum())} captions"
+        f"{'' if levels is None else f' (levels {levels})'}, Lmax {L} ({num_truncated} truncated), "
         f"{len(texts) / max(wall, 1e-9):.1f} captions/s")
     return out
+
+
+def _dataset_levels(ds) -> int:
+    return int(ds.meta.get("levels") or (len(ds.texts[0]["left"]) if len(ds.texts) else 0))
 
 
 @dataclass
@@ -228,10 +270,18 @@ class TextCache:
     def row(self, clip, field: str, level) -> np.ndarray:
         return self.rows[clip, self.fields.index(field), level]
 
+    @property
+    def cached_levels(self) -> list[int]:
+        return list(self.meta.get("cached_levels", range(self.rows.shape[2])))
+
     def lookup(self, clip, field: str, level) -> tuple[np.ndarray, np.ndarray]:
         """(hidden (…, Lmax, D), mask (…, Lmax)) for clip indices, one field, level indices."""
         r = np.asarray(self.row(clip, field, level))
         flat = r.reshape(-1)
+        if (flat == MISSING).any():
+            lv = sorted({int(v) % self.rows.shape[2] for v in np.broadcast_to(np.asarray(level), r.shape)[r == MISSING]})
+            raise DataError(f"caption level(s) {lv} are not in this text cache (it holds levels {self.cached_levels}); "
+                            f"build one with `handx text cache` (without --levels for all of them)", path=self.root)
         order = np.argsort(flat, kind="stable")  # sorted reads are kinder to a memory map
         h = np.empty((len(flat),) + self.hidden.shape[1:], self.hidden.dtype)
         m = np.empty((len(flat),) + self.mask.shape[1:], bool)
@@ -240,8 +290,9 @@ class TextCache:
 
 
 def open_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, max_len: int = 128,
-               dtype: str = "float16", joined: bool = False) -> TextCache:
-    """The cache for this dataset + encoder folder, verified; a clear error if there is none."""
+               dtype: str = "float16", joined: bool = False, levels: Sequence[int] | None = None) -> TextCache:
+    """The cache for this dataset + encoder folder, verified; a clear error if there is none. ``levels``:
+    the caption levels the caller reads; the full cache serves them, else one built for exactly them."""
     from handx_jax.data.dataset import Dataset
     from handx_jax.text.hf import as_encoder
 
@@ -249,6 +300,10 @@ def open_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, m
     enc = as_encoder(encoder_dir)  # a folder, or an encoder the command already loaded
     fp = cache_fingerprint(ds.fingerprint, enc.fingerprint, enc.tokenizer.fingerprint, max_len, dtype, joined)
     root = Path(data_dir) / CACHE_DIRNAME / fp
+    levels = level_subset(levels, _dataset_levels(ds))
+    if not root.exists() and levels is not None:
+        root = Path(data_dir) / CACHE_DIRNAME / cache_fingerprint(
+            ds.fingerprint, enc.fingerprint, enc.tokenizer.fingerprint, max_len, dtype, joined, levels)
     if not root.exists():
         others = sorted(p.name for p in (Path(data_dir) / CACHE_DIRNAME).glob("*") if p.is_dir()
                         and not p.name.startswith(".")) if (Path(data_dir) / CACHE_DIRNAME).is_dir() else []
@@ -268,10 +323,11 @@ def neighbour_accuracy(cache: TextCache, clips: Sequence[int], n: int = 1000, se
     """
     clips = np.asarray(clips)
     rng = np.random.default_rng(seed)
-    F, K = cache.rows.shape[1:]
+    levels = np.asarray(cache.cached_levels)  # a level subset's cache holds only those
+    F, K = cache.rows.shape[1], len(levels)
     total = len(clips) * F * K
     pick = rng.choice(total, size=min(n, total), replace=False)
-    c, f, k = clips[pick // (F * K)], (pick // K) % F, pick % K
+    c, f, k = clips[pick // (F * K)], (pick // K) % F, levels[pick % K]
     r = cache.rows[c, f, k]
     uniq, inv = np.unique(r, return_inverse=True)
     h = np.asarray(cache.hidden[uniq], np.float32)

@@ -69,8 +69,20 @@ def _cache(args: argparse.Namespace) -> int:
     from handx_jax.data.dataset import Dataset
     from handx_jax.text.cache import TextCache, build_cache, neighbour_accuracy
 
-    root = build_cache(args.data, args.encoder, max_len=args.max_len, dtype=args.dtype,
-                       batch_size=args.batch_size, overwrite=args.force, joined=args.joined)
+    levels = None
+    if args.levels is not None:
+        try:
+            levels = [int(v) for v in args.levels.split(",") if v.strip()]
+        except ValueError:
+            print(f"handx: error: --levels {args.levels!r}: expected comma-separated caption levels, e.g. 0 or 0,4",
+                  file=sys.stderr)
+            return 2
+    try:
+        root = build_cache(args.data, args.encoder, max_len=args.max_len, dtype=args.dtype,
+                           batch_size=args.batch_size, overwrite=args.force, joined=args.joined, levels=levels)
+    except ValueError as e:  # a level out of range: one line, no traceback
+        print(f"handx: error: --levels: {e}", file=sys.stderr)
+        return 2
     cache = TextCache.open(root)
     m = cache.meta
     print(json.dumps({"cache": str(root), "rows": m["num_rows"], "captions": m["num_captions"], "Lmax": m["Lmax"],
@@ -139,6 +151,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     c.add_argument("--force", action="store_true", help="rebuild even if an up-to-date cache exists")
     c.add_argument("--joined", action="store_true",
                    help="cache the three prompts joined by separators, one row per (clip, level) (evaluator text)")
+    c.add_argument("--levels", metavar="L[,L...]",
+                   help="cache only these caption levels (e.g. 0: an evaluator trained and scored at level 0 reads "
+                        "no other); default all")
     c.add_argument("--nn-check", type=int, default=1000, metavar="N",
                    help="report nearest-neighbour self-retrieval on N validation captions (0: skip)")
     c.set_defaults(func=_cache)
