@@ -200,6 +200,8 @@ def test_level_subset_cache_equals_the_full_cache_on_its_levels(setup, tmp_path,
     assert sub.meta["num_rows"] == len({x["joined"][lv] for x in joined_texts(ds.texts) for lv in (0, 4)})
     with pytest.raises(DataError, match=r"caption level\(s\) \[2\] are not in this text cache \(it holds levels \[0, 4\]\)"):
         sub.lookup(np.arange(3), "joined", np.array([0, 2, 4]))
+    with pytest.raises(DataError, match=r"level\(s\) \[1\]"):
+        sub.row(0, "joined", 1)
     # the same rows as a full joined cache, to float32 rounding of the one encoder (different padded length)
     full = TextCache.open(build_cache(data, enc_dir, dtype="float32", joined=True, log=lambda s: None))
     assert full.fingerprint != sub.fingerprint and full.cached_levels == [0, 1, 2, 3, 4]

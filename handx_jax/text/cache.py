@@ -268,7 +268,12 @@ class TextCache:
         return self.meta["fingerprint"]
 
     def row(self, clip, field: str, level) -> np.ndarray:
-        return self.rows[clip, self.fields.index(field), level]
+        r = np.asarray(self.rows[clip, self.fields.index(field), level])
+        if (r == MISSING).any():  # a level subset's cache: never hand out row -1 (the last text)
+            lv = sorted({int(v) % self.rows.shape[2] for v in np.broadcast_to(np.asarray(level), r.shape)[r == MISSING]})
+            raise DataError(f"caption level(s) {lv} are not in this text cache (it holds levels {self.cached_levels}); "
+                            f"build one with `handx text cache` (without --levels for all of them)", path=self.root)
+        return r
 
     @property
     def cached_levels(self) -> list[int]:
@@ -276,12 +281,8 @@ class TextCache:
 
     def lookup(self, clip, field: str, level) -> tuple[np.ndarray, np.ndarray]:
         """(hidden (…, Lmax, D), mask (…, Lmax)) for clip indices, one field, level indices."""
-        r = np.asarray(self.row(clip, field, level))
+        r = self.row(clip, field, level)
         flat = r.reshape(-1)
-        if (flat == MISSING).any():
-            lv = sorted({int(v) % self.rows.shape[2] for v in np.broadcast_to(np.asarray(level), r.shape)[r == MISSING]})
-            raise DataError(f"caption level(s) {lv} are not in this text cache (it holds levels {self.cached_levels}); "
-                            f"build one with `handx text cache` (without --levels for all of them)", path=self.root)
         order = np.argsort(flat, kind="stable")  # sorted reads are kinder to a memory map
         h = np.empty((len(flat),) + self.hidden.shape[1:], self.hidden.dtype)
         m = np.empty((len(flat),) + self.mask.shape[1:], bool)
