@@ -51,7 +51,7 @@ import numpy as np
 
 from handx_jax.io import DataError, atomic_write_json, atomic_write_text, sha256_file
 
-VERSION = 3  # of the packaged assets; bumped whenever the recipe or any weight changes
+VERSION = 4  # of the packaged assets; bumped whenever the recipe or any weight changes
 ASSETS = Path(__file__).resolve().parent / "assets" / "standard"
 CARD_JSON, CARD_MD, MANIFEST = "card.json", "CARD.md", "test_manifest.npz"
 ENCODER_DIR, EVALUATOR_DIR = "encoder", "evaluator"
@@ -68,11 +68,11 @@ class Recipe:
     """The standard corpus: ``handx standard corpus`` = ``handx data synth --clips CLIPS --seed SEED``
     with the default build options, from generator version ``generator``."""
 
-    # v1-v3: 20k clips. The GPU rebuild (scripts/gpu_lease.sh) is planned at 120k: on 17.9k train clips the
-    # small evaluator overfits below GT top-1 0.73 at block 32 (v3); on 108k it reached 0.877
-    # (docs/results/evaluator_120k_gt_rows.json). The first 20k clips of a 120k recipe are this corpus (the
-    # prefix property), so today's prefixes would stay prefixes of it.
-    clips: int = 20_000
+    # v4: 120k clips (v1-v3: 20k). On 17.9k train clips the small evaluator overfits below GT top-1 0.73 at
+    # block 32 (v3); on 108k it does not (docs/results/evaluator_120k_gt_rows.json, and v4's card). The first
+    # 20k clips of this recipe are v3's corpus (the prefix property: same ids, captions and motion), so v3-era
+    # prefixes are prefixes of v4's.
+    clips: int = 120_000
     seed: int = 0
     generator: str = ""  # filled by :func:`code_recipe` from the data package
 

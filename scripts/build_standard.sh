@@ -6,38 +6,48 @@
 #
 #   scripts/build_standard.sh [WORK]          (WORK default /tmp/handx-standard; keeps data/, t5/, evaluator/)
 #
-# Knobs (environment): STEPS BATCH LR WARMUP DROPOUT (evaluator; default v3's 2-core CPU recipe), PRESET (small),
-# T5_STEPS (0 = the tiny preset's 2000), NICE (0), PY (python3). The recipe itself (clip count, seed,
-# generator version) is handx_jax.standard.Recipe: change it there and bump standard.VERSION, then run this.
+# Knobs (environment): STEPS BATCH LR WARMUP DROPOUT (evaluator; default v4's 2-core CPU recipe), PRESET (small),
+# ENCODER (a T5 encoder folder to reuse instead of training a tokenizer and a tiny T5; v4 reuses v3's, the
+# packaged one: ENCODER=handx_jax/assets/standard/encoder), T5_STEPS (0 = the tiny preset's 2000), NICE (0),
+# PY (python3). The recipe itself (clip count, seed, generator version) is handx_jax.standard.Recipe: change it
+# there and bump standard.VERSION, then run this. On a GPU, scripts/gpu_lease.sh does the same in one lease.
 # Every stage resumes/skips when its output exists, so a killed run continues where it stopped.
 set -euo pipefail
 WORK=${1:-/tmp/handx-standard}
 PY=${PY:-python3}
-STEPS=${STEPS:-3000}
-BATCH=${BATCH:-128}
+STEPS=${STEPS:-4500}
+BATCH=${BATCH:-256}
 LR=${LR:-1e-3}
-WARMUP=${WARMUP:-100}
-# Dropout 0.1: without it the small evaluator overfits the 17,918 training pairs (v3's card).
-DROPOUT=${DROPOUT:-0.1}
+WARMUP=${WARMUP:-300}
+# No dropout on the 108k train clips of the 120k recipe (v4). v3's 17,918 clips needed 0.1 (it overfit without).
+DROPOUT=${DROPOUT:-0.0}
 PRESET=${PRESET:-small}
 T5_STEPS=${T5_STEPS:-0}
 H=(nice -n "${NICE:-0}" "$PY" -m handx_jax)
 mkdir -p "$WORK"
 DATA=$WORK/data
 t0=$(date +%s)
-[ -f "$DATA/meta.json" ] || "${H[@]}" standard corpus --out "$DATA" --quiet
+# The code's recipe, built with `data synth` (`standard corpus` refuses while the packaged card is the old recipe's)
+read -r CLIPS SEED < <("$PY" -c "from handx_jax.standard import code_recipe as r; print(r().clips, r().seed)")
+[ -f "$DATA/meta.json" ] || "${H[@]}" data synth --clips "$CLIPS" --seed "$SEED" --out "$DATA" --quiet
 t1=$(date +%s)
-[ -f "$DATA/tokenizer/spiece.model" ] || "${H[@]}" text tokenizer --data "$DATA"
-[ -f "$WORK/t5/encoder/model.safetensors" ] || \
-  "${H[@]}" text pretrain --data "$DATA" --preset tiny --out "$WORK/t5" --steps "$T5_STEPS" --log-every 200
+if [ -n "${ENCODER:-}" ]; then
+  # package replaces the assets folder: keep a copy of a packaged encoder outside it
+  [ -f "$WORK/t5/encoder/model.safetensors" ] || { mkdir -p "$WORK/t5" && cp -r "$ENCODER" "$WORK/t5/encoder"; }
+else
+  [ -f "$DATA/tokenizer/spiece.model" ] || "${H[@]}" text tokenizer --data "$DATA"
+  [ -f "$WORK/t5/encoder/model.safetensors" ] || \
+    "${H[@]}" text pretrain --data "$DATA" --preset tiny --out "$WORK/t5" --steps "$T5_STEPS" --log-every 200
+fi
 t2=$(date +%s)
 [ -f "$WORK/evaluator/evaluator.json" ] || \
   "${H[@]}" eval train-evaluator --data "$DATA" --encoder "$WORK/t5/encoder" --out "$WORK/evaluator" \
     --preset "$PRESET" --steps "$STEPS" --batch-size "$BATCH" --lr "$LR" --warmup "$WARMUP" --no-final-eval \
-    --set train.optim.weight_decay=0.01 --set model.dropout="$DROPOUT" --set train.log_every=100 --set train.ckpt_every=200 --set train.wandb=disabled
+    --set train.optim.weight_decay=0.01 --set model.dropout="$DROPOUT" --set text.max_len=256 \
+    --set data.text_bucket=256 --set train.log_every=100 --set train.ckpt_every=500 --set train.wandb=disabled
 t3=$(date +%s)
 "${H[@]}" standard package --data "$DATA" --encoder "$WORK/t5/encoder" --evaluator "$WORK/evaluator" \
   --note "corpus build=$((t1 - t0)) s" --note "tokenizer + tiny T5=$((t2 - t1)) s" \
   --note "text cache + evaluator training=$((t3 - t2)) s" \
-  --note "command=STEPS=$STEPS BATCH=$BATCH LR=$LR WARMUP=$WARMUP DROPOUT=$DROPOUT PRESET=$PRESET scripts/build_standard.sh"
+  --note "command=STEPS=$STEPS BATCH=$BATCH LR=$LR WARMUP=$WARMUP DROPOUT=$DROPOUT PRESET=$PRESET${ENCODER:+ ENCODER=$ENCODER} scripts/build_standard.sh"
 echo "done: $(( $(date +%s) - t0 )) s"
