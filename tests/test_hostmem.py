@@ -47,8 +47,16 @@ def test_reuse_policy_stops_the_page_faults_of_large_buffers():
     system, reuse = _probe("system"), _probe("reuse")
     assert (system["policy"], system["applied"]) == ("system", False)
     assert (reuse["policy"], reuse["applied"]) == ("reuse", True)
-    # glibc's defaults: at least half the 16,384 pages of the intermediate fault in on every call
-    assert system["faults_per_call"] > 8000, system
+    # What the project promises on any machine: the policy never makes a call fault in more pages than
+    # glibc's defaults (a few hundred pages of slack for the interpreter's own allocations).
+    assert reuse["faults_per_call"] <= system["faults_per_call"] + 256, (reuse, system)
+    # The problem the policy solves shows only where glibc maps the 64 MiB intermediate afresh on every
+    # call (at least half its 16,384 pages fault in). Some kernels/glibc builds keep the mapping warm
+    # (1,031 faults per call measured on one of this project's machines): nothing to fix there.
+    if system["faults_per_call"] <= 8000:
+        pytest.skip(f"glibc's defaults fault in only {system['faults_per_call']:.0f} pages per call here "
+                    f"(reuse policy: {reuse['faults_per_call']:.0f}); the 64 MiB buffer is not re-faulted "
+                    "on this machine, so there is nothing for the policy to stop")
     # the reuse policy: the same memory comes back, so (almost) nothing faults
     assert reuse["faults_per_call"] < 0.05 * system["faults_per_call"], (reuse, system)
 
