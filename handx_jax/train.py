@@ -10,6 +10,9 @@ plus a ``get_batch(indices) -> pytree of arrays``; everything else lives here:
   position is therefore the step, and a resumed run sees exactly the batches it would have seen.
 - orbax checkpoints every ``ckpt_every`` steps and at the end, holding params, optimizer state, EMA,
   step and rng; a killed run resumes from the latest one and ends with the same parameters.
+- Linear warm-up and cosine/constant schedule as traced numbers (:func:`schedule_values`); a warm-up as
+  long as the run or longer is capped at a fifth of it (:func:`effective_warmup`). Each log line's
+  ``lr`` is the learning rate the logged step's update really applied.
 - The run folder gets ``config.json`` (atomic), ``metrics.jsonl`` (one fsynced line per log) and
   ``checkpoints/``; wandb mirrors them (offline by default; WANDB_MODE overrides). Re-running on a
   folder resumes it, only with the same configuration (:func:`check_resume`), and ``metrics.jsonl`` is
@@ -79,8 +82,23 @@ class TrainConfig:
     optim: OptimConfig = OptimConfig()
 
 
+def effective_warmup(warmup_steps: int, total_steps: int) -> int:
+    """The warm-up a run really uses: as configured, unless it is as long as the run or longer, when it is
+    capped at a fifth of the run (the evaluator trainer's fraction, ``evaluation.training``).
+
+    Capped rather than refused: a family's warm-up is set for its full-length recipe (the reference's
+    8,000 tokenizer and 15,000 LM steps, §4.3/§4.7) and a sweep shortens the run with ``train.steps``
+    alone; refusing would make every short run of every preset restate its warm-up, and uncapped, such a
+    run never reaches its peak lr (issue 30: a 200-step tokenizer ended at lr 5e-6 of 2e-4). A warm-up
+    shorter than the run is the user's choice and is kept."""
+    if total_steps > 0 and warmup_steps >= total_steps:
+        return max(total_steps // 5, 1)
+    return warmup_steps
+
+
 def schedule_values(cfg: OptimConfig, total_steps: int) -> np.ndarray:
-    """The numbers of the learning-rate schedule, [peak lr, warm-up steps, decay end], as float32.
+    """The numbers of the learning-rate schedule, [peak lr, warm-up steps, decay end], as float32; the
+    warm-up is :func:`effective_warmup` (capped when it would last the whole run).
 
     The train step takes them as a traced argument rather than baking them in as constants, so runs
     that differ only in learning rate, warm-up or length (a sweep's data-fraction axis at fixed epochs,
@@ -88,9 +106,10 @@ def schedule_values(cfg: OptimConfig, total_steps: int) -> np.ndarray:
     compilation cache, instead of compiling it again each."""
     if cfg.schedule not in ("constant", "cosine"):
         raise ValueError(f"unknown schedule {cfg.schedule!r}")
+    warmup = effective_warmup(cfg.warmup_steps, total_steps)
     if cfg.schedule == "cosine":
-        return np.asarray([cfg.lr, max(cfg.warmup_steps, 1), max(total_steps, 2, cfg.warmup_steps + 1)], np.float32)
-    return np.asarray([cfg.lr, cfg.warmup_steps, max(total_steps, 1)], np.float32)
+        return np.asarray([cfg.lr, max(warmup, 1), max(total_steps, 2, warmup + 1)], np.float32)
+    return np.asarray([cfg.lr, warmup, max(total_steps, 1)], np.float32)
 
 
 def learning_rate(count, values, schedule: str):
@@ -342,6 +361,9 @@ def train(
         schedule_of, tx_of = (lambda _v: optimizer[1]), (lambda _v: optimizer[0])
     else:
         sched_v = schedule_values(cfg.optim, cfg.steps)
+        if effective_warmup(cfg.optim.warmup_steps, cfg.steps) != cfg.optim.warmup_steps and jax.process_index() == 0:
+            print(f"note: warm-up {cfg.optim.warmup_steps} ≥ the run's {cfg.steps} steps; capped at "
+                  f"{int(sched_v[1])} (train.effective_warmup)")
         schedule_of = lambda v: partial(learning_rate, values=v, schedule=cfg.optim.schedule)  # noqa: E731
         tx_of = lambda v: optimizer_for(cfg.optim, schedule_of(v))  # noqa: E731
     mesh = _mesh()

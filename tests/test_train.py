@@ -184,3 +184,28 @@ def test_runs_differing_in_lr_and_length_share_one_compiled_step(tmp_path, monke
         train(tmp_path / str(i), init=init, loss=loss, get_batch=get_batch, num_examples=96, cfg=cfg, config={})
     assert len(texts) == 3
     assert texts[0][1] == texts[1][1] and texts[0][1] != texts[2][1]
+
+
+@pytest.mark.parametrize("schedule", ["constant", "cosine"])
+def test_warmup_longer_than_the_run_is_capped_and_the_logged_lr_reaches_its_peak(tmp_path, schedule):
+    """Issue 30: a 10-step run whose warm-up is 100 steps (a full-length recipe shortened by
+    ``train.steps``) warms up over a fifth of the run; the ``lr`` of metrics.jsonl is the one applied."""
+    from handx_jax.train import effective_warmup, learning_rate, schedule_values
+
+    assert effective_warmup(100, 10) == 2 and effective_warmup(10, 10) == 2 and effective_warmup(9, 10) == 9
+    assert effective_warmup(8000, 300) == 60 and effective_warmup(5, 0) == 5
+    init, loss, get_batch, _ = _problem()
+    cfg = TrainConfig(steps=10, batch_size=16, log_every=1, ckpt_every=10, wandb="disabled",
+                      optim=OptimConfig(lr=0.1, weight_decay=0.0, warmup_steps=100, schedule=schedule))
+    train(tmp_path / "run", init=init, loss=loss, get_batch=get_batch, num_examples=96, cfg=cfg, config={})
+    lrs = [json.loads(l)["lr"] for l in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    # Row k (step k) logs the lr of update k - 1: 0, 0.05 over the 2-step warm-up, then the peak.
+    assert lrs[:3] == pytest.approx([0.0, 0.05, 0.1])
+    if schedule == "constant":
+        assert lrs[2:] == pytest.approx([0.1] * 8)
+    else:  # cosine from the peak at update 2 to 0 at update 10
+        want = [0.1 * 0.5 * (1 + np.cos(np.pi * (c - 2) / 8)) for c in range(2, 10)]
+        assert lrs[2:] == pytest.approx(want, rel=1e-5)
+    assert max(lrs) == pytest.approx(0.1)
+    values = schedule_values(cfg.optim, cfg.steps)
+    assert float(learning_rate(2, values, schedule)) == pytest.approx(0.1)
