@@ -48,6 +48,8 @@ def load_inputs(specs: Sequence[str], family: str | None = None, strict: bool = 
     for spec in specs:
         part = (paper.load_table(spec.split(":", 1)[1]) if spec.startswith("paper:")
                 else load_results(spec, strict=strict))
+        if not part:  # an empty table would give an empty table, a blank plot or "need 3 points, got 0"
+            raise DataError("has no rows (the table is empty or has only a header): nothing to analyze", path=spec)
         for r in part:
             if r["run_id"] in seen:
                 raise DataError(f"run_id {r['run_id']!r} appears in both {seen[r['run_id']]} and {spec}")
@@ -56,6 +58,12 @@ def load_inputs(specs: Sequence[str], family: str | None = None, strict: bool = 
     if family is not None:
         rows = [r for r in rows if r["family"] in (family, GROUND_TRUTH)]
     return rows
+
+
+def _left_out(args: argparse.Namespace, lines: Sequence[str]) -> None:
+    """Name every row an analysis leaves out, and why, on stderr (``fits.select_rows``)."""
+    for line in lines:
+        print(f"handx analyze {args.analyze_command}: left out {line}", file=sys.stderr)
 
 
 def _emit_json(obj: Any) -> None:
@@ -170,13 +178,14 @@ def _one_block(rows: Sequence[dict[str, Any]], y: str) -> None:
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
-    from analysis.fits import FLOPS_CONVENTIONS, compare_models, fit_rows, resolve_column, select_xy
+    from analysis.fits import FLOPS_CONVENTIONS, compare_models, dropped_rows, fit_rows, resolve_column, select_xy
 
     rows = load_inputs(args.results, args.family, strict=False)
     if not args.mixed_evaluators:
         _one_yardstick(rows, args.y)
     _one_block(rows, args.y)
     rows = _replicates(rows, args)
+    _left_out(args, dropped_rows(rows, args.x, args.y))
     fit = fit_rows(rows, args.x, args.y, level=args.level, n_boot=args.n_boot, seed=args.seed, method=args.method)
     xcol = resolve_column(args.x, rows)
     convention = FLOPS_CONVENTIONS.get(xcol)
@@ -200,12 +209,14 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 def _cmd_fig4(args: argparse.Namespace) -> int:
     from analysis import paper
     from analysis.fig4 import compare_with_fig4
+    from analysis.fits import dropped_rows
 
     rows = load_inputs(args.results, args.family, strict=False)
     if not args.mixed_evaluators:
         _one_yardstick(rows, "rprec_top3")
     _one_block(rows, "rprec_top3")
     rows = _replicates(rows, args)
+    _left_out(args, dropped_rows(rows, "flops_paper", "rprec_top3"))
     cmp = compare_with_fig4(rows, level=args.level, n_boot=args.n_boot, seed=args.seed)
     if args.json:
         _emit_json(cmp.to_dict())
@@ -224,6 +235,7 @@ def _cmd_fig4(args: argparse.Namespace) -> int:
 
 def _cmd_factors(args: argparse.Namespace) -> int:
     from analysis.factors import fit_factors
+    from analysis.fits import resolve_column, select_rows
 
     rows = load_inputs(args.results, args.family, strict=False)
     if not args.mixed_evaluators:
@@ -231,6 +243,8 @@ def _cmd_factors(args: argparse.Namespace) -> int:
     _one_block(rows, args.y)
     rows = _replicates(rows, args)
     factors = [f.strip() for f in args.factors.split(",") if f.strip()]
+    cols = [resolve_column(f, rows) for f in factors]
+    _left_out(args, select_rows(rows, (*cols, resolve_column(args.y, rows)), log_axis=cols)[1])
     fit = fit_factors(rows, factors, args.y, level=args.level)
     if args.json:
         _emit_json(fit.to_dict())
@@ -254,11 +268,12 @@ def _cmd_table(args: argparse.Namespace) -> int:
 
 
 def _cmd_extrapolate(args: argparse.Namespace) -> int:
-    from analysis.fits import extrapolate
+    from analysis.fits import dropped_rows, extrapolate
 
     rows = load_inputs(args.results, args.family, strict=False)
     _one_block(rows, args.y)
     rows = _replicates(rows, args)
+    _left_out(args, dropped_rows(rows, args.x, args.y))
     ext = extrapolate(rows, args.cut, x=args.x, y=args.y, level=args.level, n_boot=args.n_boot, seed=args.seed)
     if args.json:
         _emit_json(ext.to_dict())
@@ -273,14 +288,20 @@ def _cmd_extrapolate(args: argparse.Namespace) -> int:
 
 def _cmd_plot(args: argparse.Namespace) -> int:
     from analysis import plots
+    from analysis.fits import resolve_column, select_rows
 
     rows = load_inputs(args.results, args.family, strict=False)
     if args.kind == "scaling":
         overlay = {spec: load_inputs([spec], args.family, strict=False) for spec in args.overlay or []}
+        every = [r for part in (rows, *overlay.values()) for r in part]  # one x column for every series
+        for part in (rows, *overlay.values()):
+            _left_out(args, select_rows(part, (resolve_column(args.x, every), resolve_column(args.y, every)),
+                                        log_axis=(resolve_column(args.x, every),))[1])
         fig = plots.plot_scaling(rows, args.x, args.y, overlay=overlay, name=args.name or "runs")
     elif args.kind == "grid":
         fig = plots.plot_axis_grid(rows, args.metrics.split(","))
     else:
+        _left_out(args, select_rows(rows, (args.heat_x, args.heat_y, args.y))[1])
         fig = plots.plot_heatmap(rows, args.y, x=args.heat_x, y=args.heat_y)
     print(f"wrote {plots.save_figure(fig, args.out)}", file=sys.stderr)
     return 0

@@ -25,7 +25,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from scipy.stats import f as f_dist, t as student_t
 
-from analysis.fits import resolve_column
+from analysis.fits import resolve_column, select_rows
 from analysis.schema import GROUND_TRUTH
 
 DEFAULT_FACTORS = ("flops_analytic", "samples")
@@ -162,6 +162,6 @@ def fit_factors(rows: Sequence[Mapping[str, Any]], factors: Sequence[str] = DEFA
     for c in (*cols, yc):
         if runs and not any(r.get(c) is not None for r in runs):
             raise ValueError(f"no run in these results carries {c!r}")
-    used = [r for r in runs if all(r.get(c) is not None for c in (*cols, yc))]
+    used, _ = select_rows(rows, (*cols, yc), log_axis=cols)  # select_rows names what it leaves out
     return fit_factor_arrays([[float(r[c]) for r in used] for c in cols], [float(r[yc]) for r in used],
                              names=cols, y_name=yc, level=level)

@@ -55,8 +55,11 @@ def resolve_column(name: str, rows: Sequence[Mapping[str, Any]] | None = None) -
     ``flops`` means the paper's convention (``flops_per_sample_paper``) when every run in ``rows``
     carries it, so that slopes compare with the paper's 0.4391; otherwise the analytic
     ``flops_per_sample``. ``flops_paper`` / ``flops_analytic`` pick one explicitly. With ``rows``, any
-    column the rows carry as numbers is accepted too (an analyst's own table).
+    column the rows carry as numbers is accepted too (an analyst's own table), and a column the rows
+    carry under an alias's name (a plain CSV with a ``flops`` column) is that column, not the alias.
     """
+    if rows is not None and name in X_ALIASES and any(name in r for r in rows):
+        return name  # the table's own column wins over the alias of the same name (an analyst's "flops")
     col = X_ALIASES.get(name, name)
     if name == "flops" and rows is not None:
         runs = [r for r in rows if r.get("family") != GROUND_TRUTH]
@@ -71,11 +74,66 @@ def resolve_column(name: str, rows: Sequence[Mapping[str, Any]] | None = None) -
     return col
 
 
+def _why_missing(row: Mapping[str, Any], col: str) -> str | None:
+    """Why ``row`` has no usable number in ``col`` (None if it has one)."""
+    v = row.get(col)
+    if v is None:
+        cells = getattr(row, "cells", None)  # analysis.schema.Row: the cells as read
+        if cells is None:
+            return "no value"
+        if col not in cells:
+            return "no such column"
+        raw = cells[col]
+        if raw is None or (isinstance(raw, str) and raw.strip().lower() in ("", "none", "null")):
+            return "empty"
+        return "NaN" if str(raw).strip().lower() == "nan" or raw != raw else f"no value ({raw!r})"
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        return f"not a number ({v!r})"
+    if not math.isfinite(float(v)):
+        return "NaN" if v != v else f"not finite ({v!r})"
+    return None
+
+
+def _where(row: Mapping[str, Any], index: int) -> str:
+    source = getattr(row, "source", None)
+    cells = getattr(row, "cells", None)
+    if source is None:
+        return f"run {row.get('run_id')!r} (row {index + 1} of the input)"
+    named = cells is None or "run_id" in cells  # else run_id is made up from the file and row
+    return f"{source} (run {row.get('run_id')!r})" if named else source
+
+
+def select_rows(rows: Sequence[Mapping[str, Any]], columns: Sequence[str], *, log_axis: Sequence[str] = ()
+                ) -> tuple[list[Mapping[str, Any]], list[str]]:
+    """The rows with a finite number in every column of ``columns`` (and > 0 in those of ``log_axis``),
+    ground-truth rows excluded, and one line per other row saying where it is (file and row, or run)
+    and why it was left out (which column: missing, NaN, empty, or a value log10 cannot take)."""
+    used, dropped = [], []
+    for i, r in enumerate(rows):
+        if r.get("family") == GROUND_TRUTH:
+            continue
+        why = next(((c, w) for c in columns if (w := _why_missing(r, c)) is not None), None)
+        if why is None:
+            why = next(((c, f"{float(r[c]):g} is not > 0, which log10 needs") for c in log_axis
+                        if not float(r[c]) > 0), None)
+        if why is None:
+            used.append(r)
+        else:
+            dropped.append(f"{_where(r, i)}, column {why[0]!r}: {why[1]}")
+    return used, dropped
+
+
+def dropped_rows(rows: Sequence[Mapping[str, Any]], x: str, y: str) -> list[str]:
+    """One line per row a fit of ``y`` against ``x`` leaves out, naming it and why (:func:`select_rows`)."""
+    return select_rows(rows, (resolve_column(x, rows), resolve_column(y, rows)),
+                       log_axis=(resolve_column(x, rows),))[1]
+
+
 def select_xy(rows: Sequence[Mapping[str, Any]], x: str, y: str) -> tuple[np.ndarray, np.ndarray, list]:
-    """The (x, y) pairs of the rows that have both, ground-truth rows excluded."""
+    """The (x, y) pairs of the rows that have both, with x > 0 (a log axis), ground-truth rows excluded;
+    :func:`dropped_rows` says which rows were left out and why."""
     xc, yc = resolve_column(x, rows), resolve_column(y, rows)
-    used = [r for r in rows if r.get("family") != GROUND_TRUTH and r.get(xc) is not None
-            and r.get(yc) is not None]
+    used, _ = select_rows(rows, (xc, yc), log_axis=(xc,))
     xs = np.array([float(r[xc]) for r in used], dtype=np.float64)
     ys = np.array([float(r[yc]) for r in used], dtype=np.float64)
     return xs, ys, used
@@ -255,8 +313,13 @@ def fit_log_linear(x: Any, y: Any, *, level: float = 0.95, n_boot: int = 2000, s
 
 def fit_rows(rows: Sequence[Mapping[str, Any]], x: str = "flops", y: str = "rprec_top3",
              **kwargs: Any) -> LogLinearFit:
-    """Log-linear fit of column ``y`` against column ``x`` over the rows that have both."""
+    """Log-linear fit of column ``y`` against column ``x`` over the rows that have both (x > 0)."""
     xs, ys, _ = select_xy(rows, x, y)
+    if xs.size < 3:
+        xc, yc = resolve_column(x, rows), resolve_column(y, rows)
+        dropped = dropped_rows(rows, x, y)
+        eg = f"; first left out: {dropped[0]}" if dropped else ""
+        raise ValueError(f"need at least 3 rows with {xc} > 0 and {yc}, got {xs.size} of {len(rows)}{eg}")
     return fit_log_linear(xs, ys, x_name=resolve_column(x, rows), y_name=resolve_column(y, rows), **kwargs)
 
 

@@ -27,7 +27,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from analysis.fits import Extrapolation, LogLinearFit, fit_log_linear, resolve_column, select_xy
-from analysis.schema import COLUMN_BY_NAME, GROUND_TRUTH, LOWER_IS_BETTER, column, config_label
+from analysis.schema import COLUMN_BY_NAME, GROUND_TRUTH, LOWER_IS_BETTER, METRICS, column, config_label
 from analysis.tables import best_rows
 from handx_jax.io import atomic_write_bytes
 
@@ -83,6 +83,22 @@ LABELS: dict[str, str] = {
     "codebook": "Codebook size",
 }
 DPI = 200
+
+
+# Metrics that are probabilities: their axes and fit bands stay on [0, 1] (a band from −0.5 to 0.8 on a
+# top-3 axis, as a 3-run fit draws, says nothing a reader can use).
+PROBABILITIES: frozenset[str] = frozenset(m for m in METRICS if m.startswith(("rprec_", "contact_")))
+
+
+def _clip_probability(v: np.ndarray, col: str) -> np.ndarray:
+    return np.clip(v, 0.0, 1.0) if col in PROBABILITIES else v
+
+
+def _probability_axis(ax: Any, col: str) -> None:
+    """A probability axis shows no value outside [0, 1]."""
+    if col in PROBABILITIES:
+        lo, hi = ax.get_ylim()
+        ax.set_ylim(max(lo, -0.02), min(hi, 1.02))
 
 
 def label(name: str) -> str:
@@ -145,11 +161,11 @@ def _draw_fit(ax: Any, fit: LogLinearFit, xs: np.ndarray, color: str, band: bool
     xc = _curve_x(xs)
     pct = f"{100 * fit.level:g}%"
     if band:
-        lo, hi = fit.confidence_band(xc)
+        lo, hi = (_clip_probability(v, fit.y_name) for v in fit.confidence_band(xc))
         ax.fill_between(xc, lo, hi, color=color, alpha=0.15, linewidth=0,
                         label=f"{pct} CI of the fit" if name is None else None)
     if pi:
-        lo, hi = fit.prediction_interval(xc)
+        lo, hi = (_clip_probability(v, fit.y_name) for v in fit.prediction_interval(xc))
         ax.plot(xc, lo, color=color, lw=0.9, ls=(0, (4, 3)), alpha=0.8,
                 label=f"{pct} prediction interval" if name is None else None)
         ax.plot(xc, hi, color=color, lw=0.9, ls=(0, (4, 3)), alpha=0.8)
@@ -224,9 +240,11 @@ def _format_log_x(ax: Any, col: str) -> None:
 
 
 def _ordered_legend(ax: Any, **kwargs: Any) -> None:
-    """Data series first, then fits and bands."""
+    """Data series first, then fits and bands; below the axes, so that it never covers a point or its
+    label (inside, ``loc="best"`` put it over two of the three points of the demo's fit, issue 31)."""
     handles, labels = ax.get_legend_handles_labels()
     order = sorted(range(len(labels)), key=lambda i: (not isinstance(handles[i], mpl.container.ErrorbarContainer), i))
+    kwargs = {"loc": "upper center", "bbox_to_anchor": (0.5, -0.16), "ncols": 2, **kwargs}
     ax.legend([handles[i] for i in order], [labels[i] for i in order], **kwargs)
 
 
@@ -278,7 +296,8 @@ def plot_scaling(rows: Sequence[Mapping[str, Any]], x: str = "flops", y: str = "
         if all_x:
             ax.set_xlim(*(_curve_x(np.concatenate(all_x), 1.25)[[0, -1]]))
         _format_log_x(ax, xc)
-        _ordered_legend(ax, loc="best")
+        _probability_axis(ax, yc)
+        _ordered_legend(ax)
         _declutter_labels(ax)
     return fig
 
@@ -293,7 +312,7 @@ def plot_extrapolation(ext: Extrapolation, rows: Sequence[Mapping[str, Any]], *,
         below = xs < ext.cut
         c_fit, c_test = OKABE_ITO[0], OKABE_ITO[1]
         xc = np.geomspace(xs.min() / 1.15, xs.max() * 1.15, 200)
-        lo, hi = ext.fit.prediction_interval(xc)
+        lo, hi = (_clip_probability(v, ext.y_name) for v in ext.fit.prediction_interval(xc))
         pct = f"{100 * ext.fit.level:g}%"
         ax.fill_between(xc, lo, hi, color=c_fit, alpha=0.12, linewidth=0, label=f"{pct} prediction interval")
         ax.plot(xc, ext.fit.predict(xc), color=c_fit, label=f"fit below cut (n = {ext.fit.n}, r = {ext.fit.r:.3f})")
@@ -317,7 +336,8 @@ def plot_extrapolation(ext: Extrapolation, rows: Sequence[Mapping[str, Any]], *,
                               f"{pct} PI covers {sum(p.inside for p in ext.points)}/{len(ext.points)}")
         ax.grid(True, which="minor", alpha=0.12)
         _format_log_x(ax, ext.x_name)
-        _ordered_legend(ax, loc="upper left")
+        _probability_axis(ax, ext.y_name)
+        _ordered_legend(ax)
         _declutter_labels(ax)
     return fig
 

@@ -28,7 +28,7 @@ Columns (see :data:`COLUMNS` for the full list and units):
   printed); ``rprec_block`` (R-Precision block size, so chance top-k = k/block); ``evaluator`` and
   ``evaluator_id`` (which evaluator scored the row, from ``eval.json``'s ``_meta``);
 * the paper's FLOPs convention: ``flops_per_sample_paper`` (multiply-adds of the Linear layers plus the
-  frozen text encoder, which reproduces Table B; ``handx_jax/flops.py``) and its text-encoder part
+  frozen text encoder, which reproduces Table B; ``handx_jax/families/diffusion/flops.py``) and its text-encoder part
   ``text_flops_per_sample_paper``, beside the analytic ``flops_per_sample``;
 * launcher provenance (``sweeps/launcher.py``): ``sweep``, ``status`` (done | failed | running |
   pending), ``error``, ``data_sampling`` (clips | pairs), ``wall_time_s``, ``device_kind``,
@@ -131,7 +131,7 @@ COLUMNS: tuple[Column, ...] = (
     Column("text_flops_per_sample", float, "forward FLOPs of the frozen text encoder per sample",
            nonnegative=True),
     Column("flops_per_sample_paper", float, "per-sample FLOPs in the paper's Table B convention: multiply-adds of "
-           "the denoiser's Linear layers plus the frozen text encoder's (handx_jax/flops.py)", positive=True),
+           "the denoiser's Linear layers plus the frozen text encoder's (handx_jax/families/diffusion/flops.py)", positive=True),
     Column("text_flops_per_sample_paper", float, "the text-encoder part of flops_per_sample_paper (MACs)",
            nonnegative=True),
     Column("train_flops", float, "total training compute (FLOPs)", nonnegative=True),
@@ -272,6 +272,19 @@ def lenient_row(raw: Mapping[str, Any], *, path: Any = None, row: Any = None) ->
     return out
 
 
+class Row(dict):
+    """A results row that remembers where it was read: ``source`` (``file PATH, row N``) and ``cells`` (the
+    raw cells as read, before NaN and empty cells became None), so an analysis that leaves the row out
+    can say where it is and why (its cell was NaN or empty, or the file has no such column)."""
+
+    __slots__ = ("source", "cells")
+
+    def __init__(self, values: Mapping[str, Any], *, source: str | None = None,
+                 cells: Mapping[str, Any] | None = None):
+        super().__init__(values)
+        self.source, self.cells = source, cells
+
+
 def make_row(**values: Any) -> dict[str, Any]:
     """Build a validated row from keyword arguments (handy in code and tests)."""
     return validate_row(values)
@@ -284,7 +297,8 @@ def make_row(**values: Any) -> dict[str, Any]:
 def _load_jsonl(path: Path, strict: bool = True) -> list[dict[str, Any]]:
     raws = read_jsonl(path)
     check = validate_row if strict else lenient_row
-    return [check(r, path=path, row=i + 1) for i, r in enumerate(raws)]
+    return [Row(check(r, path=path, row=i + 1), source=_where(path, i + 1), cells=r if isinstance(r, dict) else None)
+            for i, r in enumerate(raws)]
 
 
 def _load_csv(path: Path, strict: bool = True) -> list[dict[str, Any]]:
@@ -303,7 +317,9 @@ def _load_csv(path: Path, strict: bool = True) -> list[dict[str, Any]]:
     for i, cells in enumerate(reader):
         if len(cells) != len(header):
             raise _error(f"has {len(cells)} cells but the header has {len(header)}", path=path, row=i + 1)
-        rows.append((validate_row if strict else lenient_row)(dict(zip(header, cells)), path=path, row=i + 1))
+        raw = dict(zip(header, cells))
+        rows.append(Row((validate_row if strict else lenient_row)(raw, path=path, row=i + 1),
+                        source=_where(path, i + 1), cells=raw))
     return rows
 
 
@@ -536,4 +552,4 @@ def row_from_run_dir(run_dir: str | os.PathLike) -> dict[str, Any]:
         if isinstance(meta.get("evaluator_id"), str):
             values["evaluator_id"] = meta["evaluator_id"]
             values["evaluator"] = meta.get("evaluator_name") or meta["evaluator_id"]
-    return validate_row(values, path=run_dir, row=values["run_id"])
+    return Row(validate_row(values, path=run_dir, row=values["run_id"]), source=f"run folder {run_dir}")
