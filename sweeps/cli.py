@@ -46,19 +46,24 @@ def _sweep_kwargs(a: argparse.Namespace) -> dict:
 def _run(a: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from handx_jax.io import DataError
     from sweeps.launcher import SweepConfig, launch, load_resources, load_rprec_block, load_sweep
 
-    kw = _sweep_kwargs(a)
-    specs = load_sweep(a.sweep, **kw)
+    try:  # the sweep file is user code: every way it can fail is one line naming it (launcher.load_sweep)
+        kw = _sweep_kwargs(a)
+        specs = load_sweep(a.sweep, **kw)
+        preset = kw.get("preset", "")
+        resources = {**load_resources(a.sweep, preset), **_kv(a.slurm)}
+        block = a.rprec_block or load_rprec_block(a.sweep)
+    except (DataError, FileNotFoundError, ValueError) as e:
+        print(f"handx sweep run: error: {e}", file=sys.stderr)
+        return 2
     if a.only:
         keep = set(a.only.split(","))
         unknown = keep - {s.name for s in specs}
         if unknown:
             raise SystemExit(f"handx: error: --only names runs the sweep does not have: {', '.join(sorted(unknown))}")
         specs = [s for s in specs if s.name in keep]
-    preset = kw.get("preset", "")
-    resources = {**load_resources(a.sweep, preset), **_kv(a.slurm)}
-    block = a.rprec_block or load_rprec_block(a.sweep)
     if a.dry_run:
         for s in specs:
             print(json.dumps({"name": s.name, "family": s.family, "preset": s.preset, "axes": s.axes,
@@ -98,9 +103,14 @@ def _launched(command: str, go, total: int | None = None) -> int:
 
 
 def _status(a: argparse.Namespace) -> int:
+    from handx_jax.io import DataError
     from sweeps.launcher import status
 
-    rows = status(a.out)
+    try:
+        rows = status(a.out)
+    except (DataError, FileNotFoundError) as e:
+        print(f"handx sweep status: error: {e}", file=sys.stderr)
+        return 2
     if a.json:
         for r in rows:
             print(json.dumps(r))

@@ -63,7 +63,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
-from handx_jax.io import DataError, atomic_write_json
+from handx_jax.io import DataError, atomic_write_json, read_json
 from handx_jax.runlock import RunLock, RunLocked, is_locked, pdeathsig_preexec
 
 REPO = Path(__file__).resolve().parent.parent
@@ -163,23 +163,51 @@ def _import(path: str | os.PathLike):
     if spec is None or spec.loader is None:
         raise FileNotFoundError(f"cannot import sweep file {path}")
     mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    if not hasattr(mod, "runs"):
-        raise AttributeError(f"{path} defines no runs(**kw) function")
+    try:
+        spec.loader.exec_module(mod)
+    except SyntaxError as e:
+        raise DataError(f"sweep file has a syntax error at line {e.lineno}: {e.msg}", path=path) from None
+    except Exception as e:  # the sweep file is user code: whatever it raises is one line naming it
+        raise DataError(f"sweep file failed to import: {_one_line(e)}", path=path) from None
+    if not callable(getattr(mod, "runs", None)):
+        raise DataError("sweep file defines no runs(**kw) function", path=path)
     return mod
 
 
+def _one_line(e: BaseException) -> str:
+    text = str(e).strip().splitlines()
+    return f"{type(e).__name__}: {text[0][:300]}" if text else type(e).__name__
+
+
 def load_sweep(path: str | os.PathLike, **kwargs) -> list[RunSpec]:
-    """Import a sweep file and call its ``runs(**kwargs)``; names are checked and must be unique."""
-    specs = _import(path).runs(**kwargs)
-    names = [check_name(s.name) for s in specs]
-    for s in specs:
-        for st in s.needs:
-            check_name(st.name, "step")
-    dup = {n for n in names if names.count(n) > 1}
+    """Import a sweep file and call its ``runs(**kwargs)``; what it returns is checked here, before anything
+    is launched: a non-empty list of :class:`RunSpec`, names allowed and unique. Every failure is a
+    ``DataError`` naming the file."""
+    runs = _import(path).runs
+    call = f"runs({', '.join(f'{k}={v!r}' for k, v in kwargs.items())})"
+    try:
+        specs = runs(**kwargs)
+    except Exception as e:
+        raise DataError(f"{call} raised {_one_line(e)}", path=path) from None
+    if not isinstance(specs, (list, tuple)):
+        got = "None" if specs is None else f"a {type(specs).__name__}"
+        raise DataError(f"{call} returned {got}, not a list of RunSpec (did it forget `return`?)", path=path)
+    if not specs:
+        raise DataError(f"{call} returned no runs: nothing to launch", path=path)
+    for i, s in enumerate(specs):
+        if not isinstance(s, RunSpec):
+            raise DataError(f"{call} item {i} is a {type(s).__name__}, not a RunSpec", path=path)
+    try:
+        names = [check_name(s.name) for s in specs]
+        for s in specs:
+            for st in s.needs:
+                check_name(st.name, "step")
+    except DataError as e:
+        raise DataError(str(e), path=path) from None
+    dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        raise ValueError(f"{path}: run names must be unique; repeated: {sorted(dup)}")
-    return specs
+        raise DataError(f"run names must be unique; repeated: {', '.join(dup)}", path=path)
+    return list(specs)
 
 
 def load_rprec_block(path: str | os.PathLike) -> int:
@@ -573,11 +601,20 @@ def _load_state(out: Path) -> tuple[SweepConfig, list[RunSpec]]:
     """The sweep's config and runs from ``out/sweep.json``. Its ``out`` is the folder read, not the path the
     launch was given: a relative ``--out`` names another folder from another working directory (or after
     the sweep folder moved), and collecting from there would rewrite the table with every run missing."""
-    doc = _read_json(out / "sweep.json")
-    if not doc:
+    path = Path(out) / "sweep.json"
+    if not path.exists():
         raise DataError("not a sweep folder (no sweep.json); run `handx sweep run ... --out` first", path=out)
-    cfg = SweepConfig(**{**doc["config"], "out": str(Path(out).absolute())})
-    return cfg, [_spec_of(s) for s in doc["runs"]]
+    doc = read_json(path)  # corrupt: a DataError naming the file, not "(no sweep.json)"
+    if not isinstance(doc, dict) or not isinstance(doc.get("config"), dict) or not isinstance(doc.get("runs"), list):
+        raise DataError("not a sweep record: expected an object with 'config' and 'runs' (rewritten by the next "
+                        "`handx sweep run ... --out`)", path=path)
+    try:
+        cfg = SweepConfig(**{**doc["config"], "out": str(Path(out).absolute())})
+        specs = [_spec_of(s) for s in doc["runs"]]
+    except (TypeError, KeyError, AttributeError, ValueError) as e:
+        raise DataError(f"damaged sweep record ({_one_line(e)}); rerun `handx sweep run ... --out` to rewrite it",
+                        path=path) from None
+    return cfg, specs
 
 
 def collect_results(out: str | os.PathLike, slurm_active: dict | None = None) -> Path:
