@@ -16,7 +16,7 @@ PAPER_DATA = Path(__file__).resolve().parent / "paper_data"
 TABLES = {"2": "table2.csv", "3": "table3.csv", "B": "tableB.csv"}
 
 # Sec. 6.3 / Fig. 4: top-3 R-Precision (block size 16) against per-sample FLOPs in raw units,
-# fitted on Table B (paper convention, handx_jax/flops.py).
+# fitted on Table B (paper convention, handx_jax/families/diffusion/flops.py).
 FIG4 = {"x": "flops_per_sample_paper", "y": "rprec_top3", "slope": 0.4391, "intercept": -3.8707, "r": 0.96}
 
 

@@ -8,7 +8,7 @@ without the KV cache; MFU on a GPU.
   batches) on random normalised 48-frame windows; samples/s of the second log interval (compiled).
 - **LM training**: the same loop on random codes and random text features of ``--text-len`` tokens;
   tokens/s counts the 31 motion slots (30 codes + END) per sample.
-- **Decoding**: ``ar_decode.decode`` (one jitted ``while_loop``) greedy over 30 tokens with END masked
+- **Decoding**: ``families.ar.decode.decode`` (one jitted ``while_loop``) greedy over 30 tokens with END masked
   out of the head so every row runs the full length; generated tokens/s with the KV cache and with a
   full recompute per step. The second call is timed.
 - **MFU** (GPU only): analytic forward FLOPs (``models.fsq.forward_flops``, ``models.prefix_lm.forward_flops``)
@@ -34,7 +34,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/_peak.py
 
-from handx_jax import ar_decode as AD  # noqa: E402
+from handx_jax.families.ar import decode as AD  # noqa: E402
 from handx_jax import hostdevices  # noqa: E402
 from handx_jax.models import fsq as Q  # noqa: E402
 from handx_jax.models import prefix_lm as P  # noqa: E402

@@ -39,7 +39,7 @@ import numpy as np
 
 from handx_jax.families.diffusion import DiffusionRunConfig, apply_overrides, make_loss, make_model, params_non_embedding
 from handx_jax import hostdevices
-from handx_jax.generation import compile_sampler
+from handx_jax.families.diffusion.sampling import compile_sampler
 from handx_jax.models.dit import PRESETS, forward_flops, init_denoiser, param_count
 from handx_jax.train import train
 from handx_jax.xla_options import inference_options

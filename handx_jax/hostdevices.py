@@ -6,7 +6,7 @@ attention's (sequences × heads) products of 62 × 64 × 62 at paper-4L keep one
 CPU devices and a sampling batch into N slices (``shard_map``, no communication: every sample is
 independent) runs those products on every core at once, while the large matmuls keep using the shared
 intra-op thread pool. DDIM + CFG sampling, one process with 2 devices against one with 1 (2-core machine):
-paper-4L at batch 32 1.09-1.14×, L2-d128 at batch 256 1.12×, L2-d64 1.23×. AR decoding (``ar_decode``)
+paper-4L at batch 32 1.09-1.14×, L2-d128 at batch 256 1.12×, L2-d64 1.23×. AR decoding (``families.ar.decode``)
 splits its batch the same way: greedy KV-cache decoding of the small LM 1.10-1.19× at batch 16, 1.30× at 64.
 
 Training keeps one device per process (``train._mesh``): the loop's data parallelism across two such

@@ -556,10 +556,10 @@ def run_status(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | 
 
 
 def _paper_flops(cfg_doc: dict) -> dict:
-    """Both FLOPs conventions from a diffusion run's config.json (handx_jax/flops.py)."""
+    """Both FLOPs conventions from a diffusion run's config.json (handx_jax/families/diffusion/flops.py)."""
     if cfg_doc.get("family") != "diffusion" or "model" not in cfg_doc or "text_len_mean" not in cfg_doc:
         return {}
-    from handx_jax import flops
+    from handx_jax.families.diffusion import flops
     from handx_jax.models.dit import DiTConfig
 
     m = {k: v for k, v in cfg_doc["model"].items() if k in {f.name for f in dataclasses.fields(DiTConfig)}}

@@ -15,9 +15,9 @@ def samples() -> tuple[dict, dict]:
     import jax
     import numpy as np
 
-    from handx_jax import diffusion as D
+    from handx_jax.families.diffusion import process as D
     from handx_jax.families.diffusion import make_model
-    from handx_jax.generation import compile_sampler
+    from handx_jax.families.diffusion.sampling import compile_sampler
     from handx_jax.models.dit import PRESETS, init_denoiser
 
     m = PRESETS["tiny"]
@@ -33,8 +33,8 @@ def samples() -> tuple[dict, dict]:
             fn = compile_sampler(make_model(m), D.DiffusionConfig(), sampler="ddim", steps=3, guidance=g, batch=B)
             used[str(B)] = int(fn.mesh.size) if hasattr(fn, "mesh") else 1
             out[f"{name}_{B}"] = np.asarray(fn(params, text, mask, jax.random.PRNGKey(3), None, None))
-    # AR decoding (ar_decode.decode): greedy and sampled, one compiled loop (the options are traced)
-    from handx_jax import ar_decode as AD
+    # AR decoding (families.ar.decode.decode): greedy and sampled, one compiled loop (the options are traced)
+    from handx_jax.families.ar import decode as AD
     from handx_jax import hostdevices
     from handx_jax.models import prefix_lm as PL
 

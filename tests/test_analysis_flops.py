@@ -1,10 +1,10 @@
-"""Paper-convention FLOPs (handx_jax/flops.py) reproduce Table B's FLOPs column."""
+"""Paper-convention FLOPs (handx_jax/families/diffusion/flops.py) reproduce Table B's FLOPs column."""
 
 import json
 
 import pytest
 
-from handx_jax import flops
+from handx_jax.families.diffusion import flops
 from handx_jax.models.dit import DiTConfig, forward_flops
 
 from analysis.paper import load_table

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from handx_jax import diffusion as D
+from handx_jax.families.diffusion import process as D
 
 VAR = 0.25
 SCHED = D.cosine_schedule(1000)

@@ -11,7 +11,8 @@ import pytest
 from analysis.schema import row_from_run_dir
 from handx_jax.cli import main
 from handx_jax.families.diffusion import (DiffusionRunConfig, apply_overrides, load_train_data, make_loss,
-                                          make_model, params_non_embedding, train_diffusion)
+                                          make_model, params_non_embedding)
+from handx_jax.families.diffusion import train as train_diffusion
 from handx_jax.models.dit import PRESETS, forward_flops, init_denoiser, param_count
 from handx_jax.train import load_params
 from tests.diffusion_fixtures import ENCODER, make_dataset, tiny_config
@@ -44,7 +45,7 @@ def test_cli_set_errors_are_clear(data, tmp_path, capsys):
 
 
 def test_preset_and_task_names_agree_with_the_code(capsys):
-    from handx_jax.diffusion import TASKS as D_TASKS
+    from handx_jax.families.diffusion.process import TASKS as D_TASKS
 
     assert main(["train", "diffusion", "--help"]) == 0
     out = "".join(capsys.readouterr().out.split())  # help text wraps lines (also at hyphens)

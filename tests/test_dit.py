@@ -3,7 +3,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from handx_jax import diffusion as D
+from handx_jax.families.diffusion import process as D
 from handx_jax.models.dit import NUM_BRANCHES, PRESETS, DiTConfig, forward_flops, init_denoiser, param_count
 
 

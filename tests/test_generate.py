@@ -4,12 +4,13 @@
 import numpy as np
 import pytest
 
-from handx_jax import diffusion as D
+from handx_jax.families.diffusion import process as D
 from handx_jax.cli import main
 from handx_jax.data.dataset import Dataset
 from handx_jax.data.handx_npz import read_handx_npz
-from handx_jax.families.diffusion import load_run, train_diffusion
-from handx_jax.generation import Prompt, SampleOptions, generate, generate_long, task_gamma
+from handx_jax.families.diffusion import load as load_run, train as train_diffusion
+from handx_jax.families.diffusion.sampling import SampleOptions, generate, generate_long, task_gamma
+from handx_jax.generation import Prompt
 from tests.diffusion_fixtures import make_dataset, tiny_config
 
 FAST = ["--sampler", "ddim", "--steps", "8", "--samples", "2"]

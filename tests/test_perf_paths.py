@@ -16,8 +16,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from handx_jax import diffusion as D
-from handx_jax.generation import _sample_impl
+from handx_jax.families.diffusion import process as D
+from handx_jax.families.diffusion.sampling import _sample_impl
 from handx_jax.models.dit import NUM_BRANCHES, PRESETS, init_denoiser
 from handx_jax.models.layers import Attention, Dropout, gelu_erf, keep_mask
 

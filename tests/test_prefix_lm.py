@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from handx_jax import ar_decode as AD
+from handx_jax.families.ar import decode as AD
 from handx_jax.models import prefix_lm as P
 
 TINY = dataclasses.replace(P.PRESETS["tiny"], nb_code=37, text_dim=24)
@@ -150,7 +150,7 @@ def test_sampling_options():
 
 
 def _top_k_top_p_by_sorting(lg, top_k, top_p):
-    """The sorted-cumsum definition in numpy: the reference for the bisection in ``ar_decode``."""
+    """The sorted-cumsum definition in numpy: the reference for the bisection in ``families.ar.decode``."""
     out = lg.copy()
     for row in out:
         srt = np.sort(row)[::-1]

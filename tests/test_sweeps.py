@@ -62,7 +62,7 @@ def test_sweep_files_define_the_grids(tmp_path):
     ladder = load_sweep("sweeps/diffusion_flops_ladder.py", preset="paper")
     assert [s.overrides[:4] for s in ladder][0] == ("model.layers=2", "model.dim=256", "model.heads=4", "model.ff=1024")
     assert all("data.fraction=0.05" in s.overrides for s in ladder) and len(ladder) == 7
-    from handx_jax import flops
+    from handx_jax.families.diffusion import flops
     from handx_jax.models.dit import DiTConfig
 
     g = [flops.paper_flops(DiTConfig(layers=s.axes["layers"], dim=s.axes["dim"], heads=s.axes["heads"],

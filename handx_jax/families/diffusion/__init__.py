@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handx_jax import diffusion as D
+from handx_jax.families.diffusion import process as D
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
 from handx_jax.families import run_config
 from handx_jax.io import DataError
@@ -246,8 +246,6 @@ def train(run_dir: str | os.PathLike, cfg: DiffusionRunConfig, *, stop_at: int |
                       flops_per_sample=record["flops_per_sample"], resume_keys=RESUME_KEYS)
 
 
-train_diffusion = train  # the name older notebooks and scripts use
-
 
 # ------------------------------------------------------------------------------------------------
 # Loading a trained run
@@ -280,17 +278,17 @@ class DiffusionRun:
 
     def generate(self, prompts, opts, *, samples: int = 1, task: str = "text2motion", sources=None,
                  keyframes: Sequence[int] = (30,), fixed_hand: str = "left") -> np.ndarray:
-        """G samples per prompt: joints (P, G, F, 2, 21, 3); see ``generation.generate``."""
-        from handx_jax import generation
+        """G samples per prompt: joints (P, G, F, 2, 21, 3); see ``sampling.generate``."""
+        from handx_jax.families.diffusion import sampling
 
-        return generation.generate(self, prompts, opts, samples=samples, task=task, sources=sources,
+        return sampling.generate(self, prompts, opts, samples=samples, task=task, sources=sources,
                                    keyframes=keyframes, fixed_hand=fixed_hand)
 
     def generate_long(self, segments, opts, *, samples: int = 1, source=None) -> np.ndarray:
-        """Chained segments (App. D.2): joints (G, T, 2, 21, 3); see ``generation.generate_long``."""
-        from handx_jax import generation
+        """Chained segments (App. D.2): joints (G, T, 2, 21, 3); see ``sampling.generate_long``."""
+        from handx_jax.families.diffusion import sampling
 
-        return generation.generate_long(self, segments, opts, samples=samples, source=source)
+        return sampling.generate_long(self, segments, opts, samples=samples, source=source)
 
     def describe(self, opts) -> str:
         """How the samples were drawn, for the command's summary line."""
@@ -325,8 +323,6 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
     used_ema = bool(ema and cfg.train.ema_decay > 0)
     return DiffusionRun(run_dir, cfg, make_model(cfg.model), params, step, norm, enc, used_ema)
 
-
-load_run = load  # the name older notebooks and scripts use
 
 
 # ------------------------------------------------------------------------------------------------
@@ -367,7 +363,7 @@ def add_params_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--convention", choices=("analytic", "paper"), default="analytic",
                    help="analytic: 2 FLOPs per multiply-add of every matmul, denoiser only (default); paper: also "
                         "print the multiply-adds of the Linear layers (as fvcore/thop count them) plus the frozen "
-                        "T5-base encoder, which reproduces the paper's Table B FLOPs column (handx_jax/flops.py)")
+                        "T5-base encoder, which reproduces the paper's Table B FLOPs column (handx_jax/families/diffusion/flops.py)")
     p.add_argument("--text-tokens", type=int, default=None,
                    help="paper convention: text tokens per branch the denoiser attends to (default 63, fitted to "
                         "Table B)")
@@ -391,7 +387,7 @@ def params_from_args(args: argparse.Namespace) -> tuple[str, dict]:
     label = (f"diffusion {cfg.preset}: L{m.layers} d{m.dim} H{m.heads} FF{m.ff} (text {m.text_dim}-d, "
              f"{args.text_len} tokens)")
     if args.convention == "paper":
-        from handx_jax import flops
+        from handx_jax.families.diffusion import flops
 
         mem = flops.PAPER_MEM_TOKENS if args.text_tokens is None else args.text_tokens
         enc = flops.PAPER_ENCODER_TOKENS if args.encoder_tokens is None else args.encoder_tokens
@@ -411,7 +407,7 @@ def add_generate_args(p: argparse.ArgumentParser) -> None:
 
 def load_for_generate(args: argparse.Namespace, *, ema: bool, encoder, seed: int, batch_size: int):
     """(run, sampling options) for ``handx generate``."""
-    from handx_jax.generation import SampleOptions
+    from handx_jax.families.diffusion.sampling import SampleOptions
 
     run = load(args.run, ema=ema, encoder=encoder, overrides=args.set)
     opts = SampleOptions(sampler=args.sampler, steps=args.steps, guidance=args.guidance, seed=seed,

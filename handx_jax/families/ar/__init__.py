@@ -14,7 +14,7 @@ evaluates with the first token only, §4.5; that mismatch is not ported). The ta
 size (e.g. 4375 for "4096"); the run records both sizes and the tokenizer's provenance.
 
 Generation decodes greedily by default (the paper), in one jitted loop with a KV cache
-(``handx_jax.ar_decode``), then tokens → FSQ decoder → de-normalised 288-d → global joints. Tasks:
+(``families.ar.decode``), then tokens → FSQ decoder → de-normalised 288-d → global joints. Tasks:
 ``text2motion`` and ``prediction`` (the first ``--observed-frames`` frames of ``--source`` are
 encoded and prefilled; the rest is generated).
 """
@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handx_jax import ar_decode as AD
+from handx_jax.families.ar import decode as AD
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
 from handx_jax.families import tokenizer as T
 from handx_jax.families import run_config

@@ -1,0 +1,246 @@
+"""Sampling a trained diffusion run: text-to-motion and the masked tasks of paper App. D.
+
+One mask builder (``process.task_centers`` + ``soft_mask``) and one compiled sampler
+(``process.sample``, a single ``lax.scan``) serve every task. Constraints come from a source clip:
+its normalised diffusion features are the target x0^gt and γ (F, 42) says where and how strongly
+they are enforced (p_hard at the centre frames, a linear band of k_trans frames down to p_soft).
+Outputs are de-normalised and placed at the source clip's centre (so constrained joints match the
+source in absolute coordinates); without a source they stay clip-centred.
+
+Long-horizon generation (App. D.2, Eq. Q) chains 60-frame segments: segment k+1 is constrained by
+the last K_hor + k_trans frames of segment k placed at its frames 0..K_hor+k_trans−1 (centre frames
+0..K_hor−1, the band after them). The chained motion keeps segment k up to that overlap and then all
+of segment k+1, so each new segment adds 60 − K_hor − k_trans frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import partial
+from typing import TYPE_CHECKING, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from handx_jax import representation as rep
+from handx_jax.families.diffusion import process as D
+from handx_jax.generation import Prompt
+from handx_jax.xla_options import jit_inference
+
+if TYPE_CHECKING:
+    from handx_jax.families.diffusion import DiffusionRun
+
+K_INBET = 5  # paper App. D.2 (the code uses 10, reference §9.9)
+K_HOR = 5
+
+
+@dataclass(frozen=True)
+class SampleOptions:
+    sampler: str = "ddpm"  # "ddpm" (ancestral, all T steps, the reference) or "ddim"
+    steps: int = 50  # DDIM steps
+    guidance: float | None = None  # None: the run's diffusion.guidance (2.5)
+    seed: int = 0
+    batch_size: int = 256  # samples per compiled call
+
+
+# ------------------------------------------------------------------------------------------------
+# Masks
+
+
+def task_gamma(task: str, dcfg: D.DiffusionConfig, frames: int = 60, *, keyframes: Sequence[int] = (30,),
+               fixed_hand: str = "left") -> np.ndarray:
+    """γ (F, 42) for a task (App. D.2), with the run's p_hard/p_soft/k_trans."""
+    c = D.task_centers(task, frames, 42, k_inbet=K_INBET, keyframes=tuple(keyframes), fixed_hand=fixed_hand,
+                       k_hor=K_HOR)
+    return D.soft_mask(c, dcfg.p_hard, dcfg.p_soft, dcfg.k_trans)
+
+
+# ------------------------------------------------------------------------------------------------
+# Sampling
+
+
+def _sample_impl(params, text_KxBxLxD, mask_KxBxL, rng, target, gamma, *, model, sched, dcfg, sampler, steps,
+                 guidance, mesh=None):
+    """The whole sampler as one traced function. ``mesh`` (``hostdevices.inference_mesh``): split every
+    denoiser call's samples over its devices (the noise, the text encoding and the update stay global:
+    the same numbers on one device or several)."""
+    B = text_KxBxLxD.shape[1]
+    # The text memory is the same at every step: project it and compute each layer's cross-attention
+    # keys/values once, outside the scan (issue 15).
+    memory = model.apply(params, text_KxBxLxD, mask_KxBxL, method=model.encode)
+
+    def denoise_rows(params, x, t_B, memory, b):
+        # ``diffusion.guided`` stacks [conditional; unconditional] on the batch axis, so the rows past the
+        # first ``b`` are the null-text pass: one memory token, no text keys/values. Their x and t repeat
+        # the first b rows', so the work before the first cross-attention is shared.
+        null_rows = x.shape[0] - b
+        return model.apply(params, x, t_B, memory, null_rows, null_rows == b, method=model.denoise)
+
+    def denoise(x, t_B, uncond_B):
+        del uncond_B  # the layout says it: rows past B are unconditional
+        if mesh is None:
+            return denoise_rows(params, x, t_B, memory, B)
+        return _split_over(mesh, denoise_rows, params, x, t_B, memory, B)
+
+    shape = (B, model.cfg.frames, model.cfg.joints, model.cfg.channels)
+    return D.sample(denoise, sched, shape, rng, dcfg, sampler=sampler, steps=steps, guidance=guidance,
+                    target=target, gamma_FxJ=gamma)
+
+
+def _split_over(mesh, denoise_rows, params, x_GBxFxJxC, t_GB, memory, B):
+    """``denoise_rows`` with the B samples split over ``mesh`` (hostdevices): each device gets its slice
+    of every group (the conditional rows and, under guidance, the repeated null rows) and of the text
+    memory, whose rows are branch-major (K·B), so the layout each device sees is the unsplit one's."""
+    from jax.sharding import PartitionSpec as P
+
+    G = x_GBxFxJxC.shape[0] // B
+    x = x_GBxFxJxC.reshape(G, B, *x_GBxFxJxC.shape[1:])
+    t = t_GB.reshape(G, B)
+    by_sample = lambda a: a.reshape(-1, B, *a.shape[1:])  # noqa: E731  (K·B, ...) -> (K, B, ...)
+    mem = jax.tree_util.tree_map(by_sample, memory)
+    split = P(None, "b")
+
+    def body(params, x, t, mem):
+        b = x.shape[1]
+        flat = lambda a: a.reshape(-1, *a.shape[2:])  # noqa: E731
+        y = denoise_rows(params, flat(x), flat(t), jax.tree_util.tree_map(flat, mem), b)
+        return y.reshape(G, b, *y.shape[1:])
+
+    y = jax.shard_map(body, mesh=mesh, in_specs=(P(), split, split, split), out_specs=split)(params, x, t, mem)
+    return y.reshape(G * B, *y.shape[2:])
+
+
+def compile_sampler(model, dcfg: D.DiffusionConfig, *, sampler: str, steps: int, guidance: float, batch: int):
+    """The compiled sampler for batches of ``batch`` samples: ``fn(params, text_KxBxLxD, mask_KxBxL, rng,
+    target, gamma) -> x0 (B, F, J, C)``, with the inference XLA options (``xla_options``) and, where the
+    host has several CPU devices, the batch split over them (``hostdevices``)."""
+    from handx_jax import hostdevices
+
+    mesh = hostdevices.inference_mesh(batch)
+    fn = jit_inference(partial(_sample_impl, model=model, sched=D.cosine_schedule(dcfg.steps), dcfg=dcfg,
+                               sampler=sampler, steps=steps, guidance=guidance, mesh=mesh), model.cfg.dim)
+    if mesh is None:
+        return fn
+
+    def placed(params, *args):
+        return fn(*hostdevices.replicate(mesh, (params, *args)))
+
+    placed.mesh = mesh
+    return placed
+
+
+def _compiled(run: DiffusionRun, opts: SampleOptions, masked: bool, batch: int):
+    cache = run.__dict__.setdefault("_compiled", {})
+    g = run.cfg.diffusion.guidance if opts.guidance is None else float(opts.guidance)
+    key = (opts.sampler, opts.steps if opts.sampler == "ddim" else None, g, masked, run.cfg.diffusion, batch)
+    if key not in cache:
+        cache[key] = compile_sampler(run.model, run.cfg.diffusion, sampler=opts.sampler, steps=opts.steps,
+                                     guidance=g, batch=batch)
+    return cache[key]
+
+
+def sample_normalised(run: DiffusionRun, prompts: Sequence[Prompt], opts: SampleOptions, *,
+                      targets_BxFx42x4: np.ndarray | None = None, gamma_FxJ: np.ndarray | None = None,
+                      rng: jax.Array | None = None) -> np.ndarray:
+    """One sample per prompt, (B, F, 42, 4) in normalised space, in chunks of ``opts.batch_size``."""
+    rng = jax.random.PRNGKey(opts.seed) if rng is None else rng
+    masked = targets_BxFx42x4 is not None
+    out = []
+    n = len(prompts)
+    bs = min(opts.batch_size, n)
+    fn = _compiled(run, opts, masked, bs)
+    for ci, s in enumerate(range(0, n, bs)):
+        chunk = list(prompts[s:s + bs])
+        real = len(chunk)
+        chunk += [chunk[-1]] * (bs - real)  # pad the last chunk: one compiled shape
+        h, m = run.encode([t for p in chunk for t in p.texts()])
+        h = h.reshape(bs, 3, *h.shape[1:]).swapaxes(0, 1)
+        m = m.reshape(bs, 3, -1).swapaxes(0, 1)
+        tgt = gam = None
+        if masked:
+            tgt = np.asarray(targets_BxFx42x4[s:s + bs], np.float32)
+            tgt = np.concatenate([tgt, np.repeat(tgt[-1:], bs - real, 0)])
+            gam = np.asarray(gamma_FxJ, np.float32)
+        x = fn(run.params, jnp.asarray(h), jnp.asarray(m), jax.random.fold_in(rng, ci), tgt, gam)
+        out.append(np.asarray(x)[:real])
+    return np.concatenate(out)
+
+
+def to_joints(run: DiffusionRun, x_BxFx42x4: np.ndarray, centers_Bx3: np.ndarray | None = None) -> np.ndarray:
+    """De-normalise and convert to joints (B, F, 2, 21, 3)."""
+    return rep.diffusion_to_joints(run.norm.denormalize(np.asarray(x_BxFx42x4, np.float32)), centers_Bx3)
+
+
+def generate(run: DiffusionRun, prompts: Sequence[Prompt], opts: SampleOptions, *, samples: int = 1,
+             task: str = "text2motion", sources: Sequence[np.ndarray] | None = None,
+             keyframes: Sequence[int] = (30,), fixed_hand: str = "left") -> np.ndarray:
+    """G samples per prompt: joints (P, G, F, 2, 21, 3). ``sources`` (one joints array per prompt) give
+    the task's constraint clips and the output placement."""
+    if task == "long":
+        raise ValueError("use generate_long for long-horizon generation")
+    if task not in D.TASKS:
+        raise ValueError(f"unknown task {task!r}; choose from {D.TASKS}")
+    if task != "text2motion" and sources is None:
+        raise ValueError(f"task {task!r} needs a source clip")
+    P, G = len(prompts), samples
+    flat = [p for p in prompts for _ in range(G)]
+    centers = targets = gamma = None
+    if sources is not None:
+        if len(sources) != P:
+            raise ValueError(f"{len(sources)} sources for {P} prompts")
+        src = np.stack([np.asarray(s, np.float64) for s in sources])
+        centers = np.repeat(rep.diffusion_center(src), G, 0)
+        if task != "text2motion":
+            x_src = run.norm.normalize(rep.to_diffusion(src).astype(np.float32))
+            targets = np.repeat(x_src, G, 0)
+            gamma = task_gamma(task, run.cfg.diffusion, src.shape[1], keyframes=keyframes, fixed_hand=fixed_hand)
+    x = sample_normalised(run, flat, opts, targets_BxFx42x4=targets, gamma_FxJ=gamma)
+    j = to_joints(run, x, centers)
+    return j.reshape(P, G, *j.shape[1:])
+
+
+def generate_long(run: DiffusionRun, segments: Sequence[Prompt], opts: SampleOptions, *, samples: int = 1,
+                  source: np.ndarray | None = None) -> np.ndarray:
+    """Chain one 60-frame segment per prompt (App. D.2, Eq. Q): joints (G, T, 2, 21, 3) with
+    T = 60 + (S − 1)(60 − K_hor − k_trans), or S·(60 − K_hor − k_trans) more frames after ``source``
+    when a source clip is continued (the source itself is not part of the output)."""
+    dcfg = run.cfg.diffusion
+    overlap = K_HOR + dcfg.k_trans
+    F = run.cfg.model.frames
+    gamma = task_gamma("long", dcfg, F)
+    G = samples
+    rng = jax.random.PRNGKey(opts.seed)
+    prev = None  # (G, F, 42, 4) de-normalised diffusion features of the previous segment, absolute xyz
+    pieces = []
+    if source is not None:
+        src = np.asarray(source, np.float64)
+        x = rep.to_diffusion(src).astype(np.float32)
+        x[..., :3] += rep.diffusion_center(src).astype(np.float32)
+        prev = np.repeat(x[None], G, 0)
+    for k, prompt in enumerate(segments):
+        targets = offset = None
+        if prev is not None:
+            tail = prev[:, -overlap:]  # (G, overlap, 42, 4)
+            # Re-centre on the constrained frames' mean wrist midpoint (a centred clip's frame).
+            offset = 0.5 * (tail[:, :, 0, :3] + tail[:, :, 21, :3]).mean(1)  # (G, 3)
+            tgt = np.zeros((G, F, 42, 4), np.float32)
+            tgt[:, :overlap] = tail
+            tgt[:, :overlap, :, :3] -= offset[:, None, None]
+            targets = run.norm.normalize(tgt)
+            targets[:, overlap:] = 0.0  # unconstrained (γ = 0) frames: the value is irrelevant
+        x = sample_normalised(run, [prompt] * G, opts, targets_BxFx42x4=targets,
+                              gamma_FxJ=gamma if targets is not None else None, rng=jax.random.fold_in(rng, k))
+        seg = run.norm.denormalize(x)
+        if offset is not None:
+            seg[..., :3] += offset[:, None, None]
+        if prev is None:
+            pieces.append(seg)
+        elif k == 0:  # continuing a source: only the new frames are output
+            pieces.append(seg[:, overlap:])
+        else:
+            pieces[-1] = pieces[-1][:, :-overlap]
+            pieces.append(seg)
+        prev = seg
+    x = np.concatenate(pieces, axis=1)
+    return rep.diffusion_to_joints(x)
