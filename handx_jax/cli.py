@@ -20,9 +20,11 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import errno
 import sys
 
 # (group, module providing add_parser(subparsers)); a group whose module is absent is skipped, so a
+from pathlib import Path
 # partial checkout still runs the groups it has.
 GROUPS = (
     ("data", "handx_jax.data.cli"),
@@ -77,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         rc = args.func(args)
         sys.stdout.flush()  # here, not at exit, so that a closed pipe is caught below
     except (DataError, FileExistsError, FileNotFoundError) as e:
-        print(f"handx: error: {e}", file=sys.stderr)
+        print(f"handx: error: {_unwritable_message(e, args) or e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("handx: interrupted", file=sys.stderr)
@@ -87,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(devnull, sys.stdout.fileno())  # so the interpreter's final flush does not raise again
         return 141
     except Exception as e:  # a full disk, whichever library hit it, is one clear line (issue 14.8)
-        msg = disk_full_message(e)
+        msg = disk_full_message(e) or _unwritable_message(e, args)
         if msg is None:
             raise
         print(f"handx: error: {msg}", file=sys.stderr)

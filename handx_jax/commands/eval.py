@@ -62,6 +62,18 @@ def _run(args: argparse.Namespace) -> int:
     if standard.is_standard(args.evaluator):  # the packaged standard evaluator (handx_jax/standard.py)
         if args.encoder:
             raise SystemExit("handx: error: --encoder applies to --evaluator E; the standard evaluator carries its own")
+    from handx_jax.io import DataError
+
+    if args.generated:  # read and range-checked before any model is loaded: bad motion fails in a second
+        from handx_jax.data.handx_npz import read_handx_npz
+        from handx_jax.evaluation.scoring import check_motion_range
+
+        entries = read_handx_npz(args.generated)
+        try:
+            for e in entries:
+                check_motion_range(e.motion, clip=e.key)
+        except DataError as e:
+            raise DataError(str(e), path=args.generated) from None
         ev, cache = standard.load(), (standard.reference_cache_dir() if cache else False)
     else:
         ev = load_evaluator(args.evaluator, encoder=args.encoder)
@@ -71,9 +83,10 @@ def _run(args: argparse.Namespace) -> int:
     if args.ground_truth:
         res, name = evaluate_ground_truth(ev, ds, cfg, split=args.split, cache=cache), "Ground Truth"
     else:
-        from handx_jax.data.handx_npz import read_handx_npz
-
-        res = evaluate_generated(ev, read_handx_npz(args.generated), ds, cfg, split=args.split, cache=cache)
+        try:
+            res = evaluate_generated(ev, entries, ds, cfg, split=args.split, cache=cache)
+        except DataError as e:  # a clip's error names the file it came from too
+            raise e if e.path is not None else DataError(str(e), path=args.generated) from None
         res.meta["generated"] = str(Path(args.generated).absolute())
         name = args.label or Path(args.generated).stem
     if args.out:

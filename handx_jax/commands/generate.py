@@ -67,6 +67,13 @@ def family_parser(run: str):
 def _run(args: argparse.Namespace) -> int:
     if not args.run:
         args.parser.print_help()
+    try:
+        return _generate(args)
+    except ValueError as e:  # DataError too: a bad option, prompt, clip or source is one line (issue 31)
+        return fail(CMD, e)
+
+
+def _generate(args: argparse.Namespace) -> int:
         print("\nfamily options: see `handx generate --run RUN --help`")
         return 0 if args.help else fail(CMD, "the following arguments are required: --run, --out")
     try:

@@ -203,6 +203,7 @@ def _check_captions(entry, ref: dict) -> None:
 def evaluate_generated(ev: TrainedEvaluator, entries: Sequence, ds, cfg: MetricConfig = MetricConfig(),
                        split: str = "test", *, cache: bool | str | os.PathLike = True) -> EvalResult:
     """Table 2 metrics of generated clips against the reference dataset's GT and captions.
+        check_motion_range(e.motion, clip=e.key)
 
     ``cache``: where the reference embeddings are cached (:func:`reference_embeddings`); False bypasses it.
     """

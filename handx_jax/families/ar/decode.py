@@ -16,6 +16,7 @@ from code 1, as the reference returns the single id 1 (§4.6).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cache, partial
 
