@@ -18,13 +18,13 @@ stays fast.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import os
-import errno
 import sys
+from pathlib import Path
 
 # (group, module providing add_parser(subparsers)); a group whose module is absent is skipped, so a
-from pathlib import Path
 # partial checkout still runs the groups it has.
 GROUPS = (
     ("data", "handx_jax.data.cli"),
@@ -95,6 +95,30 @@ def main(argv: list[str] | None = None) -> int:
         print(f"handx: error: {msg}", file=sys.stderr)
         return 1
     return int(rc or 0)
+
+
+# A path the user named that cannot be written: a read-only file system, no permission, a directory
+# where a file goes (or a file where a directory goes), a name too long. The one place every command's
+# --out failure becomes one line (issue 31); the atomic writers (io.atomic_write_*) leave nothing behind.
+_UNWRITABLE = {errno.EROFS, errno.EACCES, errno.EPERM, errno.EISDIR, errno.ENOTDIR, errno.ENAMETOOLONG}
+_OUT_ONLY = {errno.ENOENT, errno.EEXIST}  # one line of its own only when it is about --out
+
+
+def _unwritable_message(e: BaseException, args) -> str | None:
+    if not isinstance(e, OSError) or e.errno not in _UNWRITABLE | _OUT_ONLY:
+        return None
+    out = getattr(args, "out", None)
+    names = [f for f in (e.filename, getattr(e, "filename2", None)) if f is not None]
+    if out and names:  # name the option the user gave, not an atomic writer's temporary sibling
+        o = Path(out).absolute()
+        for f in map(lambda n: Path(os.fsdecode(n)).absolute(), names):
+            tmp = f.parent == o.parent and f.name.startswith(f".{o.name}.")  # io.atomic_*'s temporary sibling
+            if f == o or tmp or o in f.parents or f in o.parents:
+                return f"cannot write --out {out}: {e.strerror.lower()} (choose another --out)"
+    if e.errno in _OUT_ONLY:
+        return None
+    where = os.fsdecode(names[-1]) if names else "a file"
+    return f"cannot write {where}: {e.strerror.lower()}"
 
 
 if __name__ == "__main__":

@@ -57,11 +57,6 @@ def _run(args: argparse.Namespace) -> int:
     cfg = MetricConfig(rprec_block=args.block, replications=args.replications, seed=args.seed,
                        mpjpe_root=args.mpjpe_root)
     cache = not args.no_reference_cache
-    from handx_jax import standard
-
-    if standard.is_standard(args.evaluator):  # the packaged standard evaluator (handx_jax/standard.py)
-        if args.encoder:
-            raise SystemExit("handx: error: --encoder applies to --evaluator E; the standard evaluator carries its own")
     from handx_jax.io import DataError
 
     if args.generated:  # read and range-checked before any model is loaded: bad motion fails in a second
@@ -74,6 +69,11 @@ def _run(args: argparse.Namespace) -> int:
                 check_motion_range(e.motion, clip=e.key)
         except DataError as e:
             raise DataError(str(e), path=args.generated) from None
+    from handx_jax import standard
+
+    if standard.is_standard(args.evaluator):  # the packaged standard evaluator (handx_jax/standard.py)
+        if args.encoder:
+            raise SystemExit("handx: error: --encoder applies to --evaluator E; the standard evaluator carries its own")
         ev, cache = standard.load(), (standard.reference_cache_dir() if cache else False)
     else:
         ev = load_evaluator(args.evaluator, encoder=args.encoder)

@@ -65,8 +65,6 @@ def family_parser(run: str):
 
 
 def _run(args: argparse.Namespace) -> int:
-    if not args.run:
-        args.parser.print_help()
     try:
         return _generate(args)
     except ValueError as e:  # DataError too: a bad option, prompt, clip or source is one line (issue 31)
@@ -74,6 +72,8 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _generate(args: argparse.Namespace) -> int:
+    if not args.run:
+        args.parser.print_help()
         print("\nfamily options: see `handx generate --run RUN --help`")
         return 0 if args.help else fail(CMD, "the following arguments are required: --run, --out")
     try:

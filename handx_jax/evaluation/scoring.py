@@ -186,9 +186,33 @@ def align_generated(entries: Sequence, ds, split: str = "test") -> Generated:
         j = int(np.searchsorted(clips, c))
         if e.motion.shape != motion.shape[2:]:
             raise DataError(f"motion shape {e.motion.shape}, expected {motion.shape[2:]}", clip=e.key, field="motion")
+        check_motion_range(e.motion, clip=e.key)
         _check_captions(e, ds.texts[c])
         motion[g, j], keys[g][j] = e.motion, e.key
     return Generated(motion, clips, keys)
+
+
+# Joints are metres in the canonical frame: both hands within about a metre of the right wrist's start.
+# Far beyond that is not motion in metres (millimetres, or a sample that diverged), and finite but huge
+# values (×1e30) overflow the evaluator's features and the FID covariance (numpy's LinAlgError, issue 31).
+MAX_ABS_METRES = 100.0
+
+
+def check_motion_range(motion: np.ndarray, *, clip: Any = None) -> None:
+    """Refuse motion the evaluator cannot score: non-finite values, or joints farther than
+    :data:`MAX_ABS_METRES` from the origin. A ``DataError`` naming the clip, the field and the frame."""
+    m = np.asarray(motion, np.float64)
+    bad = ~np.isfinite(m)
+    if bad.any():
+        f = int(np.argwhere(bad)[0, 0])
+        raise DataError(f"{int(bad.sum())} non-finite (NaN/inf) values, the first in frame {f}", clip=clip,
+                        field="motion")
+    far = np.abs(m) > MAX_ABS_METRES
+    if far.any():
+        f = int(np.argwhere(far)[0, 0])
+        raise DataError(f"joint coordinates up to {np.abs(m).max():.3g} m (first in frame {f}); the evaluator scores "
+                        f"motion in metres within ±{MAX_ABS_METRES:g} m of the origin: is it in millimetres, or did "
+                        f"the sample diverge?", clip=clip, field="motion")
 
 
 def _check_captions(entry, ref: dict) -> None:
@@ -203,7 +227,6 @@ def _check_captions(entry, ref: dict) -> None:
 def evaluate_generated(ev: TrainedEvaluator, entries: Sequence, ds, cfg: MetricConfig = MetricConfig(),
                        split: str = "test", *, cache: bool | str | os.PathLike = True) -> EvalResult:
     """Table 2 metrics of generated clips against the reference dataset's GT and captions.
-        check_motion_range(e.motion, clip=e.key)
 
     ``cache``: where the reference embeddings are cached (:func:`reference_embeddings`); False bypasses it.
     """

@@ -39,6 +39,23 @@ class DecodeOptions:
     top_p: float = 1.0  # 1 = off
     max_tokens: int = MOTION_TOKENS
 
+    def __post_init__(self) -> None:
+        """Range checks, here so that every way in (``handx generate`` flags, a run's ``sample.*``, the API)
+        gets them: out of range, the loop would sample something else silently (a negative temperature was
+        greedy, top-p 1.5 no cut). JAX rebuilds this class with tracers or placeholders as fields; only
+        concrete numbers are checked."""
+        t, k, p = self.temperature, self.top_k, self.top_p
+        if _number(t) and not (math.isfinite(t) and t >= 0):
+            raise ValueError(f"temperature (--temperature) must be a finite number >= 0 (0 = greedy), got {t}")
+        if _number(k) and not (k >= 0 and k == int(k)):
+            raise ValueError(f"top_k (--top-k) must be a whole number >= 0 (0 = off), got {k}")
+        if _number(p) and not 0 < p <= 1:
+            raise ValueError(f"top_p (--top-p) must be in (0, 1] (1 = off), got {p}")
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
 
 def sample_logits(logits_BxV, rng, opts: DecodeOptions, rows_B=None):
     """Greedy when temperature ≤ 0; else sample from softmax(logits / T) restricted to the top-k and
