@@ -17,6 +17,7 @@ decide. Re-entrant within one process (a launcher that holds the lock may run th
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -126,6 +127,7 @@ class RunLock:
         self.path = self.run_dir / LOCK_NAME
         self.stale_after = stale_after
         self._owned = False
+        self._made = False
         self.inherited = False
 
     def acquire(self) -> "RunLock":
@@ -139,6 +141,7 @@ class RunLock:
             held[key] += 1
             self._owned = True
             return self
+        self._made = not self.run_dir.exists()  # ours to remove again if nothing was written into it
         self.run_dir.mkdir(parents=True, exist_ok=True)
         me = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.time(),
               "cmd": " ".join(sys.argv)[:300], "slurm_job": _slurm_job_id()}
@@ -193,8 +196,12 @@ class RunLock:
     def __enter__(self) -> "RunLock":
         return self.acquire()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, exc_type, *exc) -> None:
+        made = self._made and self._owned and not self.inherited
         self.release()
+        if exc_type is not None and made:  # a run refused before it wrote anything leaves no folder (issue 31)
+            with contextlib.suppress(OSError):
+                self.run_dir.rmdir()  # only if empty
 
 
 def _slurm_job_id() -> str | None:

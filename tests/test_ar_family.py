@@ -19,7 +19,7 @@ def built(tmp_path_factory):
     root = tmp_path_factory.mktemp("ar")
     data = make_dataset(root, joined=True)
     tok, run = root / "tok", root / "lm"
-    assert main(["train", "tokenizer", "--data", str(data), "--codebook", "256", "--preset", "tiny", "--quiet",
+    assert main(["train", "tokenizer", "--data", str(data), "--set", "model.codebook=256", "--preset", "tiny", "--quiet",
                  "--set", "train.steps=4", "--set", "train.eval_every=2", *LOOP, "--out", str(tok)]) == 0
     assert main(["tokenize", "--tokenizer", str(tok), "--data", str(data)]) == 0
     assert main(["train", "ar", "--data", str(data), "--encoder", str(ENCODER), "--tokenizer", str(tok),
@@ -103,3 +103,47 @@ def test_params_command_reproduces_table_c(argv, expected, capsys):
     assert out["params"] == expected
     assert set(out) >= {"params", "params_non_embedding", "flops_per_sample", "text_flops_per_sample"}
     assert out["flops_per_sample"] > 2 * out["params_non_embedding"] * 31  # at least 2·N per motion slot
+
+
+def test_bad_generate_input_against_a_trained_run(built, tmp_path, capsys):
+    """Issue 31: a typed prompt longer than the joined prefix's window is refused naming the field (it was
+    cut silently, so the other two prompts had no effect), before any decoding."""
+    _, _, run = built
+    out = tmp_path / "gen.npz"
+    long = "the left hand taps its index finger on the thumb " * 2200  # ~108k characters
+    rc = main(["generate", "--run", str(run), "--left", long, "--right", "the right hand rests", "--interaction",
+               "apart", "--encoder", str(ENCODER), "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err.startswith("handx generate: error: --left is ") and f"({len(long):,} characters)" in err
+    assert "the three prompts joined are" in err and "more than the 128 the run's text encoder reads" in err
+    assert "\n" not in err and not out.exists()
+    # Typed prompts only: the dataset's own captions (batch mode) are cut at the window as in training
+    # (test_generate_writes_the_official_layout: their joined prefixes are longer than 128 tokens).
+
+
+@pytest.mark.parametrize("damage", ["outside"])  # truncated: tests/test_bad_input_ar_data.py
+def test_a_bad_token_cache_is_refused_before_training_with_no_run_folder(built, tmp_path, capsys, damage):
+    """Issue 31: codes outside the codebook trained to a NaN loss at step 5 and left a run folder behind; a
+    truncated cache said "Failed to read all data for array" without the file. Both are refused when the
+    cache is opened, before any step, naming codes.npy; the run folder is not created."""
+    import shutil
+
+    data, tok, _ = built
+    copy = tmp_path / "ds"
+    shutil.copytree(data, copy)
+    (codes_path,) = (copy / "token_cache").glob("*/codes.npy")
+    codes = np.load(codes_path)
+    if damage == "outside":
+        codes[4, 9] = 240 + 17  # the tokenizer's real codebook has 240 codes
+        np.save(codes_path, codes)
+    else:
+        codes_path.write_bytes(codes_path.read_bytes()[:-100])
+    out = tmp_path / "lm"
+    rc = main(["train", "ar", "--data", str(copy), "--encoder", str(ENCODER), "--tokenizer", str(tok),
+               "--preset", "tiny", "--quiet", "--set", "train.steps=8", *LOOP, "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err.startswith(f"handx train ar: error: file {codes_path}: "), err
+    words = ("1 codes outside the codebook [0, 240)", "the first 257 at clip 4, token 9") if damage == "outside" \
+        else ("unreadable or truncated token cache",)
+    assert all(w in err for w in words) and "\n" not in err
+    assert not out.exists()

@@ -331,10 +331,35 @@ class TokenCache:
         if dataset_fingerprint is not None and meta["dataset_fingerprint"] != dataset_fingerprint:
             raise DataError(f"token cache built for dataset {meta['dataset_fingerprint']}, not {dataset_fingerprint}; "
                             "run `handx tokenize` on this dataset", path=root)
-        codes = np.load(root / "codes.npy")
-        if codes.shape != (meta["num_clips"], meta["tokens_per_clip"]):
-            raise DataError(f"codes.npy {codes.shape} does not match meta.json", path=root)
-        return cls(root, meta, codes)
+        return cls(root, meta, read_codes(root / "codes.npy", meta))
+
+
+def read_codes(path: Path, meta: dict) -> np.ndarray:
+    """The cache's codes, checked before any training reads them: readable (a truncated file names
+    itself), of the shape meta.json gives, integers, and inside the tokenizer's codebook [0, nb_code).
+    A code outside it is a token the LM has no row for: training went on to a NaN loss at step 5 and
+    left a run folder behind (issue 31)."""
+    try:
+        codes = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise DataError("missing codes.npy; rebuild the cache with `handx tokenize`", path=path.parent) from None
+    except (ValueError, OSError, EOFError) as e:  # numpy: "Failed to read all data for array ..." and kin
+        raise DataError(f"unreadable or truncated token cache ({str(e).splitlines()[0][:200]}); rebuild it with "
+                        f"`handx tokenize`", path=path) from None
+    if codes.shape != (meta["num_clips"], meta["tokens_per_clip"]):
+        raise DataError(f"codes shape {codes.shape} does not match meta.json's ({meta['num_clips']}, "
+                        f"{meta['tokens_per_clip']}); rebuild it with `handx tokenize`", path=path)
+    if codes.dtype.kind not in "iu":
+        raise DataError(f"codes must be integers, got dtype {codes.dtype}; rebuild it with `handx tokenize`", path=path)
+    nb = int(meta["nb_code"])
+    bad = (codes < 0) | (codes >= nb)
+    if bad.any():
+        row, col = (int(v) for v in np.argwhere(bad)[0])
+        raise DataError(f"{int(bad.sum())} codes outside the codebook [0, {nb}) of tokenizer "
+                        f"{meta.get('tokenizer_fingerprint', '?')}, the first {int(codes[row, col])} at clip {row}, "
+                        f"token {col}; rebuild it with `handx tokenize`", path=path)
+    return codes
+
 
 
 def open_token_cache(data_dir: str | os.PathLike, tokenizer_dir: str | os.PathLike) -> TokenCache:

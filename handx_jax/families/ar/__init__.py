@@ -84,8 +84,10 @@ class ARRunConfig:
             raise ConfigError(f"model.dim {m.dim} / model.heads {m.heads} must be an even integer (RoPE pairs)")
         if not 0 < self.data.fraction <= 1:
             raise ConfigError(f"data.fraction must be in (0, 1], got {self.data.fraction}")
-        if self.sample.temperature < 0 or not 0 < self.sample.top_p <= 1 or self.sample.top_k < 0:
-            raise ConfigError("sample: need temperature ≥ 0, top_k ≥ 0 and 0 < top_p ≤ 1")
+        try:  # the decoding options' own range checks (decode.DecodeOptions)
+            AD.DecodeOptions(self.sample.temperature, self.sample.top_k, self.sample.top_p)
+        except ValueError as e:
+            raise ConfigError(f"sample.{e}") from None
 
 
 Config = ARRunConfig
@@ -229,6 +231,19 @@ class GenerateOptions:
     observed_frames: int = 20  # for the prediction task
     use_cache: bool = True
 
+    def __post_init__(self) -> None:
+        # The tokenizer codes 2 frames per token and at least one frame must be left to predict; checked
+        # here, before a run or a source clip is read, for the CLI and the API alike.
+        f = self.observed_frames
+        if not (isinstance(f, int) and 0 < f < 60 and f % 2 == 0):
+            raise ValueError(f"--observed-frames must be even and in (0, 60), got {f}")
+
+
+def _joined(prompts) -> list[dict]:
+    from handx_jax.text.cache import joined_texts
+
+    return joined_texts([{"left": [p.left], "right": [p.right], "interaction": [p.interaction]} for p in prompts])
+
 
 @dataclass
 class ARRun:
@@ -245,15 +260,20 @@ class ARRun:
     def encode(self, prompts) -> tuple[np.ndarray, np.ndarray]:
         """The joined prefix of each prompt, exactly as the joined text cache stores it (same string,
         max_len, zeroed padding and cache-dtype rounding)."""
-        from handx_jax.text.cache import joined_texts
-
-        texts = joined_texts([{"left": [p.left], "right": [p.right], "interaction": [p.interaction]}
-                              for p in prompts])
+        texts = _joined(prompts)
         e, h = self.encoder.encode([t["joined"][0] for t in texts], max_len=self.cfg.data.text_max_len)
         m = e.mask_BxL.astype(bool)
         L = int(max(m.sum(1).max(), 1))
         h = (h * m[..., None]).astype(self.cfg.data.cache_dtype).astype(np.float32)
         return h[:, :L], m[:, :L]
+
+    def check_prompts(self, prompts) -> None:
+        """Refuse a typed prompt the joined prefix's window would cut (``text.prompts.check_window``): the
+        cut drops the prompts after it. ``generate`` itself cuts, as the joined text cache did in training."""
+        from handx_jax.text.prompts import check_window
+
+        check_window(self.encoder.tokenizer, prompts, self.cfg.data.text_max_len,
+                     joined=lambda p: _joined([p])[0]["joined"][0])
 
     def generate(self, prompts, opts: GenerateOptions, *, samples: int = 1, task: str = "text2motion", sources=None,
                  keyframes=(30,), fixed_hand: str = "left") -> np.ndarray:
@@ -266,9 +286,7 @@ class ARRun:
         if task == "prediction":
             if sources is None or len(sources) != len(prompts):
                 raise ValueError("--task prediction needs one source clip per prompt")
-            f = opts.observed_frames
-            if f <= 0 or f >= 60 or f % 2:
-                raise ValueError(f"--observed-frames must be even and in (0, 60), got {f}")
+            f = opts.observed_frames  # even and in (0, 60): GenerateOptions checks it
             n_obs = f // 2
             observed = self.tokenizer.encode_clips(np.stack([np.asarray(s)[:f] for s in sources]))
         G = samples
@@ -385,17 +403,25 @@ def params_from_args(args: argparse.Namespace) -> tuple[str, dict]:
 
 
 def add_generate_args(p) -> None:
-    p.add_argument("--temperature", type=float, help="sampling temperature (default: the run's, 0 = greedy)")
-    p.add_argument("--top-k", type=int, help="keep the k most likely tokens (0 = off)")
-    p.add_argument("--top-p", type=float, help="nucleus mass (1 = off)")
-    p.add_argument("--observed-frames", type=int, default=20, help="--task prediction: observed frames (even)")
+    p.add_argument("--temperature", type=float, help="sampling temperature >= 0 (default: the run's, 0 = greedy)")
+    p.add_argument("--top-k", type=int, help="keep the k most likely tokens, k >= 0 (0 = off)")
+    p.add_argument("--top-p", type=float, help="nucleus mass in (0, 1] (1 = off)")
+    p.add_argument("--observed-frames", type=int, default=20,
+                   help="--task prediction: observed frames, even and in (0, 60) (default 20)")
     p.add_argument("--no-kv-cache", action="store_true", help="recompute the whole sequence every step")
 
 
 def load_for_generate(args: argparse.Namespace, *, ema: bool, encoder, seed: int, batch_size: int):
-    run = load(args.run, ema=ema, encoder=encoder)
-    s = run.cfg.sample
+    from handx_jax.text.prompts import typed_prompts
+
     pick = lambda v, d: d if v is None else v  # noqa: E731
+    d = AD.DecodeOptions()
+    # The flags' range checks (DecodeOptions, GenerateOptions) before the run is read.
+    GenerateOptions(AD.DecodeOptions(pick(args.temperature, d.temperature), pick(args.top_k, d.top_k),
+                                     pick(args.top_p, d.top_p)), observed_frames=args.observed_frames)
+    run = load(args.run, ema=ema, encoder=encoder)
+    run.check_prompts(typed_prompts(args))
+    s = run.cfg.sample
     dec = AD.DecodeOptions(temperature=pick(args.temperature, s.temperature), top_k=pick(args.top_k, s.top_k),
                            top_p=pick(args.top_p, s.top_p))
     return run, GenerateOptions(decode=dec, seed=seed, batch_size=batch_size, observed_frames=args.observed_frames,

@@ -290,6 +290,13 @@ class DiffusionRun:
 
         return sampling.generate_long(self, segments, opts, samples=samples, source=source)
 
+    def check_prompts(self, prompts) -> None:
+        """Refuse a typed prompt longer than the text window (``text.prompts.check_window``); each field
+        is encoded on its own. ``generate`` itself cuts at the window, as the text cache did in training."""
+        from handx_jax.text.prompts import check_window
+
+        check_window(self.encoder.tokenizer, prompts, self.cfg.data.text_max_len)
+
     def describe(self, opts) -> str:
         """How the samples were drawn, for the command's summary line."""
         g = self.cfg.diffusion.guidance if opts.guidance is None else opts.guidance
@@ -408,8 +415,10 @@ def add_generate_args(p: argparse.ArgumentParser) -> None:
 def load_for_generate(args: argparse.Namespace, *, ema: bool, encoder, seed: int, batch_size: int):
     """(run, sampling options) for ``handx generate``."""
     from handx_jax.families.diffusion.sampling import SampleOptions
+    from handx_jax.text.prompts import typed_prompts
 
     run = load(args.run, ema=ema, encoder=encoder, overrides=args.set)
+    run.check_prompts(typed_prompts(args))
     opts = SampleOptions(sampler=args.sampler, steps=args.steps, guidance=args.guidance, seed=seed,
                          batch_size=batch_size)
     return run, opts

@@ -1,0 +1,171 @@
+"""Bad input to ``handx generate`` and to any command's ``--out`` (issue 31 items 5, 6): decoding options
+out of range, ``--observed-frames`` that cannot be, prompts longer than the text encoder's window, and
+``--out`` paths that cannot be written (a read-only file system, an existing directory) are one line
+each, exit non-zero, with nothing left behind. The decoding options are checked in one place
+(``DecodeOptions``), so the CLI and the API refuse the same values; the CLI refuses them before a run is
+read, so a folder that only names its family is enough here. Milliseconds each; the checks against a
+trained run are in tests/test_ar_family.py (its module fixture)."""
+
+import errno
+import math
+
+import pytest
+
+from handx_jax.cli import main
+from handx_jax.families.ar import GenerateOptions, decode
+from handx_jax.generation import Prompt
+from handx_jax.text.prompts import check_window
+
+PROMPT = ["--left", "the left hand waves", "--right", "the right hand rests", "--interaction", "the hands stay apart"]
+
+
+@pytest.fixture
+def ar_run(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text('{"family": "ar"}')
+    return run
+
+
+CASES = {
+    "--top-p 1.5": "top_p (--top-p) must be in (0, 1] (1 = off), got 1.5",
+    "--top-p 0": "top_p (--top-p) must be in (0, 1] (1 = off), got 0.0",
+    "--top-p nan": "top_p (--top-p) must be in (0, 1] (1 = off), got nan",
+    "--top-k -5": "top_k (--top-k) must be a whole number >= 0 (0 = off), got -5",
+    "--temperature -1": "temperature (--temperature) must be a finite number >= 0 (0 = greedy), got -1.0",
+    "--temperature nan": "temperature (--temperature) must be a finite number >= 0 (0 = greedy), got nan",
+    "--temperature inf": "temperature (--temperature) must be a finite number >= 0 (0 = greedy), got inf",
+    "--task prediction --source clip.npz --observed-frames 61": "--observed-frames must be even and in (0, 60), got 61",
+    "--task prediction --source clip.npz --observed-frames 60": "--observed-frames must be even and in (0, 60), got 60",
+}
+
+
+@pytest.mark.parametrize("flags", sorted(CASES))
+def test_out_of_range_options_are_one_line_before_the_run_is_read(ar_run, tmp_path, capsys, flags):
+    out = tmp_path / "gen.npz"
+    rc = main(["generate", "--run", str(ar_run), *PROMPT, *flags.split(), "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err == f"handx generate: error: {CASES[flags]}"
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+@pytest.mark.parametrize("kw, words", [({"temperature": -1.0}, "temperature"), ({"temperature": math.nan}, "temperature"),
+                                       ({"top_k": -5}, "top_k"), ({"top_k": 2.5}, "top_k"), ({"top_p": 1.5}, "top_p")])
+def test_the_api_refuses_the_same_decoding_options(kw, words):
+    with pytest.raises(ValueError, match=f"^{words} "):
+        decode.DecodeOptions(**kw)
+    with pytest.raises(ValueError, match="--observed-frames"):
+        GenerateOptions(observed_frames=7)
+    # Defaults and the edges of each range are accepted; JAX rebuilding the options with tracers is too
+    # (the loop's jit: a traced field is not checked).
+    decode.DecodeOptions(temperature=0.0, top_k=0, top_p=1.0)
+    decode.DecodeOptions(temperature=2.0, top_k=1, top_p=1e-3)
+    import jax
+
+    assert jax.jit(lambda o: o.top_p * 2)(decode.DecodeOptions(top_p=0.5)) == 1.0
+
+
+def test_a_run_config_with_bad_sample_options_is_refused():
+    from handx_jax.config import ConfigError
+    from handx_jax.families.ar import make_config
+
+    with pytest.raises(ConfigError, match=r"sample\.top_p \(--top-p\) must be in \(0, 1\]"):
+        make_config("tiny", ["sample.top_p=1.5"]).validate()
+
+
+class _Tok:
+    """A stand-in tokenizer: one token per word, plus the end token (as encode_one counts)."""
+
+    def encode_one(self, text):
+        return text.split() + ["</s>"]
+
+
+def test_a_prompt_longer_than_the_window_is_refused_naming_its_field():
+    long = Prompt("wave " * 200, "rest", "apart")
+    with pytest.raises(ValueError, match=r"^--left is 201 tokens \(1,000 characters\), more than the 64 the run's "
+                                         r"text encoder reads \(its text max_len\): refused rather than cut"):
+        check_window(_Tok(), [long], 64)
+    # Joined (the AR prefix): the longest field is named, with the joined length that overflows.
+    with pytest.raises(ValueError, match=r"^--right \(prompt 2 of 2\) is 63 tokens .* the three prompts joined are "
+                                         r"66 tokens, more than the 64"):
+        check_window(_Tok(), [Prompt("a", "b", "c"), Prompt("x", "y " * 62, "z")], 64,
+                     joined=lambda p: f"{p.left} {p.right} {p.interaction} <s3>")
+    check_window(_Tok(), [Prompt("wave " * 62, "b", "c")], 64)  # 63 tokens fit
+    check_window(_Tok(), [Prompt("a " * 20, "b " * 20, "c " * 20)], 64, joined=lambda p: f"{p.left} {p.right}")
+
+
+def test_the_real_tokenizer_counts_what_the_encoder_would_cut():
+    """With the tiny T5 fixture's SentencePiece model: a prompt is refused exactly when Tokenizer.encode
+    would truncate it (its num_truncated)."""
+    from pathlib import Path
+
+    from handx_jax.text.hf import load_hf_t5_encoder
+
+    tok = load_hf_t5_encoder(Path(__file__).parent / "fixtures" / "t5_tiny_gated").tokenizer
+    for words in (5, 60, 200):
+        text = " ".join(["fingers"] * words)
+        cut = tok.encode([text], 64).num_truncated == 1
+        try:
+            check_window(tok, [Prompt(text, "b", "c")], 64)
+            refused = False
+        except ValueError:
+            refused = True
+        assert refused == cut, words
+
+
+# --out that cannot be written: the one place is handx_jax/cli.py (main), for every command.
+
+
+def test_out_naming_an_existing_directory_is_one_line(tmp_path, capsys):
+    d = tmp_path / "table.md"
+    d.mkdir()
+    assert main(["analyze", "table", "paper:B", "--out", str(d)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == f"handx: error: cannot write --out {d}: is a directory (choose another --out)"
+    assert list(d.iterdir()) == [] and sorted(p.name for p in tmp_path.iterdir()) == ["table.md"]  # no temp file
+
+
+def test_out_on_a_read_only_file_system_is_one_line(tmp_path, capsys, monkeypatch):
+    import tempfile
+
+    def read_only(*a, dir=None, **kw):  # what mkstemp raises on a read-only mount (errno 30)
+        raise OSError(errno.EROFS, "Read-only file system", f"{dir}/{kw.get('prefix', '')}k2x9{kw.get('suffix', '')}")
+
+    monkeypatch.setattr(tempfile, "mkstemp", read_only)
+    out = tmp_path / "t.md"
+    assert main(["analyze", "table", "paper:B", "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == f"handx: error: cannot write --out {out}: read-only file system (choose another --out)"
+    assert not out.exists()
+
+
+def test_out_under_a_file_is_one_line(tmp_path, capsys):
+    f = tmp_path / "a_file"
+    f.write_text("x")
+    out = f / "sub" / "t.md"
+    assert main(["analyze", "table", "paper:B", "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == f"handx: error: cannot write --out {out}: not a directory (choose another --out)"
+    assert f.read_text() == "x" and sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+
+
+@pytest.mark.parametrize("family", ["diffusion", "ar"])
+def test_each_family_checks_typed_prompts_against_its_own_window(family):
+    """Diffusion encodes each field alone (a field over the window is refused); the AR family joins the
+    three (their sum is what must fit). Called by each family's load_for_generate on the typed prompts."""
+    from types import SimpleNamespace
+
+    from handx_jax.families import get_family
+
+    cls = {"diffusion": "DiffusionRun", "ar": "ARRun"}[family]
+    run = SimpleNamespace(encoder=SimpleNamespace(tokenizer=_Tok()), cfg=SimpleNamespace(data=SimpleNamespace(
+        text_max_len=64)))
+    check = getattr(get_family(family), cls).check_prompts
+    three_halves = Prompt("a " * 30, "b " * 30, "c " * 30)  # 31 tokens each: each fits, joined does not
+    if family == "diffusion":
+        check(run, [three_halves])
+    else:
+        with pytest.raises(ValueError, match="^--left is 31 tokens .* the three prompts joined are"):
+            check(run, [three_halves])
+    with pytest.raises(ValueError, match="^--interaction is 101 tokens"):
+        check(run, [Prompt("a", "b", "c " * 100)])
