@@ -10,6 +10,8 @@
     handx analyze ...   scaling fits, tables and plots                           (analysis.cli)
     handx tokenize ...  FSQ motion tokens of a dataset, for the AR family         (handx_jax.commands.tokenize)
     handx standard ...  the packaged standard evaluator and its corpus           (handx_jax.standard)
+    handx import ...    the released HandX weights → run / evaluator folders      (handx_jax.interop.cli)
+    handx export ...    a diffusion run → the released HandX checkpoint format    (handx_jax.interop.cli)
 
 Subcommand modules import heavy dependencies (jax, matplotlib) inside their handlers, so ``--help``
 stays fast.
@@ -37,6 +39,7 @@ GROUPS = (
     ("tokenize", "handx_jax.commands.tokenize"),
     ("sweep", "sweeps.cli"),
     ("standard", "handx_jax.standard"),
+    ("import/export", "handx_jax.interop.cli"),
 )
 
 

@@ -13,8 +13,8 @@ MANO archives (``*_mano.npz``, §1.9) hold ``{left,right}_pose (60, 48)``, ``{le
 
 Reading never calls plain ``pickle``/``np.load(allow_pickle=True)``: the zip is opened directly, each
 ``.npy`` header is parsed with ``numpy.lib.format`` and the object payload is unpickled by
-:class:`_RestrictedUnpickler`, whose ``find_class`` admits only what NumPy needs to rebuild arrays,
-dtypes and scalars. Any other global (``os.system``, ``builtins.eval``, …) is refused before it is
+:class:`_RestrictedUnpickler` (``handx_jax.safe_pickle``), whose ``find_class`` admits only what NumPy needs
+to rebuild arrays, dtypes and scalars, and plain containers. Any other global (``os.system``, ``builtins.eval``, …) is refused before it is
 resolved, with a :class:`~handx_jax.io.DataError` naming the file and key. Every validation error is a
 ``DataError`` naming the file, the clip key and the field.
 
@@ -26,10 +26,8 @@ returns the dicts.
 
 from __future__ import annotations
 
-import importlib
 import io
 import os
-import pickle
 import zipfile
 import zlib
 from dataclasses import dataclass
@@ -41,6 +39,7 @@ from numpy.lib import format as npy_format
 
 from handx_jax import skeleton as sk
 from handx_jax.io import DataError, atomic_write_bytes
+from handx_jax.safe_pickle import RestrictedUnpickler
 
 MOTION_FIELD = "motion"
 ANNOTATION_FIELDS = ("left_annotation", "right_annotation", "interaction_annotation")
@@ -58,55 +57,11 @@ MANO_FIELDS = {
 # ----------------------------------------------------------------------------------------------
 # restricted unpickling
 
-def _resolve(module: str, name: str) -> Any:
-    return getattr(importlib.import_module(module), name)
+class _RestrictedUnpickler(RestrictedUnpickler):
+    """NumPy reconstruction and plain containers only (``handx_jax.safe_pickle``, the one home of
+    restricted unpickling); any other global is refused naming the file and key."""
 
-
-def _numpy_core(submodule: str, name: str) -> Any:
-    """The object NumPy pickles as ``numpy.core.<sub>.<name>`` (NumPy 1.x) or ``numpy._core...`` (2.x)."""
-    for mod in (f"numpy._core.{submodule}", f"numpy.core.{submodule}"):
-        try:
-            return _resolve(mod, name)
-        except (ImportError, AttributeError):
-            continue
-    raise ImportError(f"numpy has no {submodule}.{name}")
-
-
-# (module, name) as written in the pickle → resolver. Nothing else is ever imported.
-_ALLOWED_GLOBALS = {
-    **{(f"numpy.{core}.multiarray", "_reconstruct"): ("multiarray", "_reconstruct") for core in ("core", "_core")},
-    **{(f"numpy.{core}.multiarray", "scalar"): ("multiarray", "scalar") for core in ("core", "_core")},
-    # Protocol-5 pickles of contiguous arrays rebuild through _frombuffer.
-    **{(f"numpy.{core}.numeric", "_frombuffer"): ("numeric", "_frombuffer") for core in ("core", "_core")},
-}
-_ALLOWED_PLAIN = {
-    ("numpy", "ndarray"): np.ndarray,
-    ("numpy", "dtype"): np.dtype,
-    # Protocol-2 (Python 2 era) pickles write bytes as _codecs.encode(str, "latin1").
-    ("_codecs", "encode"): _resolve("_codecs", "encode"),
-    **{(mod, n): _resolve("builtins", n) for mod in ("builtins", "__builtin__")
-       for n in ("complex", "set", "frozenset")},
-}
-
-
-class _RestrictedUnpickler(pickle.Unpickler):
-    def __init__(self, file: io.BytesIO, *, path: str | os.PathLike, key: str):
-        super().__init__(file, encoding="latin1")
-        self._path, self._key = path, key
-
-    def find_class(self, module: str, name: str) -> Any:
-        if (module, name) in _ALLOWED_PLAIN:
-            return _ALLOWED_PLAIN[(module, name)]
-        if (module, name) in _ALLOWED_GLOBALS:
-            return _numpy_core(*_ALLOWED_GLOBALS[(module, name)])
-        raise DataError(
-            f"refusing to unpickle global {module}.{name}: only NumPy array/dtype/scalar reconstruction "
-            "is allowed in HandX archives (possibly malicious file)",
-            path=self._path, clip=self._key,
-        )
-
-    def persistent_load(self, pid: Any) -> Any:
-        raise DataError("refusing a persistent-id reference in a pickled payload", path=self._path, clip=self._key)
+    what = "HandX archives"
 
 
 def _member_key(name: str, path: Path) -> str:

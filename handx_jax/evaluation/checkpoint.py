@@ -42,7 +42,8 @@ META_FILE, PARAMS_FILE, STATS_FILE, EVAL_FILE = "evaluator.json", "params.msgpac
 def _policy_from_json(d: Mapping) -> TextPolicy:
     tl = d.get("train_levels")
     return TextPolicy(max_len=int(d["max_len"]), train_levels=None if tl is None else tuple(int(x) for x in tl),
-                      eval_level=int(d["eval_level"]), cache_dtype=str(d.get("cache_dtype", "float16")))
+                      eval_level=int(d["eval_level"]), cache_dtype=str(d.get("cache_dtype", "float16")),
+                      caption=str(d.get("caption", "sentinels")))
 
 
 def read_meta(root: str | os.PathLike) -> dict:
@@ -96,7 +97,8 @@ def load_evaluator(root: str | os.PathLike, *, encoder=None, batch_size: int = 2
         raise DataError(f"evaluator_config.motion_dim is {stored_dim}, but motion_input {cfg.motion_input!r} has "
                         f"{cfg.motion_dim} features", path=root / META_FILE)
     policy = _policy_from_json(meta["text"])
-    enc = as_encoder(encoder if encoder is not None else Path(meta["encoder"]["path"]))
+    enc_dir = Path(meta["encoder"]["path"])  # relative: inside the folder (an imported official evaluator's t5/)
+    enc = as_encoder(encoder if encoder is not None else enc_dir if enc_dir.is_absolute() else root / enc_dir)
     enc_path = enc.path
     want = meta["encoder"]["fingerprint"]
     if enc.fingerprint != want:

@@ -28,6 +28,9 @@ class TextPolicy:
     train_levels: tuple[int, ...] | None = None
     eval_level: int = 0
     cache_dtype: str = "float16"
+    # The caption string (``joined_caption``): "sentinels" (this project's, with T5's real sentinels) or
+    # "official" (the official run_evaluation.py's ``<extra_id0> …``, used by imported official evaluators).
+    caption: str = "sentinels"
 
 
 
@@ -60,10 +63,19 @@ def evaluator_stats(ds, kind: str = "positions", clips: np.ndarray | None = None
     return rep.compute_norm_stats(chunks, axis=(0, 1), min_std=rep.NORM_PRESETS["evaluator"].min_std)
 
 
-def joined_caption(left: str, right: str, interaction: str) -> str:
-    """The evaluator's caption (reference §5.3, with real sentinels; identical to the joined cache's)."""
+CAPTION_STYLES = ("sentinels", "official")
+
+
+def joined_caption(left: str, right: str, interaction: str, style: str = "sentinels") -> str:
+    """The evaluator's caption. "sentinels": reference §5.3 with real sentinels, identical to the joined
+    cache's. "official": the string the official run_evaluation.py builds (reference §5.5), whose markers
+    ``<extra_id0>`` … have no underscore, so T5's tokenizer splits them as plain text."""
     from handx_jax.text.tokenizer import join_fields, sentinel
 
+    if style == "official":
+        return f"<extra_id0> {left} <extra_id1> {right} <extra_id2> {interaction} <extra_id3>"
+    if style != "sentinels":
+        raise ValueError(f"unknown caption style {style!r}; choose from {CAPTION_STYLES}")
     return f"{join_fields(left, right, interaction)} {sentinel(3)}"
 
 

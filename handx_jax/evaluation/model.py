@@ -137,7 +137,8 @@ class TrainedEvaluator:
         if not len(left) == len(right) == len(interaction):
             raise ValueError(f"unequal prompt lists: {len(left)} left, {len(right)} right, "
                              f"{len(interaction)} interaction")
-        return self.embed_joined([joined_caption(a, b, c) for a, b, c in zip(left, right, interaction)])
+        return self.embed_joined([joined_caption(a, b, c, self.policy.caption)
+                                  for a, b, c in zip(left, right, interaction)])
 
     def captions(self, ds, clips: np.ndarray) -> tuple[list[str], list[str], list[str]]:
         """The reference prompts of ``clips`` at the policy's evaluation level."""

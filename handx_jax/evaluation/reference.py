@@ -131,7 +131,7 @@ def reference_embeddings(ev: TrainedEvaluator, prompts: tuple[Sequence[str], Seq
     t0 = time.perf_counter()
     key = path = None
     if folder is not None:
-        key = reference_key(ev, [joined_caption(*p) for p in zip(*prompts)], gt, provenance)
+        key = reference_key(ev, [joined_caption(*p, ev.policy.caption) for p in zip(*prompts)], gt, provenance)
         path = folder / f"{_digest(_key_json(key).encode())}.npz"
         hit = read_reference_cache(path, key, ev.cfg.latent)
         if hit is not None:
