@@ -86,8 +86,13 @@ METRICS: tuple[str, ...] = (
     "fid", "diversity", "mm_dist", "multimodality", "mpjpe", "acceleration", "jitter",
     "contact_precision_intra", "contact_recall_intra", "contact_f1_intra",
     "contact_precision_inter", "contact_recall_inter", "contact_f1_inter",
+    # G-HTT §4.2 (mm, per hand): root-aligned and Procrustes-aligned MPJPE, APD over a prompt's samples;
+    # BimArt §4: % of frames with inter-hand penetration > 1 cm, mean depth (mm), contact feasibility.
+    "mpjpe_ra_left", "mpjpe_ra_right", "mpjpe_pa_left", "mpjpe_pa_right", "apd_left", "apd_right",
+    "pen_1cm", "pen_depth", "contact_feasibility",
 )
-LOWER_IS_BETTER: frozenset[str] = frozenset({"fid", "mm_dist", "mpjpe"})
+LOWER_IS_BETTER: frozenset[str] = frozenset({"fid", "mm_dist", "mpjpe", "mpjpe_ra_left", "mpjpe_ra_right",
+                                             "mpjpe_pa_left", "mpjpe_pa_right", "pen_1cm", "pen_depth"})
 # No direction: the best value is the one closest to the ground truth's (paper Tables 2/3).
 # Acceleration or jitter below the data's means over-smoothed motion, not better motion, so the best
 # value for them is also the one closest to the ground truth.

@@ -3,7 +3,7 @@
 Which cell is "best" depends on the metric (the paper's convention):
 
 * higher is better: R-Precision and the contact scores;
-* lower is better: FID, MM-Dist and MPJPE (:data:`analysis.schema.LOWER_IS_BETTER`);
+* lower is better: FID, MM-Dist, MPJPE (also -RA, -PA) and penetration (:data:`analysis.schema.LOWER_IS_BETTER`);
 * Diversity, MultiModality, acceleration and jitter have no direction. The best is the value
   closest to the ground truth's, when the table has a ``ground_truth`` row; without one nothing is
   bolded.
@@ -41,6 +41,15 @@ METRIC_INFO: dict[str, tuple[str, str, int]] = {
     "contact_precision_inter": ("C_prec inter ↑", r"$C_\mathrm{prec}^\mathrm{inter}$ $\uparrow$", 3),
     "contact_recall_inter": ("C_rec inter ↑", r"$C_\mathrm{rec}^\mathrm{inter}$ $\uparrow$", 3),
     "contact_f1_inter": ("C_F1 inter ↑", r"$C_\mathrm{F1}^\mathrm{inter}$ $\uparrow$", 3),
+    "mpjpe_ra_left": ("RA-L (mm) ↓", r"MPJPE-RA$_L$ (mm) $\downarrow$", 2),
+    "mpjpe_ra_right": ("RA-R (mm) ↓", r"MPJPE-RA$_R$ (mm) $\downarrow$", 2),
+    "mpjpe_pa_left": ("PA-L (mm) ↓", r"MPJPE-PA$_L$ (mm) $\downarrow$", 2),
+    "mpjpe_pa_right": ("PA-R (mm) ↓", r"MPJPE-PA$_R$ (mm) $\downarrow$", 2),
+    "apd_left": ("APD-L (mm) ↑", r"APD$_L$ (mm) $\uparrow$", 2),  # G-HTT marks APD ↑
+    "apd_right": ("APD-R (mm) ↑", r"APD$_R$ (mm) $\uparrow$", 2),
+    "pen_1cm": ("Pen 1cm (%) ↓", r"Pen 1cm (\%) $\downarrow$", 2),
+    "pen_depth": ("Pen depth (mm) ↓", r"Pen depth (mm) $\downarrow$", 2),
+    "contact_feasibility": ("C_feas ↑", r"$C_\mathrm{feas}$ $\uparrow$", 3),
 }
 assert set(METRIC_INFO) == set(METRICS)
 

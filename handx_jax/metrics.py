@@ -3,7 +3,8 @@
 Embedding metrics take evaluator embeddings (text ``T_NxD``, motion ``M_NxD``); motion metrics take
 joints ``(N, 60, 2, 21, 3)`` in metres. Every randomised quantity (block order, diversity pairs,
 MultiModality groups, palm samples) is drawn from an explicit seed: the reference's unseeded draws
-(§9.17) are not ported.
+(§9.17) are not ported. Beside the paper's metrics, the neighbouring hand papers' (issue 33): G-HTT's
+MPJPE-RA / MPJPE-PA and APD, BimArt's inter-hand penetration ("Pen 1cm") and contact feasibility.
 
 Replications and confidence intervals (issues 4 and 14.2). Every ± is a 95% interval computed over
 values that are independent of each other, and the output says which (:func:`ci_method`):
@@ -57,6 +58,9 @@ class MetricConfig:
     # MPJPE root: "none" = positions in the shared clip frame (paper reading); "left_wrist"
     # reproduces the official script, which ends up relative to each frame's left wrist (§9.17).
     mpjpe_root: str = "none"
+    # APD over the first K generation groups of each prompt (G-HTT: K = 20); 0 = all groups.
+    apd_samples: int = 0
+    pen_threshold_m: float = 0.01  # BimArt's "Pen 1cm"
 
 
 # ------------------------------------------------------------------------------------------------
@@ -342,15 +346,315 @@ def contact_prf(pred_NxK, gt_NxK) -> dict[str, float]:
 
 
 # ------------------------------------------------------------------------------------------------
+# The neighbouring hand papers' metrics (issue 33): G-HTT's MPJPE-RA / MPJPE-PA and APD, BimArt's
+# inter-hand penetration ("Pen 1cm") and contact feasibility.
+
+
+@jax.jit
+def mpjpe_ra_mm(pred_NxTx2x21x3: jax.Array, gt_NxTx2x21x3: jax.Array) -> jax.Array:
+    """MPJPE-RA per clip and hand (N, 2), mm: every frame's joints relative to that hand's wrist (the
+    root of sk.CHAINS) in both, then the mean joint distance (G-HTT §4.2, "Root Aligned").
+
+    G-HTT also equalises the mean palm-bone length of estimate and GT, against the scale ambiguity of
+    pose estimation from images; generated and GT joints here share metric units, so no scale is
+    applied (MPJPE-PA is the error with scale removed)."""
+    p = pred_NxTx2x21x3 - pred_NxTx2x21x3[..., :1, :]
+    g = gt_NxTx2x21x3 - gt_NxTx2x21x3[..., :1, :]
+    return 1000.0 * jnp.mean(jnp.linalg.norm(p - g, axis=-1), axis=(1, 3))
+
+
+def procrustes_align(x_BxJx3: jax.Array, y_BxJx3: jax.Array) -> jax.Array:
+    """``x`` mapped onto ``y`` by the similarity s·R·x + t (R a proper rotation, det +1; s > 0 uniform)
+    minimising Σ_j ‖y_j − (s R x_j + t)‖², in closed form (Umeyama 1991), batched over leading axes.
+
+    With H = Σ x̃_j ỹ_jᵀ = U S Vᵀ (x̃, ỹ centred): R = V D Uᵀ with D = diag(1, 1, det(V Uᵀ)), which
+    keeps R a rotation where the best orthogonal map would be a reflection; s = tr(S D) / Σ‖x̃_j‖²;
+    t = ȳ − s R x̄. A point set with no spread (all joints at one place) gets s = 0: every joint on ȳ.
+    """
+    mx, my = x_BxJx3.mean(-2, keepdims=True), y_BxJx3.mean(-2, keepdims=True)
+    xc, yc = x_BxJx3 - mx, y_BxJx3 - my
+    H = jnp.einsum("...ji,...jk->...ik", xc, yc)  # (B, 3, 3)
+    U, S, Vt = jnp.linalg.svd(H)
+    d = jnp.where(jnp.linalg.det(U) * jnp.linalg.det(Vt) < 0, -1.0, 1.0)  # det(V Uᵀ) = det(U) det(Vᵀ)
+    D = jnp.stack([jnp.ones_like(d), jnp.ones_like(d), d], -1)  # (B, 3)
+    R = jnp.einsum("...ji,...j,...kj->...ik", Vt, D, U)  # V D Uᵀ
+    var = jnp.sum(xc**2, axis=(-2, -1))
+    s = jnp.sum(S * D, -1) / jnp.where(var > 0, var, 1.0)
+    return s[..., None, None] * jnp.einsum("...ij,...kj->...ki", R, xc) + my
+
+
+MOTION_CHUNK = 50  # clips per lax.map step of the per-frame Procrustes, penetration and contact scans
+
+
+def _chunked(fn, *xs_N):
+    """``fn`` over chunks of MOTION_CHUNK clips of equally long leading axes (lax.map: the per-frame
+    temporaries of 6,000 clips would not fit in cache); zero-padded rows are computed and dropped."""
+    n = xs_N[0].shape[0]
+    c = max(1, min(MOTION_CHUNK, n))
+    k = -(-n // c)
+    pad = lambda x: jnp.pad(x, [(0, k * c - n)] + [(0, 0)] * (x.ndim - 1)).reshape(k, c, *x.shape[1:])
+    out = jax.lax.map(lambda a: fn(*a), tuple(pad(x) for x in xs_N))
+    return jax.tree_util.tree_map(lambda o: o.reshape(k * c, *o.shape[2:])[:n], out)
+
+
+@jax.jit
+def mpjpe_pa_mm(pred_NxTx2x21x3: jax.Array, gt_NxTx2x21x3: jax.Array) -> jax.Array:
+    """MPJPE-PA per clip and hand (N, 2), mm: each hand of each frame aligned to the GT's by its own
+    similarity Procrustes (:func:`procrustes_align`: rotation, uniform scale, translation), then the
+    mean joint distance (G-HTT §4.2, "Procrustes Analysis of MPJPE")."""
+    def one(p, g):
+        return jnp.mean(jnp.linalg.norm(procrustes_align(p, g) - g, axis=-1), axis=(1, 3))
+
+    return 1000.0 * _chunked(one, pred_NxTx2x21x3, gt_NxTx2x21x3)
+
+
+def apd_mm(samples_KxNxTx2x21x3) -> np.ndarray:
+    """APD per prompt and hand (N, 2), mm: the mean over all pairs of the K samples of one prompt of the
+    mean joint distance between the two samples (G-HTT supp. C.2, Eq. 13; APD is Yuan and Kitani's
+    "average pairwise distance").
+
+    Eq. 13 writes dist(hᵃ, hᵇ) as a SUM over frames and joints, but the APDs G-HTT reports (20–50 mm
+    per hand over up to 96 frames × 20 joints, Tables 2–4) are only possible as the MEAN over them,
+    which is what this computes; the 1/(K(K−1)) sum over ordered pairs a ≠ b equals the mean over the
+    K(K−1)/2 unordered pairs. Joints are in the clip's shared frame (no root alignment), as in G-HTT's
+    samples. K identical samples give 0; K < 2 has no pair and is refused.
+    """
+    x = jnp.asarray(samples_KxNxTx2x21x3, jnp.float32)
+    K = x.shape[0]
+    if K < 2:
+        raise ValueError(f"APD needs at least 2 samples per prompt, got {K}")
+    a, b = np.triu_indices(K, 1)
+    return np.asarray(_apd(x, jnp.asarray(a), jnp.asarray(b)), np.float64)
+
+
+@jax.jit
+def _apd(x_KxNxTx2x21x3, a_P, b_P):
+    def pair(ab):  # one pair at a time: K(K−1)/2 = 190 pairs of (N, T, 2, 21, 3) never in memory together
+        d = jnp.linalg.norm(x_KxNxTx2x21x3[ab[0]] - x_KxNxTx2x21x3[ab[1]], axis=-1)  # (N, T, 2, 21)
+        return jnp.mean(d, axis=(1, 3))
+
+    return 1000.0 * jnp.mean(jax.lax.map(pair, jnp.stack([a_P, b_P], -1)), axis=0)
+
+
+# Capsule radii (m) of the 20 bones of sk.BONES (parent → child), for inter-hand penetration. Each bone
+# is a capsule around the segment between its joints; the radii are round numbers in the range of adult
+# finger thickness as MANO's template hand has it (issue 33: ~8–10 mm finger radius, palm larger):
+# finger breadths are ~18–20 mm at the proximal phalanx and ~14–16 mm at the distal one in hand
+# anthropometry, and the palm at the metacarpals is ~25 mm thick. They are not fitted to meshes: a
+# MANO mesh would give the real surface (BimArt §4 counts penetrating hand *vertices*), which this
+# project does not carry. The palm is covered by the wrist → MCP (and wrist → thumb CMC) capsules.
+CAPSULE_RADIUS_M = {"palm": 0.012, "thumb_metacarpal": 0.011, "proximal": 0.009, "middle": 0.008, "distal": 0.007}
+
+
+def _bone_part(parent: int, child: int) -> str:
+    chain = next(c for c in sk.CHAINS.values() if child in c)
+    level = chain.index(child)  # 1: wrist → base, 2..4 along the finger
+    if sk.JOINT_NAMES[chain[1]] == "thumb_cmc":  # thumb: wrist → CMC, metacarpal, proximal, distal
+        return ("palm", "thumb_metacarpal", "proximal", "distal")[level - 1]
+    return ("palm", "proximal", "middle", "distal")[level - 1]
+
+
+BONE_RADII_M = np.array([CAPSULE_RADIUS_M[_bone_part(p, c)] for p, c in sk.BONES], np.float32)  # (20,)
+_BONE_PARENT = np.array([p for p, _ in sk.BONES])
+_BONE_CHILD = np.array([c for _, c in sk.BONES])
+_BONE_IS_TIP = np.isin(_BONE_CHILD, sk.TIPS)
+
+
+@jax.jit
+def segment_distance(p1: jax.Array, q1: jax.Array, p2: jax.Array, q2: jax.Array) -> jax.Array:
+    """Closest distance between segments [p1, q1] and [p2, q2] (…, 3) → (…), broadcasting.
+
+    Ericson, Real-Time Collision Detection §5.1.9: the closest points minimise over (s, t) ∈ [0, 1]²;
+    s is clamped from the unconstrained solution, t follows from s and is clamped, then s is recomputed
+    for a clamped t. Parallel segments (a·e − b² = 0) start from s = 0; degenerate segments (points)
+    are handled by the same clamps.
+    """
+    mv = lambda v: jnp.moveaxis(v, -1, 0)
+    return _segment_distance_cm(*(mv(jnp.broadcast_to(v, jnp.broadcast_shapes(p1.shape, q1.shape, p2.shape, q2.shape)))
+                                  for v in (p1, q1, p2, q2)))
+
+
+def _segment_distance_cm(p1, q1, p2, q2) -> jax.Array:
+    """:func:`segment_distance` with the xyz coordinates on the FIRST axis (3, …): the dot products are
+    then sums of three whole arrays, not reductions over a trailing axis of length 3 (~5x slower on CPU,
+    as in _tip_palm_min_dist)."""
+    dot = lambda u, v: u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a, e = dot(d1, d1), dot(d2, d2)
+    b, c, f = dot(d1, d2), dot(d1, r), dot(d2, r)
+    eps = 1e-12
+    safe = lambda x: jnp.where(x > eps, x, 1.0)
+    denom = a * e - b * b
+    s = jnp.where(denom > eps * jnp.maximum(a * e, eps), jnp.clip((b * f - c * e) / safe(denom), 0.0, 1.0), 0.0)
+    s = jnp.where(a > eps, s, 0.0)
+    t = jnp.where(e > eps, (b * s + f) / safe(e), 0.0)
+    s = jnp.where(t < 0.0, jnp.where(a > eps, jnp.clip(-c / safe(a), 0.0, 1.0), 0.0), s)
+    s = jnp.where(t > 1.0, jnp.where(a > eps, jnp.clip((b - c) / safe(a), 0.0, 1.0), 0.0), s)
+    t = jnp.clip(t, 0.0, 1.0)
+    g = (p1 + d1 * s) - (p2 + d2 * t)
+    return jnp.sqrt(dot(g, g))
+
+
+@jax.jit
+def capsule_penetration(p1, q1, r1, p2, q2, r2) -> jax.Array:
+    """Overlap depth of two capsules (segment + radius), 0 when apart: max(0, r1 + r2 − dist(segments))."""
+    return jnp.maximum(r1 + r2 - segment_distance(p1, q1, p2, q2), 0.0)
+
+
+def hand_capsules(joints_Mx21x3: jax.Array, radii_20=BONE_RADII_M) -> tuple[jax.Array, jax.Array]:
+    """Capsule segments (M, 20, 3) × 2 of one hand's bones. A fingertip joint lies on the skin (MANO's tip
+    vertices), so a distal capsule ends its radius short of the tip: its rounded end touches the tip."""
+    x = joints_Mx21x3
+    p, q = x[..., _BONE_PARENT, :], x[..., _BONE_CHILD, :]
+    d = q - p
+    length = jnp.linalg.norm(d, axis=-1, keepdims=True)
+    r = jnp.asarray(radii_20)[:, None]
+    keep = jnp.where(length > 0, jnp.clip(length - r, 0.0, None) / jnp.where(length > 0, length, 1.0), 0.0)
+    q = jnp.where(jnp.asarray(_BONE_IS_TIP)[:, None], p + d * keep, q)
+    return p, q
+
+
+@jax.jit
+def interhand_penetration(joints_NxTx2x21x3: jax.Array, radii_20=BONE_RADII_M) -> jax.Array:
+    """Per frame (N, T), m: the deepest overlap between any left-hand bone capsule and any right-hand one
+    (:data:`CAPSULE_RADIUS_M`), 0 where the hands' capsules do not touch. BimArt's "Pen 1cm" (§4,
+    "Evaluation Metrics") is the share of frames where this exceeds 1 cm."""
+    r = jnp.asarray(radii_20, jnp.float32)
+
+    def one(x_CxTx2x21x3):
+        cm = lambda v: jnp.moveaxis(v, -1, 0)  # (3, C, T, 20)
+        pl, ql = map(cm, hand_capsules(x_CxTx2x21x3[:, :, 0], r))
+        pr, qr = map(cm, hand_capsules(x_CxTx2x21x3[:, :, 1], r))
+        dist = _segment_distance_cm(pl[..., :, None], ql[..., :, None], pr[..., None, :], qr[..., None, :])
+        return jnp.maximum(jnp.max(r[:, None] + r[None, :] - dist, axis=(-2, -1)), 0.0)  # (C, T)
+
+    return _chunked(one, joints_NxTx2x21x3)
+
+
+def penetration_stats(depth_NxT, threshold_m: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
+    """Per clip: % of frames penetrating deeper than ``threshold_m`` (BimArt's "Pen 1cm", %) and the
+    mean over all frames of the per-frame depth (mm; frames without contact count 0)."""
+    d = np.asarray(depth_NxT, np.float64)
+    return 100.0 * (d > threshold_m).mean(1), 1000.0 * d.mean(1)
+
+
+# Contact feasibility: the contacts a clip's interaction caption and hand captions name are the contact
+# events of its structured record (data/events.py; the captioner never leaves out a contact, caption.py
+# _InterFacts / _contact_facts). Each is one channel of a per-frame distance and a half-open frame range;
+# a named contact is realised when the generated motion brings the pair within the project's contact
+# threshold in at least one frame of that range (BimArt §4 "Con" asks the same of hand–object contact).
+# Channels: 8 intra-hand thumb-tip pairs, 25 left × right tip pairs, 10 tip → other palm (mean of the
+# k closest palm-cloud points, as the events measure it).
+def _contact_channels() -> dict[tuple[str, str], int]:
+    from handx_jax.data import events as evm
+
+    keys = [(h, k) for h in ("left_hand_events", "right_hand_events") for k in evm._INTRA_KEYS]
+    keys += [("finger_tip_contact", k) for k in evm._INTER_KEYS] + [("finger_palm_distance", k) for k in evm._FP_KEYS]
+    return {k: i for i, k in enumerate(keys)}
+
+
+CONTACT_CHANNELS = _contact_channels()  # (section, record key) → channel
+N_CONTACT_CHANNELS = len(CONTACT_CHANNELS)  # 43
+
+
+@dataclass(frozen=True)
+class NamedContacts:
+    """The E contacts named by N clips' records: clip index, channel, half-open [start, end)."""
+
+    clip_E: np.ndarray
+    channel_E: np.ndarray
+    start_E: np.ndarray
+    end_E: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.clip_E)
+
+
+def named_contacts(records) -> NamedContacts:
+    """The contact events of each clip's record (events.annotate layout, reference §6.3): tip–tip runs
+    within and across hands, and the "contact" periods of the finger–palm series (the captioner's own
+    reading, caption._contact_periods). Palm–palm contact is not a tip contact and is not counted."""
+    from handx_jax.data.caption import _contact_periods
+
+    rows = []
+    for n, rec in enumerate(records):
+        T = int(rec["frame_count"])
+        for h in ("left_hand_events", "right_hand_events"):
+            for key, runs in rec[h].get("finger_tip_contact", {}).items():
+                rows += [(n, CONTACT_CHANNELS[(h, key)], e["start"], e["end"]) for e in runs]
+        rel = rec["two_hand_relationships"]
+        for key, runs in rel.get("finger_tip_contact", {}).items():
+            rows += [(n, CONTACT_CHANNELS[("finger_tip_contact", key)], e["start"], e["end"]) for e in runs]
+        for key, evs in rel.get("finger_palm_distance", {}).items():
+            rows += [(n, CONTACT_CHANNELS[("finger_palm_distance", key)], s, e) for s, e in _contact_periods(evs, T)]
+    a = np.asarray(rows, np.int64).reshape(-1, 4)
+    return NamedContacts(a[:, 0], a[:, 1], a[:, 2], a[:, 3])
+
+
+def contact_thresholds() -> np.ndarray:
+    """(43,) m: tip–tip below AnnotationConfig.tip_contact_m (Table A: 2 cm), tip–palm below the
+    finger–palm "contact" state edge (2.5 cm), the thresholds that made the records' contact events."""
+    from handx_jax.data import events as evm
+
+    tip, palm = evm.AnnotationConfig().tip_contact_m, evm.FINGER_PALM.state_edges[0]
+    return np.array([palm if sec == "finger_palm_distance" else tip for sec, _ in CONTACT_CHANNELS], np.float32)
+
+
+@partial(jax.jit, static_argnames=("k",))
+def contact_channel_distances(joints_NxTx2x21x3: jax.Array, palm_Px21: jax.Array, k: int = 5) -> jax.Array:
+    """Per-frame distances (N, T, 43) m of the :data:`CONTACT_CHANNELS`, as features.py measures them:
+    tip–tip, and tip → mean of the ``k`` closest points of the other hand's palm cloud."""
+    def one(x):
+        tips = x[:, :, :, jnp.asarray(sk.TIPS)]  # (C, T, 2, 5, 3) thumb..pinky
+        intra = jnp.linalg.norm(tips[:, :, :, 1:] - tips[:, :, :, :1], axis=-1).reshape(*x.shape[:2], 8)
+        inter = jnp.linalg.norm(tips[:, :, 0, :, None] - tips[:, :, 1, None, :], axis=-1).reshape(*x.shape[:2], 25)
+        # Coordinate-major (xyz first), as in _tip_palm_min_dist: the k smallest of the squared distances,
+        # then k square roots.
+        palm = jnp.einsum("pj,cthjx->xcthp", palm_Px21, x)[:, :, :, ::-1]  # (3, C, T, 2, P): the OTHER hand
+        tcm = jnp.moveaxis(tips, -1, 0)[..., None]  # (3, C, T, 2, 5, 1)
+        sq = [jnp.square(tcm[i] - palm[i][..., None, :]) for i in range(3)]  # (C, T, 2, 5, P) each
+        near = -jax.lax.top_k(-((sq[0] + sq[2]) + sq[1]), k)[0]
+        fp = jnp.mean(jnp.sqrt(near), -1).reshape(*x.shape[:2], 10)
+        return jnp.concatenate([intra, inter, fp], -1)
+
+    return _chunked(one, joints_NxTx2x21x3)
+
+
+@jax.jit
+def _realised(dist_NxTxC, thr_C, clip_E, channel_E, start_E, end_E):
+    d = dist_NxTxC[clip_E, :, channel_E]  # (E, T)
+    t = jnp.arange(d.shape[1])
+    inside = (t[None] >= start_E[:, None]) & (t[None] < end_E[:, None])
+    return jnp.any(inside & (d < thr_C[channel_E][:, None]), axis=1)
+
+
+def contact_feasibility_counts(joints_NxTx2x21x3, named: NamedContacts, palm_Px21,
+                               k: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Per clip (N,): contacts named by its record and how many of them the motion realises."""
+    n = joints_NxTx2x21x3.shape[0]
+    named_N = np.bincount(named.clip_E, minlength=n).astype(np.float64)
+    if not len(named):
+        return np.zeros(n), named_N
+    d = contact_channel_distances(jnp.asarray(joints_NxTx2x21x3, jnp.float32), jnp.asarray(palm_Px21), k)
+    hit = np.asarray(_realised(d, jnp.asarray(contact_thresholds()), *(jnp.asarray(a) for a in (
+        named.clip_E, named.channel_E, named.start_E, named.end_E))))
+    return np.bincount(named.clip_E, weights=hit.astype(np.float64), minlength=n), named_N
+
+
+# ------------------------------------------------------------------------------------------------
 # Replications and confidence intervals
 
 CI_GROUPS = "groups"
 CI_BOOTSTRAP = "bootstrap_prompts"
 
 
+# Quantities between the groups of one prompt: one value per prompt, never one per group.
+BETWEEN_GROUPS = frozenset({"multimodality", "apd_left", "apd_right"})
+
+
 def ci_method(metric: str, groups: int) -> str:
     """How the ± of ``metric`` is computed for ``groups`` generation groups (see the module docstring)."""
-    return CI_GROUPS if groups > 1 and metric != "multimodality" else CI_BOOTSTRAP
+    return CI_GROUPS if groups > 1 and metric not in BETWEEN_GROUPS else CI_BOOTSTRAP
 
 
 def mean_ci(values) -> tuple[float, float]:
@@ -519,9 +823,13 @@ def replicate_embedding_metrics(text_NxD, gen_GxNxD, gt_NxD, cfg: MetricConfig =
     return out
 
 
-def replicate_motion_metrics(gen_GxNxTx2x21x3, gt_NxTx2x21x3, cfg: MetricConfig = MetricConfig()) -> dict:
-    """MPJPE, acceleration, jitter and contact P/R/F1 as (point value, 95% half-width): the point is the
-    mean over generation groups; the ± is over groups (G > 1) or a bootstrap over clips (G = 1)."""
+def replicate_motion_metrics(gen_GxNxTx2x21x3, gt_NxTx2x21x3, cfg: MetricConfig = MetricConfig(),
+                             named: NamedContacts | None = None) -> dict:
+    """MPJPE (also G-HTT's -RA and -PA per hand), acceleration, jitter, contact P/R/F1, inter-hand
+    penetration and, given the contacts the prompts' records name (``named``), contact feasibility, as
+    (point value, 95% half-width): the point is the mean over generation groups; the ± is over groups
+    (G > 1) or a bootstrap over clips (G = 1). With G > 1, APD per hand over the first
+    ``cfg.apd_samples`` groups (all for 0), its ± a bootstrap over prompts (a between-group quantity)."""
     gen = np.asarray(gen_GxNxTx2x21x3, np.float32)
     gt = jnp.asarray(gt_NxTx2x21x3, jnp.float32)
     G, N = gen.shape[:2]
@@ -535,6 +843,12 @@ def replicate_motion_metrics(gen_GxNxTx2x21x3, gt_NxTx2x21x3, cfg: MetricConfig 
         acc, jit_ = acceleration_jitter(x)
         clip = {"mpjpe": np.asarray(mpjpe_mm(x, gt, cfg.mpjpe_root), np.float64),
                 "acceleration": np.asarray(acc, np.float64), "jitter": np.asarray(jit_, np.float64)}
+        for name, v in (("ra", mpjpe_ra_mm(x, gt)), ("pa", mpjpe_pa_mm(x, gt))):
+            v = np.asarray(v, np.float64)
+            clip[f"mpjpe_{name}_left"], clip[f"mpjpe_{name}_right"] = v[:, 0], v[:, 1]
+        clip["pen_1cm"], clip["pen_depth"] = penetration_stats(interhand_penetration(x), cfg.pen_threshold_m)
+        if named is not None and len(named):
+            clip["cf_hit"], clip["cf_named"] = contact_feasibility_counts(x, named, W)
         # Per-clip TP/FP/FN: contact P/R/F1 are micro-averaged, so a resample sums its clips' counts.
         for scope, p, q in (("intra", intra, gt_intra), ("inter", inter, gt_inter)):
             clip[f"tp_{scope}"] = (p & q).sum(1).astype(np.float64)
@@ -542,15 +856,23 @@ def replicate_motion_metrics(gen_GxNxTx2x21x3, gt_NxTx2x21x3, cfg: MetricConfig 
             clip[f"fn_{scope}"] = (~p & q).sum(1).astype(np.float64)
         per_clip.append(clip)
         rows.append(_motion_row({k: v.sum() if _is_count(k) else v.mean() for k, v in clip.items()}))
-    if G > 1:
-        return {k: mean_ci([r[k] for r in rows]) for k in rows[0]}
     counts = _counts(bootstrap_indices(N, cfg), N)  # (B, N)
+    if G > 1:
+        out = {k: mean_ci([r[k] for r in rows]) for k in rows[0]}
+        K = G if cfg.apd_samples == 0 else cfg.apd_samples
+        if not 2 <= K <= G:
+            raise ValueError(f"APD over {K} samples per prompt needs 2 <= K <= {G} (the groups given)")
+        apd_Nx2 = apd_mm(gen[:K])
+        for h, side in enumerate(("left", "right")):
+            out[f"apd_{side}"] = (float(apd_Nx2[:, h].mean()), _per_prompt_ci(apd_Nx2[:, h], counts))
+        return out
     resampled = _motion_row({k: counts @ v / (1.0 if _is_count(k) else N) for k, v in per_clip[0].items()})
-    return {k: (float(rows[0][k]), bootstrap_half_width(resampled[k])) for k in rows[0]}
+    return {k: (float(rows[0][k]), bootstrap_half_width(np.asarray(resampled[k])[np.isfinite(resampled[k])]))
+            for k in rows[0]}
 
 
 def _is_count(key: str) -> bool:
-    return key[:3] in ("tp_", "fp_", "fn_")
+    return key[:3] in ("tp_", "fp_", "fn_", "cf_")
 
 
 def _prf(tp, fp, fn):
@@ -562,8 +884,12 @@ def _prf(tp, fp, fn):
 
 def _motion_row(m: dict) -> dict:
     """Metric values from per-group means (mpjpe, acceleration, jitter) and summed contact counts."""
-    row = {"mpjpe": m["mpjpe"], "acceleration": m["acceleration"], "jitter": m["jitter"]}
+    row = {k: m[k] for k in ("mpjpe", "acceleration", "jitter", "mpjpe_ra_left", "mpjpe_ra_right", "mpjpe_pa_left",
+                             "mpjpe_pa_right", "pen_1cm", "pen_depth")}
     for scope in ("intra", "inter"):
         p, r, f = _prf(m[f"tp_{scope}"], m[f"fp_{scope}"], m[f"fn_{scope}"])
         row.update({f"contact_precision_{scope}": p, f"contact_recall_{scope}": r, f"contact_f1_{scope}": f})
+    if "cf_named" in m:  # realised / named over the clips (a resample with none named has no value)
+        named = np.asarray(m["cf_named"], np.float64)
+        row["contact_feasibility"] = np.where(named > 0, m["cf_hit"] / np.where(named > 0, named, 1.0), np.nan)
     return {k: (float(v) if np.ndim(v) == 0 else v) for k, v in row.items()}

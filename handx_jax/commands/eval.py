@@ -1,11 +1,14 @@
 """``handx eval …``: train the text–motion evaluator and score generated motion (paper Table 2).
 
     handx eval train-evaluator --data DIR --encoder ENC --out E [--preset small] [--steps N] [--set key.sub=v]
-    handx eval run [--evaluator E] --generated G.npz --reference DIR [--json] [--out RUN_DIR]
+    handx eval run [--evaluator E] --generated G.npz --reference DIR [--samples K] [--json] [--out RUN_DIR]
     handx eval run --evaluator E --ground-truth --reference DIR [--json]
 
 ``--json`` prints one object whose keys are the analysis schema's metric names and ``<name>_ci``
 (what the sweep launcher records); ``--out`` also writes it as ``RUN_DIR/eval.json`` (+ ``_meta``).
+Besides the paper's Table 2 it reports G-HTT's MPJPE-RA/-PA and APD per hand (APD with two or more
+samples per prompt: ``handx generate --samples K``) and BimArt's Pen 1cm, penetration depth and contact
+feasibility (handx_jax/metrics.py).
 """
 
 from __future__ import annotations
@@ -54,8 +57,10 @@ def _run(args: argparse.Namespace) -> int:
         raise SystemExit("handx: error: give exactly one of --generated G.npz or --ground-truth")
     if args.replications < 1:
         raise SystemExit(f"handx: error: --replications must be at least 1, got {args.replications}")
+    if args.samples is not None and args.samples < 2:
+        raise SystemExit(f"handx: error: --samples (APD's K) must be at least 2, got {args.samples}")
     cfg = MetricConfig(rprec_block=args.block, replications=args.replications, seed=args.seed,
-                       mpjpe_root=args.mpjpe_root)
+                       mpjpe_root=args.mpjpe_root, apd_samples=args.samples or 0)
     cache = not args.no_reference_cache
     from handx_jax.io import DataError
 
@@ -146,6 +151,9 @@ def add_parser(subparsers) -> None:
     r.add_argument("--block", type=int, default=32, help="R-Precision block size (32: Table 2; 16: Fig. 4)")
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--mpjpe-root", default="none", choices=["none", "left_wrist", "per_hand_wrist"])
+    r.add_argument("--samples", type=int, metavar="K",
+                   help="APD over the first K samples (generation groups) of each prompt, as G-HTT's K = 20 "
+                        "(default: all groups; the file must hold at least K; APD needs K >= 2)")
     r.add_argument("--label", help="row name in the printed table")
     r.add_argument("--json", action="store_true", help="print {metric: mean, metric_ci: half-width} as JSON")
     r.add_argument("--out", help="run folder: also write RUN_DIR/eval.json")

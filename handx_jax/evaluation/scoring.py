@@ -15,7 +15,8 @@ from handx_jax.evaluation.checkpoint import evaluator_id
 from handx_jax.evaluation.model import TrainedEvaluator
 from handx_jax.evaluation.reference import ReferenceEmbeddings, _digest, reference_embeddings
 from handx_jax.io import DataError, atomic_write_json
-from handx_jax.metrics import MetricConfig, ci_method, replicate_embedding_metrics, replicate_motion_metrics
+from handx_jax.metrics import (MetricConfig, NamedContacts, ci_method, named_contacts, replicate_embedding_metrics,
+                               replicate_motion_metrics)
 
 
 @dataclass
@@ -36,7 +37,7 @@ def _schema_names(motion: dict) -> dict:
     ren = {"precision": "precision", "recall": "recall", "f1": "f1"}
     out = {}
     for k, v in motion.items():
-        if k.startswith("contact_"):
+        if k.startswith("contact_") and k.count("_") == 2:
             _, what, scope = k.split("_")
             out[f"contact_{ren[what]}_{scope}"] = v
         else:
@@ -47,11 +48,16 @@ def _schema_names(motion: dict) -> dict:
 def evaluate_embeddings_and_motion(ev: TrainedEvaluator, text_NxD: np.ndarray, gen_GxNxTx2x21x3: np.ndarray,
                                    gt_NxTx2x21x3: np.ndarray, cfg: MetricConfig, *,
                                    gt_NxD: np.ndarray | None = None, gen_GxNxD: np.ndarray | None = None,
-                                   meta: dict | None = None) -> EvalResult:
+                                   meta: dict | None = None, named: NamedContacts | None = None) -> EvalResult:
     """All metrics of G generation groups against the GT; motion embeddings given are not recomputed
-    (the reference cache's GT embeddings; the GT row's generation, which is the GT)."""
+    (the reference cache's GT embeddings; the GT row's generation, which is the GT). ``named``: the
+    contacts the prompts' records name (:func:`_named_contacts`), for contact feasibility."""
     t0 = time.perf_counter()
     G, N = gen_GxNxTx2x21x3.shape[:2]
+    if cfg.apd_samples > G:
+        raise DataError(f"APD over {cfg.apd_samples} samples per prompt (--samples) but the generated clips hold "
+                        f"{G} group(s) per prompt; generate with --samples {cfg.apd_samples} or ask for fewer",
+                        field="group")
     gt_emb = ev.embed_motion(gt_NxTx2x21x3) if gt_NxD is None else gt_NxD
     if gen_GxNxD is None:
         gen_GxNxD = np.stack([ev.embed_motion(gen_GxNxTx2x21x3[g]) for g in range(G)])
@@ -60,12 +66,13 @@ def evaluate_embeddings_and_motion(ev: TrainedEvaluator, text_NxD: np.ndarray, g
     parts: dict[str, float] = {}
     emb = replicate_embedding_metrics(text_NxD, gen_emb, gt_emb, cfg, timings=parts)
     tm = time.perf_counter()
-    mot = _schema_names(replicate_motion_metrics(gen_GxNxTx2x21x3, gt_NxTx2x21x3, cfg))
+    mot = _schema_names(replicate_motion_metrics(gen_GxNxTx2x21x3, gt_NxTx2x21x3, cfg, named))
     t2 = time.perf_counter()
     parts["motion_metrics"] = t2 - tm
     order = ("rprec_top1", "rprec_top2", "rprec_top3", "fid", "mm_dist", "diversity", "multimodality", "mpjpe",
              "acceleration", "jitter", "contact_precision_intra", "contact_recall_intra", "contact_f1_intra",
-             "contact_precision_inter", "contact_recall_inter", "contact_f1_inter")
+             "contact_precision_inter", "contact_recall_inter", "contact_f1_inter", "mpjpe_ra_left", "mpjpe_ra_right",
+             "mpjpe_pa_left", "mpjpe_pa_right", "apd_left", "apd_right", "pen_1cm", "pen_depth", "contact_feasibility")
     allm = {**emb, **mot}
     metrics = {k: allm[k] for k in order if k in allm}
     m = {"prompts": int(N), "groups": int(G), "replications": cfg.replications, "rprec_block": cfg.rprec_block,
@@ -74,6 +81,8 @@ def evaluate_embeddings_and_motion(ev: TrainedEvaluator, text_NxD: np.ndarray, g
          "eval_level": ev.policy.eval_level, "seconds": {"motion_embedding": t1 - t0, "metrics": t2 - t1,
                                                               "metrics_parts": parts},
          "ci_method": {k: ci_method(k, G) for k in metrics}, "bootstrap": cfg.bootstrap,
+         "apd_samples": (cfg.apd_samples or G) if G > 1 else None,
+         "contact_feasibility_named": None if named is None else len(named),
          **(meta or {})}
     return EvalResult(metrics, m)
 
@@ -97,6 +106,13 @@ def _dataset_reference(ev: TrainedEvaluator, ds, clips: np.ndarray, cache: bool 
     return gt, reference_embeddings(ev, ev.captions(ds, clips), gt, provenance=provenance, cache=cache)
 
 
+def _named_contacts(ds, clips: np.ndarray) -> NamedContacts | None:
+    """The contacts named by the records (events.jsonl) of ``clips``, the events their captions were
+    written from; None where the dataset carries no records (contact feasibility is then not scored)."""
+    events = ds.events
+    return None if events is None else named_contacts([events[int(c)] for c in clips])
+
+
 def _note_reference(res: EvalResult, ref: ReferenceEmbeddings) -> EvalResult:
     """Booked in meta: text seconds (the cache read on a hit), GT motion seconds, the cache status."""
     res.meta["seconds"]["text_embedding"] = ref.seconds["text"]
@@ -118,7 +134,8 @@ def evaluate_ground_truth(ev: TrainedEvaluator, ds, cfg: MetricConfig = MetricCo
     gt, ref = _dataset_reference(ev, ds, clips, cache)
     res = evaluate_embeddings_and_motion(ev, ref.text_NxD, gt[None], gt, cfg, gt_NxD=ref.motion_NxD,
                                          gen_GxNxD=ref.motion_NxD[None],
-                                         meta={"split": split, "ground_truth": True, "reference": str(ds.root)})
+                                         meta={"split": split, "ground_truth": True, "reference": str(ds.root)},
+                                         named=_named_contacts(ds, clips))
     return _note_reference(res, ref)
 
 
@@ -234,7 +251,8 @@ def evaluate_generated(ev: TrainedEvaluator, entries: Sequence, ds, cfg: MetricC
     gen = align_generated(entries, ds, split)
     gt, ref = _dataset_reference(ev, ds, gen.clips, cache)
     res = evaluate_embeddings_and_motion(ev, ref.text_NxD, gen.motion, gt, cfg, gt_NxD=ref.motion_NxD,
-                                         meta={"ground_truth": False, "reference": str(ds.root)})
+                                         meta={"ground_truth": False, "reference": str(ds.root)},
+                                         named=_named_contacts(ds, gen.clips))
     return _note_reference(res, ref)
 
 
@@ -246,6 +264,8 @@ TABLE_COLUMNS = (  # (metric, header) in the paper's Table 2 order, plus MPJPE a
     ("rprec_top1", "Top-1"), ("rprec_top2", "Top-2"), ("rprec_top3", "Top-3"), ("fid", "FID"),
     ("mm_dist", "MM-Dist"), ("diversity", "Diversity"), ("multimodality", "MModality"), ("mpjpe", "MPJPE(mm)"),
     ("contact_f1_intra", "F1-intra"), ("contact_f1_inter", "F1-inter"),
+    ("mpjpe_pa_left", "PA-L(mm)"), ("mpjpe_pa_right", "PA-R(mm)"), ("apd_left", "APD-L(mm)"),  # G-HTT
+    ("apd_right", "APD-R(mm)"), ("pen_1cm", "Pen1cm(%)"), ("contact_feasibility", "C-feas"),  # BimArt
 )
 
 
