@@ -49,11 +49,13 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from handx_jax.io import DataError, atomic_write_json, atomic_write_text, sha256_file
+from handx_jax.io import DataError, atomic_write_json, atomic_write_text, sha256_file, verify_checksum, \
+    write_checksum
 
 VERSION = 4  # of the packaged assets; bumped whenever the recipe or any weight changes
 ASSETS = Path(__file__).resolve().parent / "assets" / "standard"
 CARD_JSON, CARD_MD, MANIFEST = "card.json", "CARD.md", "test_manifest.npz"
+CARD_SHA = CARD_JSON + ".sha256"  # io.write_checksum's sidecar: the card's own checksum
 ENCODER_DIR, EVALUATOR_DIR = "encoder", "evaluator"
 NAME = "standard"  # `handx eval run --evaluator standard` (the default)
 
@@ -226,14 +228,25 @@ def read_card(assets: Path | None = None) -> dict:
 
 
 def asset_files(assets: Path) -> list[str]:
-    """Files covered by the card's checksums (everything but the card itself), sorted."""
+    """Files covered by the card's checksums (everything but the card, its checksum and CARD.md), sorted."""
     return sorted(str(p.relative_to(assets)) for p in Path(assets).rglob("*")
-                  if p.is_file() and p.name not in (CARD_JSON, CARD_MD) and "__pycache__" not in p.parts)
+                  if p.is_file() and p.name not in (CARD_JSON, CARD_SHA, CARD_MD) and "__pycache__" not in p.parts)
 
 
-def verify_assets(assets: Path | None = None, card: Mapping[str, Any] | None = None) -> None:
+def verify_assets(assets: Path | None = None) -> dict:
+    """Check the assets before anything reads them, and return the card: card.json against its sidecar
+    ``card.json.sha256`` (the card holds the recipe, the Ground Truth rows and every other file's sha256,
+    so it is covered first), then each file against the card. A changed or missing file is a DataError
+    naming it. :func:`load` runs this on every load, packaged assets or ``assets=`` another folder."""
     assets = Path(assets or ASSETS)
-    card = card if card is not None else read_card(assets)
+    if not (assets / CARD_JSON).exists():
+        read_card(assets)  # the "is the package installed with its assets?" message
+    try:
+        verify_checksum(assets / CARD_JSON, required=True)
+    except DataError as e:
+        raise DataError(f"standard evaluator card changed or unverifiable: {str(e).split(': ', 1)[-1]} "
+                        "(reinstall the package)", path=assets / CARD_JSON) from None
+    card = read_card(assets)
     for rel, want in card["sha256"].items():
         p = Path(assets) / rel
         if not p.exists():
@@ -241,6 +254,7 @@ def verify_assets(assets: Path | None = None, card: Mapping[str, Any] | None = N
         if sha256_file(p) != want:
             raise DataError("standard evaluator file corrupt: sha256 differs from card.json (reinstall the "
                             "package)", path=p)
+    return card
 
 
 def reference_cache_dir() -> Path:
@@ -251,14 +265,13 @@ def reference_cache_dir() -> Path:
     return Path(base) / f"standard-v{VERSION}" / "reference_cache"
 
 
-def load(assets: Path | None = None, *, verify: bool = True, batch_size: int = 256):
-    """The packaged standard evaluator (a :class:`StandardEvaluator`; ``assets``: another assets folder)."""
+def load(assets: Path | None = None, *, batch_size: int = 256):
+    """The packaged standard evaluator (a :class:`StandardEvaluator`; ``assets``: another assets folder),
+    its checksums verified first (:func:`verify_assets`): a yardstick that changed is refused, always."""
     from handx_jax.evaluation import load_evaluator
 
     assets = Path(assets or ASSETS)
-    card = read_card(assets)
-    if verify:
-        verify_assets(assets, card)
+    card = verify_assets(assets)
     ev = load_evaluator(assets / EVALUATOR_DIR, encoder=assets / ENCODER_DIR, batch_size=batch_size)
     fields = {f.name: getattr(ev, f.name) for f in dataclasses.fields(ev)}
     return __getattr__("StandardEvaluator")(**fields, card=card, assets=assets)
@@ -396,6 +409,7 @@ def package(data: str | os.PathLike, encoder: str | os.PathLike, evaluator: str 
             "sha256": {}}
     card["sha256"] = {rel: sha256_file(tmp / rel) for rel in asset_files(tmp)}
     atomic_write_json(tmp / CARD_JSON, card)
+    write_checksum(tmp / CARD_JSON)
     # Score the GT rows with the packaged copy, through the same check users go through.
     ev = load(tmp)
     rows = {}
@@ -412,6 +426,7 @@ def package(data: str | os.PathLike, encoder: str | os.PathLike, evaluator: str 
                       {**rows[str(blocks[0])], "_meta": {"split": "test", "block": blocks[0]}})
     card["sha256"] = {rel: sha256_file(tmp / rel) for rel in asset_files(tmp)}
     atomic_write_json(tmp / CARD_JSON, card)
+    write_checksum(tmp / CARD_JSON)
     atomic_write_text(tmp / CARD_MD, card_markdown(card))
     if out.exists():
         shutil.rmtree(out)

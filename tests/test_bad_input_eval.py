@@ -4,6 +4,7 @@ naming the file, the clip and the field, before any model is loaded and with not
 (``align_generated``, under ``evaluate_generated``) runs the same check. No evaluator is trained: the
 check comes first, so these take milliseconds."""
 
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -65,3 +66,59 @@ def test_the_api_refuses_the_same_motion(bad, words):
     with pytest.raises(DataError) as e:
         align_generated(clips, ds)
     assert str(e.value).startswith("clip c2, field 'motion': ") and words in str(e.value)
+
+
+# The standard evaluator: its checksums on every load, card included, naming the file that changed.
+
+
+@pytest.fixture
+def assets_copy(tmp_path):
+    import shutil
+
+    from handx_jax import standard
+
+    return Path(shutil.copytree(standard.ASSETS, tmp_path / "assets"))
+
+
+def _flip(path, at=None):
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2 if at is None else at] ^= 1
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("name, words", [("evaluator/params.msgpack", "standard evaluator file corrupt: sha256 "
+                                          "differs from card.json"),
+                                         ("encoder/model.safetensors", "standard evaluator file corrupt"),
+                                         ("card.json", "standard evaluator card changed or unverifiable: checksum "
+                                          "mismatch"),
+                                         ("card.json.sha256", "standard evaluator card changed or unverifiable")])
+def test_a_flipped_byte_in_any_standard_file_is_refused_by_name_on_load(assets_copy, name, words):
+    from handx_jax import standard
+
+    assert standard.verify_assets(assets_copy)["version"] == standard.VERSION  # the intact copy verifies
+    _flip(assets_copy / name, at=0 if name.endswith(".sha256") else None)
+    with pytest.raises(DataError) as e:
+        standard.load(assets=assets_copy)  # the API: refused before anything is read
+    target = assets_copy / (name[:-len(".sha256")] if name.endswith(".sha256") else name)
+    assert str(e.value).startswith(f"file {target}: {words}"), str(e.value)
+
+
+def test_a_missing_card_checksum_is_refused(assets_copy):
+    from handx_jax import standard
+
+    (assets_copy / "card.json.sha256").unlink()
+    with pytest.raises(DataError, match=r"card\.json: standard evaluator card changed or unverifiable: missing "
+                                        r"checksum card\.json\.sha256"):
+        standard.load(assets=assets_copy)
+
+
+def test_eval_run_refuses_a_changed_standard_evaluator_in_one_line(assets_copy, monkeypatch, tmp_path, capsys):
+    from handx_jax import standard
+
+    _flip(assets_copy / "evaluator" / "params.msgpack")
+    monkeypatch.setattr(standard, "ASSETS", assets_copy)
+    rc = main(["eval", "run", "--ground-truth", "--reference", str(tmp_path / "ds"), "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err == (f"handx: error: file {assets_copy / 'evaluator' / 'params.msgpack'}: standard evaluator "
+                               "file corrupt: sha256 differs from card.json (reinstall the package)")
+    assert not (tmp_path / "run").exists()

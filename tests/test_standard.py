@@ -14,7 +14,7 @@ import pytest
 from handx_jax import standard
 from handx_jax.data.dataset import Dataset
 from handx_jax.evaluation import evaluate_ground_truth, make_evaluator_config, train_evaluator
-from handx_jax.io import DataError, sha256_file
+from handx_jax.io import DataError, sha256_file, write_checksum
 from handx_jax.metrics import MetricConfig
 
 ENCODER = Path(__file__).parent / "fixtures" / "t5_tiny_gated"
@@ -59,12 +59,17 @@ def test_package_writes_card_manifest_and_relative_paths(std):
     assert meta["encoder"]["path"] == "encoder"  # nothing points into the packaging machine
     assert card["packaged"]["machine"].endswith("CPU cores, no accelerator")  # JAX_PLATFORMS=cpu
     standard.verify_assets(assets)
+    assert (assets / "card.json.sha256").read_text().split()[0] == sha256_file(assets / "card.json")
     (assets / "test_manifest.npz").write_bytes((assets / "test_manifest.npz").read_bytes() + b"x")
     with pytest.raises(DataError, match="corrupt"):
         standard.verify_assets(assets)
     np.savez_compressed(assets / "test_manifest.npz", **man)  # restore (same content, maybe other bytes)
     card["sha256"]["test_manifest.npz"] = sha256_file(assets / "test_manifest.npz")
     (assets / "card.json").write_text(json.dumps(card))
+    with pytest.raises(DataError, match="card.json: standard evaluator card changed"):
+        standard.verify_assets(assets)  # the card is covered too (issue 31)
+    write_checksum(assets / "card.json")
+    standard.verify_assets(assets)
     assert "| 4 |" in standard.card_markdown(card) and "generator version" in standard.card_markdown(card)
 
 
