@@ -54,6 +54,9 @@ def test_out_of_range_options_are_one_line_before_the_run_is_read(ar_run, tmp_pa
 def test_the_api_refuses_the_same_decoding_options(kw, words):
     with pytest.raises(ValueError, match=f"^{words} "):
         decode.DecodeOptions(**kw)
+
+
+def test_edges_of_the_ranges_and_traced_options_are_accepted():
     with pytest.raises(ValueError, match="--observed-frames"):
         GenerateOptions(observed_frames=7)
     # Defaults and the edges of each range are accepted; JAX rebuilding the options with tracers is too
@@ -99,9 +102,9 @@ def test_the_real_tokenizer_counts_what_the_encoder_would_cut():
     would truncate it (its num_truncated)."""
     from pathlib import Path
 
-    from handx_jax.text.hf import load_hf_t5_encoder
+    from handx_jax.text.tokenizer import Tokenizer
 
-    tok = load_hf_t5_encoder(Path(__file__).parent / "fixtures" / "t5_tiny_gated").tokenizer
+    tok = Tokenizer.load(Path(__file__).parent / "fixtures" / "t5_tiny_gated")
     for words in (5, 60, 200):
         text = " ".join(["fingers"] * words)
         cut = tok.encode([text], 64).num_truncated == 1
