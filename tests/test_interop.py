@@ -337,6 +337,18 @@ def test_cli_import_export_diffusion(imported_diffusion, tmp_path, capsys):
     rc = main(["import", "handx-diffusion", str(DIFF / "model.pt"), "--encoder", str(DIFF / "t5"), "--heads", "4",
                "--stats", str(imported_diffusion.root / "stats.npz"), "--out", str(tmp_path / "run")])
     assert rc == 0 and "L2 d64 H4 FF128" in capsys.readouterr().out
+    # the imported run samples through the family's own path (handx generate): DDIM + guidance, a masked task
+    from handx_jax.families import get_family
+    from handx_jax.families.diffusion.sampling import SampleOptions
+    from handx_jax.generation import Prompt
+
+    run = get_family("diffusion").load(tmp_path / "run")
+    prompts = [Prompt("The index finger curls.", "Fingers spread.", "Both hands move apart.")] * 2
+    opts = SampleOptions(sampler="ddim", steps=2, guidance=2.5, batch_size=2)
+    joints = run.generate(prompts, opts, samples=1)
+    assert joints.shape == (2, 1, 60, 2, 21, 3) and np.isfinite(joints).all()
+    assert np.abs(joints[0] - joints[1]).max() > 1e-3  # each row its own noise
+    np.testing.assert_array_equal(run.generate(prompts, opts, samples=1), joints)  # same seed, same numbers
     rc = main(["export", "handx-diffusion", str(tmp_path / "run"), "--out", str(tmp_path / "m.pt")])
     assert rc == 0 and "not in the official checkpoint format" in capsys.readouterr().out
     rc = main(["import", "handx-diffusion", str(tmp_path / "m.pt"), "--encoder", str(DIFF / "t5"),
