@@ -38,7 +38,7 @@ SWEEP_CPU_PRESET ?= matched
 SWEEP_CPU_SEEDS ?= 42
 SWEEP_CPU_DIR ?= runs/sweep-cpu
 SWEEP_CPU_CLIPS ?= 4000
-SWEEP_CPU_ARGS ?= --eval-limit 10000 --eval-samples 4 --sampler-steps 25 --max-parallel 2
+SWEEP_CPU_ARGS ?= --eval-limit 10000 --eval-samples 4 --set sample.steps=25 --max-parallel 2
 sweep-cpu: $(STAMP)
 	@start=$$(date +%s); set -e; export JAX_PLATFORMS=cpu WANDB_MODE=disabled; \
 	H="$(BIN)/python -m handx_jax"; D=$(SWEEP_CPU_DIR)/data; \

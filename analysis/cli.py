@@ -324,9 +324,11 @@ def _add_fit_options(p: argparse.ArgumentParser, *, xy: bool = True) -> None:
 
 
 def _add_results(p: argparse.ArgumentParser) -> None:
+    from analysis.schema import GROUND_TRUTH, families
+
     p.add_argument("results", nargs="+", metavar="RESULTS",
                    help="results .jsonl/.csv, run folder, sweep folder, or paper:2|paper:3|paper:B")
-    p.add_argument("--family", choices=("diffusion", "ar", "evaluator"), default=None,
+    p.add_argument("--family", choices=[f for f in families() if f != GROUND_TRUTH], default=None,
                    help="keep only runs of this family (and ground-truth rows)")
 
 

@@ -97,8 +97,17 @@ LOWER_IS_BETTER: frozenset[str] = frozenset({"fid", "mm_dist", "mpjpe", "mpjpe_r
 # Acceleration or jitter below the data's means over-smoothed motion, not better motion, so the best
 # value for them is also the one closest to the ground truth.
 CLOSEST_TO_GT: frozenset[str] = frozenset({"diversity", "multimodality", "acceleration", "jitter"})
-FAMILIES: frozenset[str] = frozenset({"diffusion", "ar", "evaluator", "ground_truth"})
 GROUND_TRUTH = "ground_truth"
+# Rows that are not a model family's runs; the families themselves are the registry's
+# (handx_jax.families, a light module: no JAX is imported).
+ROW_KINDS: tuple[str, ...] = ("evaluator", GROUND_TRUTH)
+
+
+def families() -> list[str]:
+    """Every value the ``family`` column may take: the registered families, then ``ROW_KINDS``."""
+    from handx_jax.families import names
+
+    return [*names(), *ROW_KINDS]
 
 
 @dataclass(frozen=True)
@@ -121,7 +130,8 @@ def _metric_columns() -> list[Column]:
 
 COLUMNS: tuple[Column, ...] = (
     Column("run_id", str, "unique id of the run", required=True),
-    Column("family", str, "model family: diffusion | ar | evaluator | ground_truth", required=True),
+    Column("family", str, "model family (the registry, handx_jax.families) | evaluator | ground_truth",
+           required=True),
     Column("label", str, "free-text display label"),
     Column("layers", int, "transformer layers (L)", positive=True),
     Column("dim", int, "model width (d)", positive=True),
@@ -239,8 +249,8 @@ def validate_row(raw: Mapping[str, Any], *, path: Any = None, row: Any = None) -
     for c in COLUMNS:
         if c.required and out[c.name] is None:
             raise _error("required value is missing", path=path, row=row, column=c.name)
-    if out["family"] not in FAMILIES:
-        raise _error(f"unknown family {out['family']!r}; expected one of {sorted(FAMILIES)}", path=path,
+    if out["family"] not in families():
+        raise _error(f"unknown family {out['family']!r}; expected one of {families()}", path=path,
                      row=row, column="family")
     if out["data_fraction"] is not None and out["data_fraction"] > 1:
         raise _error(f"must be in (0, 1], got {out['data_fraction']}", path=path, row=row,

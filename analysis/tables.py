@@ -85,11 +85,19 @@ LAYOUTS: dict[str, Layout] = {
 
 
 def auto_layout(rows: Sequence[Mapping[str, Any]]) -> Layout:
-    """Table 3 for AR sweeps, else the axes that vary (Table 2 / B style), else a run label."""
+    """The layout the registry names for a sweep of one family (the AR family's: Table 3), else the axes
+    that vary (Table 2 / B style), else a run label."""
+    from handx_jax.families import FAMILIES, names
+
     runs = [r for r in rows if r.get("family") != GROUND_TRUTH]
     metrics = tuple(m for m in METRICS if any(r.get(m) is not None for r in rows))
-    if runs and all(r.get("family") == "ar" for r in runs):
-        return Layout(keys=LAYOUTS["table3"].keys, metrics=metrics)
+    fams = {r.get("family") for r in runs}
+    if len(fams) == 1 and next(iter(fams)) in names():
+        from handx_jax.families import entry
+
+        table = entry(next(iter(fams))).table
+        if table:
+            return Layout(keys=LAYOUTS[table].keys, metrics=metrics)
     keys: tuple[str, ...] = ()
     for k in ("data_fraction", "layers", "dim", "heads", "ff", "codebook", "params", "flops_per_sample"):
         if len({r.get(k) for r in runs}) < 2:

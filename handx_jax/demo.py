@@ -83,7 +83,7 @@ def model_stages(out: Path, data: Path, steps: int | None, eval_limit: int, eval
     # the prefix's train clips, two runs at a time on two cores, each scored by the standard evaluator.
     _handx("sweep", "run", str(SWEEP), "--preset", "demo", *(("--arg", f"steps={steps}") if steps else ()),
            "--data", str(data), "--encoder", enc, "--evaluator", str(evaluator_dir()), "--eval-limit", str(eval_limit),
-           "--eval-samples", str(eval_samples), "--sampler-steps", str(sampler_steps), "--max-parallel", "2",
+           "--eval-samples", str(eval_samples), "--set", f"sample.steps={sampler_steps}", "--max-parallel", "2",
            "--out", str(sweep))
     _handx("analyze", "table", str(sweep / "results.jsonl"))
     # x = training compute: the study trains at fixed epochs (see the sweep file's docstring)

@@ -19,7 +19,7 @@ accepts external rotations (e.g. MANO global orient as matrices) through ``rotat
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Iterable, Iterator, Literal, Mapping
+from typing import Callable, Iterable, Iterator, Literal, Mapping
 
 import numpy as np
 
@@ -447,22 +447,27 @@ class NormStats:
 
 @dataclass(frozen=True)
 class NormPreset:
-    """How stats are computed for one representation (§1.8, §5.3)."""
+    """How stats are computed for one representation (§1.8, §5.3): ``featurize(joints, convention)`` →
+    features ending in ``feature_shape``. Which presets a dataset's ``stats.npz`` holds is what the family
+    registry declares (``Family.norm``) plus the evaluator's."""
 
     name: str
     feature_shape: tuple[int, ...]
     min_std: float
     eps: float = 0.0
+    featurize: Callable[..., np.ndarray] | None = None
 
 
 NORM_PRESETS: dict[str, NormPreset] = {
     # §1.8: per (joint, channel), std < 1e-4 → 1, no eps.
-    "diffusion": NormPreset("diffusion", DIFFUSION_SHAPE, min_std=1e-4),
+    "diffusion": NormPreset("diffusion", DIFFUSION_SHAPE, min_std=1e-4, featurize=to_diffusion),
     # §1.8: per 288-d feature, std < 1e-6 → 1, loaders add 1e-6.
-    "ar": NormPreset("ar", (AR_DIM,), min_std=1e-6, eps=1e-6),
+    "ar": NormPreset("ar", (AR_DIM,), min_std=1e-6, eps=1e-6,
+                     featurize=lambda j, convention="paper": to_ar(j, convention=convention)),
     # §5.3 uses shipped mean/std_can_pos whose floor is unpublished; 1e-4 (as diffusion) maps the
     # identically-zero right-wrist features to std 1.
-    "evaluator": NormPreset("evaluator", (EVALUATOR_DIM,), min_std=1e-4),
+    "evaluator": NormPreset("evaluator", (EVALUATOR_DIM,), min_std=1e-4,
+                            featurize=lambda j, convention="paper": to_evaluator(j)),
 }
 
 
@@ -570,19 +575,13 @@ def motion_norm_stats(kind: str, motion_NxTx2x21x3: np.ndarray, *, convention: C
     Features are computed ``chunk_size`` clips at a time and reduced over clips and frames, so each
     clip counts once (§1.8).
     """
-    _preset(kind)
+    featurize = _preset(kind).featurize
     m = motion_NxTx2x21x3
     if m.ndim != 5 or tuple(m.shape[2:]) != (2, sk.NUM_JOINTS, 3):
         raise ValueError(f"motion_norm_stats: expected (N, T, 2, 21, 3), got {tuple(m.shape)}")
 
     def feats() -> Iterator[np.ndarray]:
         for i in range(0, m.shape[0], chunk_size):
-            c = np.asarray(m[i:i + chunk_size])
-            if kind == "diffusion":
-                yield to_diffusion(c, convention)
-            elif kind == "ar":
-                yield to_ar(c, convention=convention)
-            else:
-                yield to_evaluator(c)
+            yield featurize(np.asarray(m[i:i + chunk_size]), convention)
 
     return compute_preset_stats(kind, feats(), chunk_size=chunk_size)

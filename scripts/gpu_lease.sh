@@ -107,7 +107,7 @@ ladder_branch() {
   stage ladder_cache "${H[@]}" text cache --data "$W/ladder_data" --encoder "$ENC" --batch-size 512
   HANDX_CACHE_DIR="$W/cache_old" "${H[@]}" sweep run sweeps/diffusion_flops_ladder.py --preset "$LADDER_PRESET" \
     --arg fraction=1.0 --arg steps="$LADDER_STEPS" ${LADDER_ARGS:-} --data "$W/ladder_data" --encoder "$ENC" \
-    --evaluator "$ev3" --eval-limit 100000 --eval-samples "$EVAL_SAMPLES" --sampler-steps "$SAMPLER_STEPS" \
+    --evaluator "$ev3" --eval-limit 100000 --eval-samples "$EVAL_SAMPLES" --set "sample.steps=$SAMPLER_STEPS" \
     --max-parallel 7 --out "$W/ladder"
   say "ladder: trained, sampled, scored by the packaged evaluator"
   pack_ladder

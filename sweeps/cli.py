@@ -72,12 +72,24 @@ def _run(a: argparse.Namespace) -> int:
         if a.executor == "slurm":
             print(json.dumps({"slurm": resources}))
         return 0
-    if not a.data or (not a.encoder and any(s.family == "diffusion" and not s.command for s in specs)):
-        raise SystemExit("handx sweep run: error: --data (and --encoder for diffusion runs) are required")
+    from handx_jax.families import entry
+
+    def needs_encoder(s) -> bool:  # the run, or a step it needs, trains a family that reads the text encoder
+        return (bool(s.family) and not s.command and entry(s.family).encoder) or any(
+            st.family and entry(st.family).encoder for st in s.needs)
+
+    if not a.data or (not a.encoder and any(needs_encoder(s) for s in specs)):
+        fams = sorted({s.family for s in specs if needs_encoder(s)})
+        raise SystemExit(f"handx sweep run: error: --data (and --encoder for {', '.join(fams) or 'these'} runs) "
+                         f"are required")
+    bad = [o for o in a.set if not o.split("=", 1)[0].strip().startswith("sample.") or "=" not in o]
+    if bad:
+        raise SystemExit(f"handx sweep run: error: --set takes the runs' generation settings, sample.KEY=VALUE; "
+                         f"got {', '.join(map(repr, bad))}")
     cfg = SweepConfig(data=str(Path(a.data).absolute()), encoder=str(Path(a.encoder).absolute()) if a.encoder else "",
                       out=a.out, evaluator=str(Path(a.evaluator).absolute()) if a.evaluator else None,
-                      eval_limit=a.eval_limit, eval_samples=a.eval_samples, rprec_block=block, sampler=a.sampler,
-                      sampler_steps=a.sampler_steps, executor=a.executor, slurm=resources,
+                      eval_limit=a.eval_limit, eval_samples=a.eval_samples, rprec_block=block, sample=tuple(a.set),
+                      executor=a.executor, slurm=resources,
                       name=a.name or "", preset=preset, max_parallel=a.max_parallel, existing=a.existing)
     return _launched("run", lambda: launch(specs, cfg), len(specs))
 
@@ -163,8 +175,10 @@ def add_parser(subparsers) -> None:
     r.add_argument("--rprec-block", type=_block, default=None,
                    help="R-Precision block of the evaluate stage (default: the sweep file's RPREC_BLOCK, else 32; "
                         "the flops ladder's is 16, as the paper's Table B / Fig. 4)")
-    r.add_argument("--sampler", choices=("ddim", "ddpm"), default="ddim", help="sampler of the generate stage")
-    r.add_argument("--sampler-steps", type=int, default=50, help="denoising steps of the generate stage")
+    r.add_argument("--set", action="append", default=[], metavar="sample.KEY=VALUE",
+                   help="generation setting of every run's generate stage (over the family's sweep default and the "
+                        "run's own sample.* overrides), e.g. sample.steps=25 (diffusion: sample.sampler, "
+                        "sample.steps; ar: sample.temperature, sample.top_k, sample.top_p)")
     r.add_argument("--executor", choices=("local", "slurm", "debug"), default="local")
     r.add_argument("--max-parallel", type=int, default=1,
                    help="runs at once (local: worker threads; SLURM: the array's parallelism)")

@@ -2,7 +2,7 @@
 (``make sweep-cpu``; the short ``demo`` preset is ``make demo``'s mini sweep).
 
     handx sweep run sweeps/diffusion_cpu_study.py --preset matched --data D --encoder E --evaluator standard \\
-        --eval-limit 0 --eval-samples 4 --sampler-steps 25 --max-parallel 2 --out runs/sweep-cpu
+        --eval-limit 0 --eval-samples 4 --set sample.steps=25 --max-parallel 2 --out runs/sweep-cpu
     handx analyze fit runs/sweep-cpu/results.csv --x compute --y rprec_top3 --plot fit.png
 
 Why it looks like this (issue 13 item 7). The earlier CPU grids trained every model for 60-300 steps
@@ -44,7 +44,7 @@ Run ids are deterministic (``run_id``: the axis values, then a hash of every ove
 from __future__ import annotations
 
 from sweeps.common import RESOURCES as _RESOURCES, data, model
-from sweeps.launcher import RunSpec, run_id
+from sweeps.launcher import RunSpec, axes_of, run_id
 
 # (layers, dim, heads, FFN): per-sample forward FLOPs (analytic) ≈ 12 M, 55 M, 177 M.
 SIZES = ((1, 32, 2, 64), (2, 64, 4, 128), (2, 128, 4, 256))
@@ -101,8 +101,8 @@ def runs(preset: str = "cpu", steps: int | None = None, batch: int = BATCH, frac
                 st = max(int(round(full * k * frac / max(fracs))), 1)
                 ov = (*model(L, d, H, F), *data(frac), *_train(st, int(batch)),
                       *(() if seed == TrainConfig.seed else (f"train.seed={seed}",)))
-                axes = {"layers": L, "dim": d, "data_fraction": frac}
-                out.append(RunSpec(run_id(axes, ov), preset="tiny", overrides=ov, axes=axes))
+                axes = axes_of(ov, "layers", "dim", "data_fraction")
+                out.append(RunSpec(run_id(axes, ov), "diffusion", preset="tiny", overrides=ov, axes=axes))
     # training cost ∝ steps × per-sample FLOPs; run the largest first
     return sorted(out, key=lambda s: -_cost(s))
 

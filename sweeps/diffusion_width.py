@@ -7,7 +7,7 @@ d ∈ {16, 32, 64, 128}.
 from __future__ import annotations
 
 from sweeps.common import PAPER_SIZED, RESOURCES, budget, data, model  # noqa: F401 (RESOURCES)
-from sweeps.launcher import RunSpec, run_id
+from sweeps.launcher import RunSpec, axes_of, run_id
 
 
 def runs(preset: str = "tiny", steps: int | None = None, layers: int | None = None, fraction: float = 0.05,
@@ -19,7 +19,7 @@ def runs(preset: str = "tiny", steps: int | None = None, layers: int | None = No
     for d in widths:
         H = max(d // 64, 4) if big else 4
         ov = (*model(L, d, H, 4 * d), *data(fraction, sampling), *budget(preset, steps))
-        axes = {"layers": L, "dim": d, "data_fraction": fraction}
-        out.append(RunSpec(run_id(axes, ov), preset="tiny" if preset == "tiny" else "paper-4L", overrides=ov,
+        axes = axes_of(ov, "layers", "dim", "data_fraction")
+        out.append(RunSpec(run_id(axes, ov), "diffusion", preset="tiny" if preset == "tiny" else "paper-4L", overrides=ov,
                            axes=axes))
     return out

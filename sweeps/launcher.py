@@ -64,6 +64,7 @@ from pathlib import Path
 from typing import Sequence
 
 from handx_jax.io import DataError, atomic_write_json, read_json
+from handx_jax.provenance import versions
 from handx_jax.runlock import RunLock, RunLocked, is_locked, pdeathsig_preexec
 
 REPO = Path(__file__).resolve().parent.parent
@@ -92,6 +93,7 @@ class Step:
     name: str
     commands: tuple[tuple[str, ...], ...]
     version: str = "1"
+    family: str = ""  # the family whose run the step trains (``family_step``), if any
 
     @property
     def key(self) -> str:
@@ -100,19 +102,45 @@ class Step:
         return f"{self.name}-{hashlib.sha256(doc.encode()).hexdigest()[:12]}"
 
 
+def family_step(family: str, name: str, preset: str, overrides: Sequence[str] = ()) -> Step:
+    """A shared step that trains one run of ``family`` (e.g. the AR LM's tokenizer, keyed by its
+    ``model.codebook``) and runs the registry's ``after_train`` commands on it (the token cache)."""
+    from handx_jax.families import entry
+
+    fam = entry(family)
+    train = ("handx", "train", family, "--data", "{data}", *(("--encoder", "{encoder}") if fam.encoder else ()),
+             "--preset", preset, *(a for o in overrides for a in ("--set", o)), "--out", "{out}", "--quiet")
+    return Step(name, (train, *fam.after_train), family=family)
+
+
+def axes_of(overrides: Sequence[str], *names: str) -> dict:
+    """A point's axis values read from its own overrides (``model.layers=4`` → ``{"layers": 4}``), so a
+    value such as the data fraction is written once, as the override, and the row and the run id follow."""
+    keys = {"layers": "model.layers", "dim": "model.dim", "heads": "model.heads", "ff": "model.ff",
+            "data_fraction": "data.fraction", "codebook": "model.codebook"}
+    given = dict(o.split("=", 1) for o in overrides)
+    out = {}
+    for n in names:
+        v = given[keys.get(n, n)]
+        out[n] = float(v) if n == "data_fraction" else int(v)
+    return out
+
+
 @dataclass(frozen=True)
 class RunSpec:
     """One point of a sweep: a family, a size preset and dotted config overrides.
 
-    ``axes`` holds the point's axis values (schema columns, e.g. ``{"layers": 4, "data_fraction": 0.05}``)
-    for the results row; ``needs`` the shared steps it depends on (``{step:NAME}`` in an override is
-    replaced by that step's folder); ``args`` are extra arguments of ``handx train FAMILY`` (e.g.
-    ``("--tokenizer", "{step:tokenizer-K512}")``); ``command``, if given, replaces the train stage's
-    argv (placeholders ``{run}``, ``{data}``, ``{encoder}``, ``{step:NAME}``).
+    ``axes`` holds the point's axis values (schema columns, e.g. ``{"layers": 4, "data_fraction": 0.05}``;
+    ``axes_of`` reads them from the overrides) for the run id and the results row; ``needs`` the shared
+    steps it depends on (``{step:NAME}`` in an override is replaced by that step's folder; a step that
+    trains a family the registry says this family needs is passed as ``--FAMILY STEP_DIR``); ``args``
+    are extra arguments of ``handx train FAMILY``; ``command``, if given, replaces the train stage's argv
+    (placeholders ``{run}``, ``{data}``, ``{encoder}``, ``{step:NAME}``). Overrides under ``sample.*``
+    are the run's generation settings (its generate stage uses them).
     """
 
     name: str
-    family: str = "diffusion"
+    family: str = ""  # a registered family (handx_jax.families); ``launch`` refuses a run without one
     preset: str = "tiny"
     overrides: tuple[str, ...] = ()
     axes: dict = field(default_factory=dict)
@@ -144,8 +172,9 @@ class SweepConfig:
     # R-Precision block of the evaluate stage: 32 as in Tables 2-5, 16 for Table B / Fig. 4 (a sweep file's
     # RPREC_BLOCK). Top-k R-Precision at two blocks are two metrics (chance k/block): never one curve.
     rprec_block: int = 32
-    sampler: str = "ddim"
-    sampler_steps: int = 50
+    # Generation settings of every run's generate stage (``sample.*`` overrides, ``handx sweep run --set``),
+    # over the registry's ``sweep_sample`` and each run's own ``sample.*`` overrides.
+    sample: tuple[str, ...] = ()
     executor: str = "local"  # local | slurm | debug (submitit's in-process executor, for tests)
     slurm: dict = field(default_factory=dict)  # submitit parameters (the sweep preset's RESOURCES + --slurm)
     name: str = ""
@@ -436,6 +465,24 @@ def ensure_step(step: Step, cfg: SweepConfig) -> Path:
     return d
 
 
+def _step_of(spec: RunSpec, family: str, steps: dict) -> str:
+    """The folder of the run's shared step that trains ``family`` (what the registry says it needs)."""
+    found = [st for st in spec.needs if st.family == family]
+    if len(found) != 1:
+        raise ValueError(f"run {spec.name}: family {spec.family} is trained from a {family} run; give exactly one "
+                         f"shared step that trains it (sweeps.launcher.family_step), got {len(found)}")
+    return steps[found[0].name]["dir"]
+
+
+def generate_settings(cfg: SweepConfig, spec: RunSpec) -> list[str]:
+    """The ``--set`` overrides of a run's generate stage: the registry's sweep defaults for its family, the
+    run's own ``sample.*`` overrides, then the sweep's (``handx sweep run --set``); the last one wins."""
+    from handx_jax.families import entry
+
+    own = [o for o in spec.overrides if o.split("=", 1)[0].strip().startswith("sample.")]
+    return [*entry(spec.family).sweep_sample, *own, *cfg.sample]
+
+
 def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
     """Bring one run through its stages (each skipped if its output exists), holding the run's lock.
 
@@ -457,7 +504,7 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
         if not (d / "train_done.json").exists() or "git_commit" not in prov:
             # The table's git_commit and device_kind say what *trained* the run: a later rescore or
             # regeneration records its own commit under stages/NAME instead of overwriting them.
-            prov.update(git_commit=git_commit(), device_kind=device_kind())
+            prov.update(git_commit=git_commit(), device_kind=device_kind(), versions=versions())
         prov.setdefault("stages", {})
         env = _env(cfg)
         steps = {}
@@ -481,10 +528,14 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
             if spec.command:
                 argv = _subst(spec.command, mapping)
             else:
+                from handx_jax.families import entry
+
+                fam = entry(spec.family)
                 sets = [a for o in spec.overrides for a in ("--set", _subst([o], mapping)[0])]
-                enc = ["--encoder", cfg.encoder] if spec.family == "diffusion" or cfg.encoder else []
+                enc = ["--encoder", cfg.encoder] if fam.encoder else []
+                needs = [a for n in fam.needs for a in (f"--{n}", _step_of(spec, n, steps))]
                 argv = _subst(["handx", "train", spec.family, "--data", cfg.data, *enc, "--preset", spec.preset,
-                               *_subst(spec.args, mapping), *sets, "--out", str(d), "--quiet"], {})
+                               *needs, *_subst(spec.args, mapping), *sets, "--out", str(d), "--quiet"], {})
             stage("train", argv)
             atomic_write_json(d / "train_done.json", {"spec": dataclasses.asdict(spec)})
         if cfg.evaluator:
@@ -503,8 +554,9 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
                 level = json.loads((Path(cfg.evaluator) / "evaluator.json").read_text())["text"]["eval_level"]
                 stage("generate", _subst(["handx", "generate", "--run", str(d), "--reference", cfg.data, "--split",
                                           cfg.eval_split, "--level", str(level), "--limit", str(cfg.eval_limit),
-                                          "--samples", str(cfg.eval_samples), "--sampler", cfg.sampler, "--steps",
-                                          str(cfg.sampler_steps), "--out", str(d / "generated.npz")], {}))
+                                          "--samples", str(cfg.eval_samples),
+                                          *(a for o in generate_settings(cfg, spec) for a in ("--set", o)),
+                                          "--out", str(d / "generated.npz")], {}))
             if not state["evaluate"]:
                 stage("evaluate", _subst(["handx", "eval", "run", "--evaluator", cfg.evaluator, "--generated",
                                           str(d / "generated.npz"), "--reference", cfg.data, "--block",
@@ -524,7 +576,8 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
 
 def _spec_of(doc: dict) -> RunSpec:
     return RunSpec(**{**doc, "overrides": tuple(doc.get("overrides", ())),
-                      "needs": tuple(Step(s["name"], tuple(tuple(c) for c in s["commands"]), s.get("version", "1"))
+                      "needs": tuple(Step(s["name"], tuple(tuple(c) for c in s["commands"]), s.get("version", "1"),
+                                          s.get("family", ""))
                                      for s in doc.get("needs", ())),
                       "args": tuple(doc.get("args", ())), "command": tuple(doc.get("command", ()))})
 
@@ -555,17 +608,6 @@ def run_status(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | 
     return "pending", None
 
 
-def _paper_flops(cfg_doc: dict) -> dict:
-    """Both FLOPs conventions from a diffusion run's config.json (handx_jax/families/diffusion/flops.py)."""
-    if cfg_doc.get("family") != "diffusion" or "model" not in cfg_doc or "text_len_mean" not in cfg_doc:
-        return {}
-    from handx_jax.families.diffusion import flops
-    from handx_jax.models.dit import DiTConfig
-
-    m = {k: v for k, v in cfg_doc["model"].items() if k in {f.name for f in dataclasses.fields(DiTConfig)}}
-    return flops.both_conventions(DiTConfig(**m), float(cfg_doc["text_len_mean"]))
-
-
 def result_row(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | None = None) -> dict:
     from analysis.schema import COLUMN_BY_NAME, row_from_run_dir, validate_row
 
@@ -574,7 +616,9 @@ def result_row(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | 
     if (d / "config.json").exists() and (d / "metrics.jsonl").exists():
         row = {k: v for k, v in row_from_run_dir(d).items() if v is not None}
         cdoc = _read_json(d / "config.json")
-        for k, v in _paper_flops(cdoc).items():
+        from handx_jax.families import flops_columns
+
+        for k, v in flops_columns(cdoc).items():
             row.setdefault(k, v)
         if isinstance(cdoc.get("data"), dict) and cdoc["data"].get("sampling"):
             row.setdefault("data_sampling", cdoc["data"]["sampling"])
@@ -609,7 +653,11 @@ def _load_state(out: Path) -> tuple[SweepConfig, list[RunSpec]]:
         raise DataError("not a sweep record: expected an object with 'config' and 'runs' (rewritten by the next "
                         "`handx sweep run ... --out`)", path=path)
     try:
-        cfg = SweepConfig(**{**doc["config"], "out": str(Path(out).absolute())})
+        conf = dict(doc["config"])
+        if "sampler" in conf or "sampler_steps" in conf:  # recorded before generation settings were sample.*
+            conf["sample"] = (f"sample.sampler={conf.pop('sampler', 'ddim')}",
+                              f"sample.steps={conf.pop('sampler_steps', 50)}")
+        cfg = SweepConfig(**{**conf, "sample": tuple(conf.get("sample", ())), "out": str(Path(out).absolute())})
         specs = [_spec_of(s) for s in doc["runs"]]
     except (TypeError, KeyError, AttributeError, ValueError) as e:
         raise DataError(f"damaged sweep record ({_one_line(e)}); rerun `handx sweep run ... --out` to rewrite it",
@@ -792,8 +840,15 @@ def _slurm(specs: Sequence[RunSpec], cfg: SweepConfig, out: Path) -> dict[str, s
 def launch(specs: Sequence[RunSpec], cfg: SweepConfig) -> LaunchResult:
     """Run every spec (skipping finished stages); return the results table and the runs that failed."""
     out = Path(cfg.out).absolute()
+    from handx_jax.families import entry
+
     for s in specs:
         run_dir(cfg, s)  # refuses names that would leave OUT
+    for s in specs:
+        try:
+            entry(s.family)  # every run names a registered family (its results row says which)
+        except ValueError as e:
+            raise ValueError(f"run {s.name}: {e}") from None
     if cfg.executor == "slurm" and "timeout_min" not in cfg.slurm:
         raise ValueError("SLURM needs a time limit: give timeout_min in the sweep's RESOURCES for this preset or "
                          "--slurm timeout_min=N (submitit's silent default would end every run after 5 minutes)")

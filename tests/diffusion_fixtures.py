@@ -48,3 +48,27 @@ def tiny_config(data: Path, *overrides: str):
     base = ("train.steps=6", "train.batch_size=8", "train.log_every=2", "train.ckpt_every=3", "train.wandb=disabled",
             "train.optim.warmup_steps=0", "train.optim.lr=1e-3")
     return make_config("tiny", base + overrides, data=str(data), encoder=str(ENCODER))
+
+
+def make_evaluator(dst: Path) -> Path:
+    """A tiny evaluator (10 steps) of the joined 32-clip corpus, built once per test session and copied
+    to ``dst``: enough for a sweep's evaluate stage to score generated motion (not to rank it well)."""
+    from handx_jax.evaluation import make_evaluator_config, train_evaluator
+
+    session = os.environ.get("HANDX_TEST_SESSION")
+    shared = Path(session) / "shared" / "evaluator10" if session else dst.parent / "evaluator10"
+    shared.parent.mkdir(parents=True, exist_ok=True)
+    with open(shared.parent / ".evaluator.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (shared / "done").exists():
+            shutil.rmtree(shared, ignore_errors=True)
+            data = make_dataset(shared, joined=True)
+            cfg = make_evaluator_config("tiny", ("train.steps=10", "train.batch_size=8", "train.optim.lr=1e-3",
+                                                 "train.optim.warmup_steps=0", "train.log_every=5",
+                                                 "train.wandb=disabled", "text.max_len=64", "text.train_levels=none",
+                                                 "text.eval_level=0", "final_eval=false"),
+                                        data=str(data), encoder=str(ENCODER))
+            train_evaluator(shared / "E", cfg, log=lambda s: None)
+            (shared / "done").touch()
+    shutil.copytree(shared / "E", dst)
+    return dst

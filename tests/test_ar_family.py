@@ -19,7 +19,7 @@ def built(tmp_path_factory):
     root = tmp_path_factory.mktemp("ar")
     data = make_dataset(root, joined=True)
     tok, run = root / "tok", root / "lm"
-    assert main(["train", "tokenizer", "--data", str(data), "--codebook", "256", "--preset", "tiny", "--quiet",
+    assert main(["train", "tokenizer", "--data", str(data), "--set", "model.codebook=256", "--preset", "tiny", "--quiet",
                  "--set", "train.steps=4", "--set", "train.eval_every=2", *LOOP, "--out", str(tok)]) == 0
     assert main(["tokenize", "--tokenizer", str(tok), "--data", str(data)]) == 0
     assert main(["train", "ar", "--data", str(data), "--encoder", str(ENCODER), "--tokenizer", str(tok),

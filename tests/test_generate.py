@@ -79,6 +79,11 @@ def test_text2motion_prompts_gif_and_batch_mode(setup, tmp_path):
     assert main(["generate", "--run", str(run), "--left", "the left hand waves", "--right", "right fist",
                  "--interaction", "hands apart", *FAST, "--guidance", "1", "--out", str(tmp_path / "g1.npz")]) == 0
     assert not np.allclose(read_handx_npz(tmp_path / "g1.npz")[0].motion, c[0].motion)
+    # The family-agnostic channel (the sweep launcher's): --set sample.* names the same keys as the flags.
+    assert main(["generate", "--run", str(run), "--left", "the left hand waves", "--right", "right fist",
+                 "--interaction", "hands apart", "--samples", "2", "--set", "sample.sampler=ddim", "--set",
+                 "sample.steps=8", "--out", str(tmp_path / "s.npz")]) == 0
+    np.testing.assert_array_equal(read_handx_npz(tmp_path / "s.npz")[0].motion, c[0].motion)
     # Batch mode: every test clip × G, with source_clip/group fields.
     ds = Dataset.open(data)
     assert main(["generate", "--run", str(run), "--reference", str(data), "--split", "test", "--limit", "3", *FAST,
@@ -121,7 +126,9 @@ def test_generate_errors(setup, tmp_path, capsys):
     assert main(base + ["--left", "a", "--right", "b"]) == 2
     assert "same number of times" in capsys.readouterr().err
     assert main(base + ["--left", "a", "--right", "b", "--interaction", "c", "--set", "train.steps=3"]) == 2
-    assert "only override diffusion" in capsys.readouterr().err
+    assert "only override sample.* and diffusion.* keys" in capsys.readouterr().err
+    assert main(base + ["--left", "a", "--right", "b", "--interaction", "c", "--set", "sample.sampler=dim"]) == 2
+    assert "sample.sampler must be 'ddpm' or 'ddim'" in capsys.readouterr().err
     assert main(base + ["--left", "a", "--right", "b", "--interaction", "c", "--set", "diffusion.p_hrd=1"]) == 2
     assert "did you mean 'diffusion.p_hard'" in capsys.readouterr().err
     assert main(base + ["--task", "dance", "--source", str(data), "--clip", "0"]) == 2

@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from handx_jax.io import DataError
+from handx_jax.provenance import versions
 from handx_jax.runlock import RunLock, RunLocked, is_locked, pid_alive
 from sweeps.launcher import RunSpec, Step, SweepConfig, collect_results, launch, load_sweep, stage_state, status
 
@@ -27,7 +28,7 @@ TINY = ("model.layers=1", "model.dim=32", "model.heads=4", "model.ff=64", "train
 
 def fake(name, *args, size=1, needs=(), **axes):
     cmd = (sys.executable, FAKE, "--out", "{run}", "--size", str(size), *args)
-    return RunSpec(name, command=cmd, needs=needs, axes={"layers": size, **axes})
+    return RunSpec(name, "diffusion", command=cmd, needs=needs, axes={"layers": size, **axes})
 
 
 def cfg_for(tmp_path, **kw):
@@ -80,7 +81,11 @@ def test_sweep_files_define_the_grids(tmp_path):
         text, tok = s.needs
         assert text.name == "text-joined" and tok.name == f"tokenizer-K{s.axes['codebook']}"
         keys.setdefault(s.axes["codebook"], set()).add(tok.key)
-        assert s.args == ("--tokenizer", f"{{step:{tok.name}}}")
+        # The codebook reaches the tokenizer as its config key only; the launcher passes --tokenizer itself
+        # (the registry: ar is trained from a tokenizer run).
+        assert tok.family == "tokenizer" and not s.args
+        train = tok.commands[0]
+        assert f"model.codebook={s.axes['codebook']}" in train and "--codebook" not in train
     assert sorted(keys) == [512, 1024, 2048, 4096] and all(len(v) == 1 for v in keys.values())
     assert len({k for v in keys.values() for k in v}) == 4
     assert {s.preset for s in ar} == {"8L-512", "12L-768", "16L-1024"}
@@ -169,7 +174,7 @@ def test_failure_is_recorded_and_the_sweep_goes_on(tmp_path):
     sweep = tmp_path / "s.py"
     sweep.write_text(f"import sys\nfrom sweeps.launcher import RunSpec\nF = {FAKE!r}\n"
                      "def runs(preset='tiny'):\n"
-                     "    return [RunSpec(n, command=(sys.executable, F, '--out', '{run}') + x)"
+                     "    return [RunSpec(n, 'diffusion', command=(sys.executable, F, '--out', '{run}') + x)"
                      " for n, x in (('p', ('--fail',)), ('q', ()))]\n")
     r = subprocess.run([sys.executable, "-m", "handx_jax", "sweep", "run", str(sweep), "--preset", "tiny",
                         "--data", str(tmp_path), "--out", str(tmp_path / "cli")], capture_output=True, text=True,
@@ -196,6 +201,8 @@ def test_shared_steps_run_once_and_are_recorded(tmp_path):
     for s in specs:
         d = tmp_path / "sweep/runs" / s.name
         prov = json.loads((d / "provenance.json").read_text())
+        assert prov["versions"] == versions() and {"jax", "jaxlib", "flax", "optax", "orbax-checkpoint",
+                                                    "numpy"} <= {k for k, v in prov["versions"].items() if v}
         k = s.axes["codebook"]
         assert prov["steps"][f"tok-K{k}"]["dir"] == str(tmp_path / "sweep/steps" / tok(k).key)
         assert json.loads((d / "config.json").read_text())["tokenizer"] == prov["steps"][f"tok-K{k}"]["dir"]
@@ -249,7 +256,7 @@ def test_kill9_of_the_launcher_ends_its_child_and_the_relaunch_finishes(tmp_path
     sweep = tmp_path / "slow.py"
     sweep.write_text(f"import sys\nfrom sweeps.launcher import RunSpec\nF = {FAKE!r}\n"
                      "def runs(seconds=0.2):\n"
-                     "    return [RunSpec(n, command=(sys.executable, F, '--out', '{run}', '--seconds', str(s)),"
+                     "    return [RunSpec(n, 'diffusion', command=(sys.executable, F, '--out', '{run}', '--seconds', str(s)),"
                      " axes={'layers': i + 1}) for i, (n, s) in enumerate((('a', 0.2), ('b', 30), ('c', 0.2)))]\n")
     out = tmp_path / "sweep"
     cmd = [sys.executable, "-m", "handx_jax", "sweep", "run", str(sweep), "--data", str(tmp_path), "--out", str(out)]
@@ -526,8 +533,8 @@ def test_launch_resume_and_results(tmp_path):
     from diffusion_fixtures import ENCODER, make_dataset
 
     data = make_dataset(tmp_path)
-    specs = [RunSpec("a", overrides=TINY, axes={"layers": 1}),
-             RunSpec("b", overrides=TINY + ("data.fraction=0.5", "data.sampling=pairs"))]
+    specs = [RunSpec("a", "diffusion", overrides=TINY, axes={"layers": 1}),
+             RunSpec("b", "diffusion", overrides=TINY + ("data.fraction=0.5", "data.sampling=pairs"))]
     cfg = SweepConfig(data=str(data), encoder=str(ENCODER), out=str(tmp_path / "sweep"))
     # "Killed" after the first run: only it finished.
     launch(specs[:1], cfg)
@@ -622,3 +629,23 @@ def test_short_preset_trains_the_paper_sizes_on_a_short_schedule():
         load_sweep("sweeps/diffusion_flops_ladder.py", preset="short", sizes=[(12, 1024)])
     with pytest.raises(ValueError, match=r"\(tiny \| short \| paper\)"):
         load_sweep("sweeps/diffusion_flops_ladder.py", preset="long")
+
+
+def test_generate_stage_passes_only_family_agnostic_settings(tmp_path):
+    """The generate stage's settings are ``sample.*`` overrides: the registry's sweep default for the run's
+    family, then the run's own, then the sweep's ``--set`` (the last wins); an old sweep.json's
+    ``sampler``/``sampler_steps`` are read as those overrides."""
+    from sweeps.launcher import _load_state, generate_settings
+
+    d = RunSpec("d", "diffusion", overrides=("model.layers=1", "sample.steps=8"))
+    a = RunSpec("a", "ar", overrides=("sample.temperature=0.5",))
+    cfg = cfg_for(tmp_path, sample=("sample.steps=25",))
+    assert generate_settings(cfg, d) == ["sample.sampler=ddim", "sample.steps=50", "sample.steps=8", "sample.steps=25"]
+    assert generate_settings(cfg_for(tmp_path), a) == ["sample.temperature=0.5"]  # nothing of diffusion's
+    out = tmp_path / "old"
+    out.mkdir()
+    doc = {"config": {"data": "D", "encoder": "", "out": "x", "sampler": "ddim", "sampler_steps": 25},
+           "runs": [{"name": "d", "family": "diffusion", "overrides": ["model.layers=1"]}]}
+    (out / "sweep.json").write_text(json.dumps(doc))
+    old_cfg, specs = _load_state(out)
+    assert old_cfg.sample == ("sample.sampler=ddim", "sample.steps=25") and specs[0].family == "diffusion"

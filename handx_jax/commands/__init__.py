@@ -14,11 +14,11 @@ def fail(cmd: str, err: object, code: int = 2) -> int:
 def parse_family(args, verb: str, family_parser):
     """The shared head of ``handx train|params FAMILY``: list the families, show help, or parse the
     family's own flags. Returns ``(family_args, None)`` to go on, or ``(None, exit_status)``."""
-    from handx_jax.families import FAMILIES
+    from handx_jax.families import entry, names
 
     if args.family is None:
         args.parser.print_help()
-        print("\nfamilies:\n" + "\n".join(f"  {k:<12s}{f.help}" for k, f in FAMILIES.items()))
+        print("\nfamilies:\n" + "\n".join(f"  {k:<12s}{entry(k).help}" for k in names()))
         return None, 0 if args.help else fail(f"handx {verb}", "give a FAMILY")
     try:
         p = family_parser(args.family)

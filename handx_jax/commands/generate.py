@@ -10,9 +10,11 @@ Prompt mode (G samples for one prompt; ``--task`` other than text2motion needs `
 Without prompts, a source clip's own annotation at ``--level`` is used. Tasks (paper App. D.2):
 inbetween (first/last 5 frames), keyframes (``--keyframes``), wrist (wrist trajectories), reaction
 (``--fixed-hand`` fully constrained), long (one segment per repeated --left/--right/--interaction;
-continues ``--source`` if given). A family may support only some tasks. The run's family (its
-``config.json``) adds its own sampling options: ``handx generate --run RUN --help`` lists them (for
-diffusion ``--sampler``, ``--steps``, ``--guidance`` and ``--set diffusion.p_hard=1.0`` etc.).
+continues ``--source`` if given). A family may support only some tasks. Generation settings are the
+run's own config (its ``sample.*`` keys), changed with ``--set sample.KEY=VALUE`` for any family (the
+sweep launcher's one channel); the run's family adds flags for the same keys: ``handx generate --run
+RUN --help`` lists them (for diffusion ``--sampler``, ``--steps``, ``--guidance``; ``--set
+diffusion.p_hard=1.0`` etc.).
 
 Batch mode (for evaluation): one prompt per clip of a dataset split, G samples each, entries in clip
 order with fields ``source_clip`` (clip id) and ``group`` (0..G−1):
@@ -178,6 +180,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--batch-size", type=int, default=256, help="samples per compiled sampler call")
     p.add_argument("--no-ema", action="store_true", help="use the raw (not EMA) parameters")
     p.add_argument("--encoder", help="encoder folder (default: the one the run was trained with)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override the run's generation settings, any family: sample.* (diffusion: sample.sampler, "
+                        "sample.steps; ar: sample.temperature, sample.top_k, sample.top_p) and the keys the family "
+                        "allows (diffusion.*: guidance, masks); the family's flags below name the same keys")
     p.add_argument("--out", help="output .npz (official layout; required)")
     p.add_argument("--gif", help="also render the first sample as a GIF")
     p.set_defaults(func=_run, parser=p, takes_extra_args=True)

@@ -19,10 +19,10 @@ from handx_jax.commands import fail, parse_family
 def family_parser(name: str) -> argparse.ArgumentParser:
     """The full ``handx train NAME`` parser: the shared flags plus the family's own."""
     from handx_jax.config import add_config_args
-    from handx_jax.families import FAMILIES, get_family
+    from handx_jax.families import entry, get_family
 
     fam = get_family(name)
-    p = argparse.ArgumentParser(prog=f"handx train {name}", description=f"{FAMILIES[name].help}.\n\n{__doc__}",
+    p = argparse.ArgumentParser(prog=f"handx train {name}", description=f"{entry(name).help}.\n\n{__doc__}",
                                 formatter_class=argparse.RawDescriptionHelpFormatter, allow_abbrev=False)
     add_config_args(p, fam.PRESETS, default=next(iter(fam.PRESETS)))
     p.add_argument("--out", required=True, help="run folder (re-running resumes it)")

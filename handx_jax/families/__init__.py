@@ -28,14 +28,19 @@ How to add a family ``foo``:
      ``--json``); ``add_generate_args(parser)`` + ``load_for_generate(args, *, ema, encoder, seed,
      batch_size) -> (run, opts)`` (the command adds prompts, tasks, sources, ``--out`` …).
 
-2. Add one line to ``FAMILIES`` below. Nothing else changes.
+2. Add one line to ``FAMILIES`` below (or, for a family that lives outside the package, e.g. a test's,
+   ``register(name, Family(...))``). Nothing else changes: the launcher, the results schema, the
+   analysis commands and tables, and the dataset's normalisation statistics read what the entry
+   declares.
 """
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import importlib
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
@@ -43,24 +48,104 @@ from types import ModuleType
 
 @dataclass(frozen=True)
 class Family:
+    """What the rest of the system knows about a family; nothing outside its module names it.
+
+    ``norm``: the dataset normalisation statistics its motion is normalised with (a ``stats.npz``
+    prefix, ``representation.NORM_PRESETS``; the dataset computes every one a family declares).
+    ``encoder``: ``handx train NAME`` takes ``--encoder`` (its runs read the frozen text encoder's cache).
+    ``needs``: families whose trained run it is trained from, one shared sweep step each, passed as
+    ``--NAME STEP_DIR`` (the AR LM: its tokenizer). ``after_train``: commands that finish such a step
+    (placeholders ``{out}``, ``{data}``; e.g. writing the token cache). ``results``: its runs are rows
+    of a results table (a tokenizer is a step, not a point). ``table``: the ``analysis.tables.LAYOUTS``
+    entry a sweep of only this family is shown in (None: the axes that vary). ``flops``: a
+    ``module:function`` taking a run's ``config.json`` to its FLOPs per sample in both conventions
+    (``flops_per_sample_paper``…, beside the analytic count ``train`` records), or None where the paper
+    defines no other convention. ``sweep_sample``: generation settings (``sample.*`` overrides) of a
+    sweep's generate stage unless the sweep sets its own (``handx sweep run --set sample.KEY=V``).
+    """
+
     module: str  # import path of the family module
     help: str  # one line for `handx train --help`
+    norm: str | None = None
+    encoder: bool = False
+    needs: tuple[str, ...] = ()
+    after_train: tuple[tuple[str, ...], ...] = ()
+    results: bool = True
+    table: str | None = None
+    flops: str | None = None
+    sweep_sample: tuple[str, ...] = ()
 
 
 FAMILIES: dict[str, Family] = {
-    "diffusion": Family("handx_jax.families.diffusion", "the treble-residual diffusion model (paper §5.1)"),
-    "tokenizer": Family("handx_jax.families.tokenizer", "the FSQ motion tokenizer of the AR family (paper §5.2)"),
-    "ar": Family("handx_jax.families.ar", "the text-prefix LM over FSQ motion tokens (paper §5.2)"),
+    "diffusion": Family("handx_jax.families.diffusion", "the treble-residual diffusion model (paper §5.1)",
+                        norm="diffusion", encoder=True, flops="handx_jax.families.diffusion.flops:from_config",
+                        # DDIM-50: what every diffusion sweep has generated with (DDPM takes all 1,000 steps)
+                        sweep_sample=("sample.sampler=ddim", "sample.steps=50")),
+    "tokenizer": Family("handx_jax.families.tokenizer", "the FSQ motion tokenizer of the AR family (paper §5.2)",
+                        norm="ar", results=False,
+                        after_train=(("handx", "tokenize", "--tokenizer", "{out}", "--data", "{data}"),)),
+    "ar": Family("handx_jax.families.ar", "the text-prefix LM over FSQ motion tokens (paper §5.2)",
+                 encoder=True, needs=("tokenizer",), table="table3"),
 }
+# Families registered from outside the package (``register``), as NAME=MODULE pairs: children of this
+# process (the sweep launcher's ``handx`` stages) find them here. MODULE holds ``REGISTRY: Family``.
+ENV = "HANDX_FAMILIES"
+
+
+def _from_env(name: str) -> Family | None:
+    for item in filter(None, os.environ.get(ENV, "").split(",")):
+        n, _, module = item.partition("=")
+        if n == name and module:
+            return getattr(importlib.import_module(module), "REGISTRY")
+    return None
+
+
+def names() -> list[str]:
+    """Every registered family name (the package's, then those registered from outside)."""
+    extra = [i.partition("=")[0] for i in filter(None, os.environ.get(ENV, "").split(","))]
+    return [*FAMILIES, *(n for n in extra if n not in FAMILIES)]
+
+
+def entry(name: str) -> Family:
+    """The registry entry of ``name``; an unknown name is a ValueError with a hint."""
+    fam = FAMILIES.get(name) or _from_env(name)
+    if fam is None:
+        close = difflib.get_close_matches(name, names(), n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise ValueError(f"unknown model family {name!r}{hint}; families: {', '.join(names())}")
+    return fam
+
+
+@contextlib.contextmanager
+def register(name: str, family: Family):
+    """Register ``family`` as ``name`` while the block runs, for this process and its children
+    (``HANDX_FAMILIES``); ``family.module`` must define ``REGISTRY = family``."""
+    old = os.environ.get(ENV)
+    os.environ[ENV] = ",".join(filter(None, [old or "", f"{name}={family.module}"]))
+    FAMILIES[name] = family
+    try:
+        yield family
+    finally:
+        FAMILIES.pop(name, None)
+        if old is None:
+            os.environ.pop(ENV, None)
+        else:
+            os.environ[ENV] = old
 
 
 def get_family(name: str) -> ModuleType:
     """The family module registered as ``name``; an unknown name is a ValueError with a hint."""
-    if name not in FAMILIES:
-        close = difflib.get_close_matches(name, list(FAMILIES), n=1)
-        hint = f" (did you mean {close[0]!r}?)" if close else ""
-        raise ValueError(f"unknown model family {name!r}{hint}; families: {', '.join(FAMILIES)}")
-    return importlib.import_module(FAMILIES[name].module)
+    return importlib.import_module(entry(name).module)
+
+
+def flops_columns(config: dict) -> dict:
+    """A run's FLOPs per sample in the conventions its family defines beside the analytic one (the
+    registry's ``flops``), from its ``config.json``; {} where there are none."""
+    fam = FAMILIES.get(config.get("family", "")) or (_from_env(config["family"]) if config.get("family") else None)
+    if fam is None or not fam.flops:
+        return {}
+    module, _, fn = fam.flops.partition(":")
+    return getattr(importlib.import_module(module), fn)(config)
 
 
 def family_of(run_dir: str | Path) -> str:

@@ -1,6 +1,6 @@
 """The FSQ motion-tokenizer family (paper §5.2; reference §4.1–4.4): training, loading, the token cache.
 
-    handx train tokenizer --data DIR --codebook 4096 --preset paper --out TOK
+    handx train tokenizer --data DIR --preset paper --set model.codebook=4096 --out TOK
     handx tokenize --tokenizer TOK --data DIR          # DIR/token_cache/<fingerprint>/codes.npy
 
 Training items are 48-frame windows of the train split's clips at every start 0..12 (13 per clip,
@@ -380,23 +380,22 @@ def open_token_cache(data_dir: str | os.PathLike, tokenizer_dir: str | os.PathLi
 
 
 def add_train_args(p: argparse.ArgumentParser) -> None:
+    # The codebook size (model.codebook, nominal: 512 by default; models.fsq.LEVELS lists the sizes) and the quantiser
+    # (model.quantizer: paper = round(σ(y)(L−1)), fsq = the reference code's tanh form) are config keys
+    # like any other: --set model.codebook=4096, one channel for the command line and the sweeps.
     p.add_argument("--data", required=True, help="dataset directory")
-    p.add_argument("--codebook", type=int, default=512, help=f"nominal codebook size ({', '.join(map(str, Q.LEVELS))})")
-    p.add_argument("--quantizer", choices=Q.QUANTIZERS, default="paper",
-                   help="paper: round(σ(y)(L−1)) (default); fsq: the reference code's tanh form")
 
 
 def config_from_args(args: argparse.Namespace) -> TokenizerRunConfig:
-    return make_config(args.preset, [f"model.codebook={args.codebook}", f"model.quantizer={args.quantizer}", *args.set],
-                       data=args.data)
+    return make_config(args.preset, args.set, data=args.data)
 
 
 def add_params_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--codebook", type=int, default=512, help="nominal codebook size")
+    pass  # the codebook size is --set model.codebook=N, as for training
 
 
 def params_from_args(args: argparse.Namespace) -> tuple[str, dict]:
-    cfg = make_config(args.preset, [f"model.codebook={args.codebook}", *args.set])
+    cfg = make_config(args.preset, args.set)
     m = cfg.model
     return f"tokenizer {cfg.preset}: width {m.width}, levels {m.levels} ({m.nb_code} codes)", numbers(cfg)
 

@@ -1,6 +1,6 @@
 """The autoregressive family: a text-prefix LM over FSQ motion tokens (paper §5.2; reference §4.5–4.8).
 
-    handx train tokenizer --data DIR --codebook 4096 --out TOK      # one per (dataset, codebook)
+    handx train tokenizer --data DIR --set model.codebook=4096 --out TOK   # one per (dataset, codebook)
     handx tokenize --tokenizer TOK --data DIR                       # token cache
     handx text cache --data DIR --encoder ENC --joined              # the joined-prompt text cache
     handx train ar --data DIR --encoder ENC --tokenizer TOK --preset 8L-512 --out RUN
@@ -336,6 +336,7 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
     if bad:
         raise ValueError(f"generation can only override sample.* keys, got {bad}")
     cfg = apply_overrides(cfg, overrides)
+    cfg.validate()
     enc = _encoder(encoder, cfg.data.encoder)
     want = doc.get("text_cache", {}).get("encoder_fingerprint")
     if want and enc.fingerprint != want:
@@ -419,7 +420,7 @@ def load_for_generate(args: argparse.Namespace, *, ema: bool, encoder, seed: int
     # The flags' range checks (DecodeOptions, GenerateOptions) before the run is read.
     GenerateOptions(AD.DecodeOptions(pick(args.temperature, d.temperature), pick(args.top_k, d.top_k),
                                      pick(args.top_p, d.top_p)), observed_frames=args.observed_frames)
-    run = load(args.run, ema=ema, encoder=encoder)
+    run = load(args.run, ema=ema, encoder=encoder, overrides=args.set)
     run.check_prompts(typed_prompts(args))
     s = run.cfg.sample
     dec = AD.DecodeOptions(temperature=pick(args.temperature, s.temperature), top_k=pick(args.top_k, s.top_k),

@@ -57,6 +57,16 @@ class DataConfig:
 
 
 @dataclass(frozen=True)
+class SampleConfig:
+    """Generation settings of the run: its defaults for ``handx generate`` and a sweep's generate stage,
+    changed like any other key (``--set sample.steps=25``; ``handx generate --sampler/--steps`` are the
+    same keys). The guidance scale is ``diffusion.guidance``."""
+
+    sampler: str = "ddpm"  # "ddpm" (ancestral, all T steps, the reference) or "ddim"
+    steps: int = 50  # DDIM steps (DDPM always takes all diffusion.steps)
+
+
+@dataclass(frozen=True)
 class DiffusionRunConfig:
     preset: str = "tiny"
     model: DiTConfig = PRESETS["tiny"]
@@ -66,6 +76,7 @@ class DiffusionRunConfig:
     train: TrainConfig = TrainConfig(steps=20000, batch_size=64, log_every=50, ckpt_every=1000, ema_decay=0.999,
                                      ema_warmup=True, optim=OptimConfig(warmup_steps=500))
     data: DataConfig = field(default_factory=DataConfig)
+    sample: SampleConfig = SampleConfig()
 
     def validate(self) -> None:
         m, d = self.model, self.diffusion
@@ -77,6 +88,10 @@ class DiffusionRunConfig:
             raise ConfigError(f"data.fraction must be in (0, 1], got {self.data.fraction}")
         if not 0 <= d.p_soft <= d.p_hard <= 1:
             raise ConfigError(f"need 0 <= diffusion.p_soft <= diffusion.p_hard <= 1, got {d.p_soft}, {d.p_hard}")
+        if self.sample.sampler not in ("ddpm", "ddim"):
+            raise ConfigError(f"sample.sampler must be 'ddpm' or 'ddim', got {self.sample.sampler!r}")
+        if self.sample.steps < 1:
+            raise ConfigError(f"sample.steps must be at least 1, got {self.sample.steps}")
 
 
 Config = DiffusionRunConfig
@@ -199,6 +214,7 @@ def run_record(cfg: DiffusionRunConfig, cache_meta: dict) -> dict:
         "model": dataclasses.asdict(cfg.model),
         "diffusion": dataclasses.asdict(cfg.diffusion),
         "data": dataclasses.asdict(cfg.data),
+        "sample": dataclasses.asdict(cfg.sample),
         "data_fraction": cfg.data.fraction,
         "params": param_count(cfg.model),
         "params_non_embedding": params_non_embedding(cfg.model),
@@ -306,8 +322,8 @@ class DiffusionRun:
 
 def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, overrides: Sequence[str] = ()) -> DiffusionRun:
     """Open a run folder for generation. ``encoder`` is a folder or an already loaded FrozenEncoder
-    (default: the folder the run was trained with); ``overrides`` may change ``diffusion.*``
-    (guidance, masks)."""
+    (default: the folder the run was trained with); ``overrides`` may change ``sample.*`` (sampler,
+    steps) and ``diffusion.*`` (guidance, masks)."""
     from handx_jax import representation as rep
     from handx_jax.text.hf import as_encoder
     from handx_jax.train import load_params
@@ -315,10 +331,11 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
     run_dir = Path(run_dir)
     doc = run_config(run_dir, FAMILY)
     cfg = config_from_dict(doc)
-    bad = [o for o in overrides if not o.split("=", 1)[0].strip().startswith("diffusion.")]
+    bad = [o for o in overrides if not o.split("=", 1)[0].strip().startswith(("diffusion.", "sample."))]
     if bad:
-        raise ValueError(f"generation can only override diffusion.* keys, got {bad}")
+        raise ValueError(f"generation can only override sample.* and diffusion.* keys, got {bad}")
     cfg = apply_overrides(cfg, overrides)
+    cfg.validate()
     enc = as_encoder(encoder or cfg.data.encoder)
     want = doc.get("text_cache", {}).get("encoder_fingerprint")
     if want and enc.fingerprint != want:
@@ -405,20 +422,20 @@ def params_from_args(args: argparse.Namespace) -> tuple[str, dict]:
 
 
 def add_generate_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--sampler", default="ddpm", choices=["ddpm", "ddim"])
-    p.add_argument("--steps", type=int, default=50, help="DDIM steps (DDPM always uses all T steps)")
-    p.add_argument("--guidance", type=float, help="CFG scale (default: the run's, 2.5)")
-    p.add_argument("--set", action="append", default=[], metavar="diffusion.KEY=VALUE",
-                   help="override diffusion settings, e.g. diffusion.p_hard=1.0, diffusion.blend=xt")
+    p.add_argument("--sampler", choices=["ddpm", "ddim"], help="= --set sample.sampler=… (default: the run's, ddpm)")
+    p.add_argument("--steps", type=int, help="= --set sample.steps=N: DDIM steps (DDPM always uses all T steps)")
+    p.add_argument("--guidance", type=float, help="= --set diffusion.guidance=X: CFG scale (default: the run's, 2.5)")
 
 
 def load_for_generate(args: argparse.Namespace, *, ema: bool, encoder, seed: int, batch_size: int):
-    """(run, sampling options) for ``handx generate``."""
+    """(run, sampling options) for ``handx generate``: the run's ``sample``/``diffusion`` settings, then
+    ``--set`` overrides, then the flags (which name the same keys)."""
     from handx_jax.families.diffusion.sampling import SampleOptions
     from handx_jax.text.prompts import typed_prompts
 
-    run = load(args.run, ema=ema, encoder=encoder, overrides=args.set)
+    flags = [f"{k}={v}" for k, v in (("sample.sampler", args.sampler), ("sample.steps", args.steps),
+                                     ("diffusion.guidance", args.guidance)) if v is not None]
+    run = load(args.run, ema=ema, encoder=encoder, overrides=[*args.set, *flags])
     run.check_prompts(typed_prompts(args))
-    opts = SampleOptions(sampler=args.sampler, steps=args.steps, guidance=args.guidance, seed=seed,
-                         batch_size=batch_size)
-    return run, opts
+    s = run.cfg.sample
+    return run, SampleOptions(sampler=s.sampler, steps=s.steps, seed=seed, batch_size=batch_size)

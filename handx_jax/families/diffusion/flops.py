@@ -87,3 +87,14 @@ def both_conventions(cfg: DiTConfig, caption_tokens: float, enc_cfg=None) -> dic
     p = paper_flops(cfg, n, NUM_BRANCHES * n, enc_cfg)
     return {"flops_per_sample": float(forward_flops(cfg, n)), "flops_per_sample_paper": float(p["flops_per_sample_paper"]),
             "text_flops_per_sample_paper": float(p["text_encoder_macs"])}
+
+
+def from_config(config: dict) -> dict:
+    """Both conventions of a diffusion run from its ``config.json`` (its model and mean caption
+    length); the registry's ``flops`` hook, read by the sweep launcher for every results row."""
+    import dataclasses
+
+    if "model" not in config or "text_len_mean" not in config:
+        return {}
+    m = {k: v for k, v in config["model"].items() if k in {f.name for f in dataclasses.fields(DiTConfig)}}
+    return both_conventions(DiTConfig(**m), float(config["text_len_mean"]))
