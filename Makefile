@@ -6,21 +6,30 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 DEMO_DIR ?= runs/demo
 STANDARD_WORK ?= runs/standard-build
+# The versions the suite last passed with (tools/lock.py; `make lock` rewrites it from .venv). Every install
+# below uses them; `make test CONSTRAINTS=` installs the newest versions pyproject.toml allows instead.
+CONSTRAINTS ?= constraints.txt
 
-.PHONY: venv demo sweep-cpu test bench standard-assets clean
+.PHONY: venv demo sweep-cpu test lock bench standard-assets clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml $(CONSTRAINTS)
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	# pip byte-compiles what it installs on one core; compileall -j 0 does the same on every core (17 s here
 	# instead of ~25 s). Never skip it: where PYTHONDONTWRITEBYTECODE is set (as on this project's machines)
 	# nothing writes .pyc later, and every Python process (test workers, CLI subprocesses, sweep stages,
 	# notebook kernels) would compile jax & co. from source on import: 5.5 s instead of 1.6 s each.
-	$(BIN)/python -m pip install -q --no-compile -e '.[dev]'
+	$(BIN)/python -m pip install -q --no-compile $(if $(CONSTRAINTS),-c $(CONSTRAINTS)) -e '.[dev]'
 	$(BIN)/python -m compileall -qq -j 0 $(VENV)/lib > /dev/null || true
 	touch $(STAMP)
 
 venv: $(STAMP)
+
+# After upgrading a package in .venv (or installing with CONSTRAINTS=) and seeing `make test` pass: pin what is
+# installed now, the requirement closure of handx-jax[dev] only (tools/lock.py), and commit constraints.txt.
+lock: $(STAMP)
+	$(BIN)/python tools/lock.py -o constraints.txt
+	touch $(STAMP)  # .venv is what constraints.txt now says: no reinstall on the next make
 
 demo: $(STAMP)
 	JAX_PLATFORMS=cpu $(BIN)/python -m handx_jax.demo --out $(DEMO_DIR)

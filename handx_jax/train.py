@@ -224,6 +224,22 @@ def _host_batches(get_batch: Callable[[np.ndarray], Any] | None, steps: range, n
                 fut.cancel()
 
 
+def _versions_record(config_path: Path) -> dict:
+    """config.json's ``versions`` (handx_jax.provenance: python, jax, jaxlib, flax, optax, orbax, numpy):
+    those that started the run. A resume under other versions keeps them and adds ``versions_at_resume``,
+    so the record never claims a single stack for a run trained on two."""
+    from handx_jax.provenance import versions
+
+    now = versions()
+    try:
+        old = json.loads(config_path.read_text()).get("versions") if config_path.exists() else None
+    except (json.JSONDecodeError, AttributeError):
+        old = None
+    if not isinstance(old, dict) or old == now:
+        return {"versions": now}
+    return {"versions": old, "versions_at_resume": now}
+
+
 class RunLogger:
     """config.json + metrics.jsonl in the run folder, mirrored to wandb (process 0 only)."""
 
@@ -235,7 +251,7 @@ class RunLogger:
         if not self.enabled:
             return
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(self.run_dir / "config.json", config)
+        atomic_write_json(self.run_dir / "config.json", {**config, **_versions_record(self.run_dir / "config.json")})
         mode = os.environ.get("WANDB_MODE", mode)
         if mode != "disabled":
             try:

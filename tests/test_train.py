@@ -1,4 +1,5 @@
 import json
+import platform
 
 import jax
 import jax.numpy as jnp
@@ -40,6 +41,14 @@ def test_train_learns_and_writes_run_files(tmp_path):
     assert rows[0]["lr"] == pytest.approx(0.3 * 4 / 5)  # warm-up: lr at step index 4 of 5
     cfg = json.loads((tmp_path / "run" / "config.json").read_text())
     assert cfg["family"] == "toy" and cfg["train"]["steps"] == 40
+    # provenance: the numerical stack that trained it, as each package reports its own version
+    import flax
+    import jaxlib
+    import optax
+    import orbax.checkpoint
+    assert cfg["versions"] == {"python": platform.python_version(), "jax": jax.__version__, "jaxlib": jaxlib.__version__,
+                               "flax": flax.__version__, "optax": optax.__version__,
+                               "orbax-checkpoint": orbax.checkpoint.__version__, "numpy": np.__version__}
     np.testing.assert_allclose(out["params"]["w"][:, 0], w_true, atol=0.3)
     p, step = load_params(tmp_path / "run")
     assert step == 40
@@ -53,7 +62,13 @@ def test_kill_and_resume_is_exact(tmp_path):
     full = train(tmp_path / "a", init=init, loss=loss, get_batch=get_batch, num_examples=96, cfg=CFG, config={})
     # "Killed" after step 23: the last checkpoint is step 20; metrics logged after it are dropped.
     train(tmp_path / "b", init=init, loss=loss, get_batch=get_batch, num_examples=96, cfg=CFG, config={}, stop_at=23)
+    # as if started under another jax: the resume keeps that record and adds its own
+    doc = json.loads((tmp_path / "b" / "config.json").read_text())
+    now, started = doc["versions"], {**doc["versions"], "jax": "0.0.1"}
+    (tmp_path / "b" / "config.json").write_text(json.dumps({**doc, "versions": started}))
     resumed = train(tmp_path / "b", init=init, loss=loss, get_batch=get_batch, num_examples=96, cfg=CFG, config={})
+    doc = json.loads((tmp_path / "b" / "config.json").read_text())
+    assert doc["versions"] == started and doc["versions_at_resume"] == now
     for k in ("w", "b"):
         np.testing.assert_array_equal(resumed["params"][k], full["params"][k])
         np.testing.assert_array_equal(resumed["ema"][k], full["ema"][k])
