@@ -89,6 +89,7 @@ def model_stages(out: Path, data: Path, steps: int | None, eval_limit: int, eval
     # x = training compute: the study trains at fixed epochs (see the sweep file's docstring)
     _handx("analyze", "fit", str(sweep / "results.jsonl"), "--x", "compute", "--y", "rprec_top3",
            "--plot", str(sweep / "fit.png"))
+    verdict(sweep, out)
     runs = sorted((sweep / "runs").glob("*/generated.npz"))
     if runs:
         from handx_jax.data.handx_npz import read_handx_npz
@@ -99,6 +100,44 @@ def model_stages(out: Path, data: Path, steps: int | None, eval_limit: int, eval
                          title=runs[-1].parent.name)
         print(f"wrote {gif} (first generated clip of {runs[-1].parent.name})")
     print(f"\nresults: {sweep / 'results.jsonl'} (one row per run), fit plot: {sweep / 'fit.png'}")
+
+
+# The committed `make sweep-cpu` study under the same yardstick (standard evaluator v4, three seeds, fit on the
+# means): the curve the demo's mini sweep is the short version of (docs/results/cpu_study/README.md).
+STUDY = Path(__file__).resolve().parent.parent / "docs" / "results" / "cpu_study" / "v4" / "replicates"
+
+
+def rises(rows: list[dict], fit: dict) -> tuple[bool, str]:
+    """Whether a sweep's fit shows the scaling (issue 31 item 4): a positive slope and the largest run's
+    top-3 interval above chance (k/block), with the numbers that decide it."""
+    big = max(rows, key=lambda r: r["train_flops"])
+    chance = 3 / big["rprec_block"]
+    lo = big["rprec_top3"] - big["rprec_top3_ci"]
+    ok = fit["slope"] > 0 and lo > chance
+    return ok, (f"slope {fit['slope']:+.4f} per decade (95% CI [{fit['slope_ci'][0]:.4f}, {fit['slope_ci'][1]:.4f}]), "
+                f"r {fit['r']:.3f}; largest run {big['run_id']}: top-3 {big['rprec_top3']:.3f} "
+                f"± {big['rprec_top3_ci']:.3f} (lower end {lo:.3f}, chance {chance:.3f})")
+
+
+def verdict(sweep: Path, out: Path) -> bool:
+    """Say whether the mini sweep's curve rises, and show the committed `make sweep-cpu` curve beside it."""
+    import json
+    import shutil
+
+    from handx_jax.io import read_jsonl
+
+    r = subprocess.run([sys.executable, "-m", "handx_jax", "analyze", "fit", str(sweep / "results.jsonl"), "--x",
+                        "compute", "--y", "rprec_top3", "--json"], check=True, capture_output=True, text=True)
+    ok, why = rises(read_jsonl(sweep / "results.jsonl"), json.loads(r.stdout))
+    print(f"\n== the demo's curve {'rises' if ok else 'does NOT rise'}: {why}")
+    if (STUDY / "fit.txt").exists():
+        shutil.copyfile(STUDY / "fit.png", out / "sweep-cpu-fit.png")
+        print(("" if ok else "A sweep of 10 minutes on 2 cores is too short to show the scaling reliably on this "
+               "yardstick; ") + "the committed `make sweep-cpu` study (6 configurations x 3 seeds, ~20 min per seed, "
+              f"same evaluator; {STUDY.relative_to(STUDY.parents[4])}) gives, beside the demo's:\n"
+              + "".join("    " + ln + "\n" for ln in (STUDY / "fit.txt").read_text().splitlines()[:5])
+              + f"its plot: {out / 'sweep-cpu-fit.png'}; the demo's: {sweep / 'fit.png'}")
+    return ok
 
 
 def main(argv: list[str] | None = None) -> int:
