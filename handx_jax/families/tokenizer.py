@@ -51,20 +51,37 @@ class DataConfig:
     eval_clips: int = 512  # val clips for the MPJPE / usage hook
 
 
+# Reference §4.3: batch 512, AdamW(2e-4, (0.9, 0.99), wd 0), 8000 warm-up steps, no clipping. The
+# reference's ×0.1 steps at 50% and 75% of 600k iterations are not reproduced (the shared loop has
+# constant and cosine schedules); cosine to 0 is the default here.
+REFERENCE_TRAIN = TrainConfig(steps=600000, batch_size=512, log_every=100, ckpt_every=5000, eval_every=8000,
+                              optim=OptimConfig(lr=2e-4, b1=0.9, b2=0.99, weight_decay=0.0, warmup_steps=8000,
+                                                schedule="cosine", grad_clip=0.0))
+# The CPU presets' recipe: a run that reconstructs in minutes on 2 cores (``small``: ~13 min there,
+# docs/results/ar_tokenizer/). 600k × 512 windows is ~4 GPU-days of the reference; at the CPU's ~1,000
+# windows/s that is out of reach, so fewer, smaller batches at a 10× higher peak (Adam at batch 64 is
+# stable at 2e-3 for these widths), a short warm-up and cosine to 0 at the end of the run.
+CPU_TRAIN = TrainConfig(steps=3000, batch_size=64, log_every=100, ckpt_every=1000, eval_every=500,
+                        optim=OptimConfig(lr=2e-3, b1=0.9, b2=0.99, weight_decay=0.0, warmup_steps=100,
+                                          schedule="cosine", grad_clip=1.0))
+TRAIN_PRESETS = {"tiny": CPU_TRAIN, "small": CPU_TRAIN, "paper": REFERENCE_TRAIN}
+LOSSES = tuple(Q.LOSS_PRESETS)
+
+
 @dataclass(frozen=True)
 class TokenizerRunConfig:
     preset: str = "tiny"
     model: Q.FSQConfig = PRESETS["tiny"]
-    # Reference §4.3: batch 512, AdamW(2e-4, (0.9, 0.99), wd 0), 8000 warm-up steps, no clipping. The
-    # reference's ×0.1 steps at 50% and 75% of 600k iterations are not reproduced (the shared loop has
-    # constant and cosine schedules); cosine to 0 is the default here.
-    train: TrainConfig = TrainConfig(steps=600000, batch_size=512, log_every=100, ckpt_every=5000, eval_every=8000,
-                                     optim=OptimConfig(lr=2e-4, b1=0.9, b2=0.99, weight_decay=0.0, warmup_steps=8000,
-                                                       schedule="cosine", grad_clip=0.0))
+    train: TrainConfig = CPU_TRAIN  # the preset's recipe (TRAIN_PRESETS)
     data: DataConfig = field(default_factory=DataConfig)
+    # Loss weights (models.fsq.LOSS_PRESETS): "hands" (default) adds terms on the joints the reconstructed
+    # wrist rotation and root trajectory place; "reference" is §4.3's weights as published.
+    loss: str = "hands"
 
     def validate(self) -> None:
         m = self.model
+        if self.loss not in Q.LOSS_PRESETS:
+            raise ConfigError(f"loss must be one of {LOSSES}, got {self.loss!r}")
         if m.codebook not in Q.LEVELS:
             raise ConfigError(f"model.codebook {m.codebook} has no FSQ levels; choose from {sorted(Q.LEVELS)}")
         if m.quantizer not in Q.QUANTIZERS:
@@ -80,6 +97,7 @@ Config = TokenizerRunConfig
 
 def make_config(preset: str = "tiny", overrides: Sequence[str] = (), *, data: str = "") -> TokenizerRunConfig:
     cfg = TokenizerRunConfig(preset=preset, model=get_preset(PRESETS, preset, "tokenizer preset"),
+                             train=TRAIN_PRESETS[preset],
                              data=DataConfig(path=str(Path(data).absolute()) if data else ""))
     return apply_overrides(cfg, overrides)
 
@@ -95,28 +113,46 @@ def numbers(cfg: TokenizerRunConfig, **_) -> dict:
 # Data
 
 
+# Train splits whose normalised features take at most this many bytes are featurised once, up front
+# (1,085 clips of the 1,200-clip prefix: 75 MB); larger ones per batch. Per batch, ``to_ar`` of 64 clips
+# costs ~80 ms of CPU, as much as a tiny tokenizer's whole training step on 2 cores.
+PRECOMPUTE_BYTES = 256 << 20
+
+
 @dataclass
 class TrainData:
     motion: Any  # (N, 60, 2, 21, 3) memory map
     clips: np.ndarray  # train clip indices
     window: int
     norm: Any  # NormStats ("ar")
+    features: np.ndarray | None = None  # (len(clips), 60, 288) normalised float32, when precomputed
+
+    def __post_init__(self):
+        if self.features is None and len(self.clips) * 60 * 288 * 4 <= PRECOMPUTE_BYTES:
+            order = np.sort(self.clips)
+            f = np.concatenate([self._features(order[s:s + 256]) for s in range(0, len(order), 256)])
+            self.features = f[np.searchsorted(order, self.clips)]
 
     @property
     def num_items(self) -> int:
         return len(self.clips) * WINDOW_STARTS
 
-    def batch(self, idx: np.ndarray) -> dict:
-        """Windows of the normalised AR features: the features are computed on the whole clip (the
-        velocities at a window's last frame are real, not 0) and then cut."""
+    def _features(self, sorted_clips: np.ndarray) -> np.ndarray:
+        """Normalised AR features of whole clips (the velocities at a window's last frame are real, not 0)."""
         from handx_jax import representation as rep
 
+        return self.norm.normalize(rep.to_ar(np.asarray(self.motion[sorted_clips], np.float64))).astype(np.float32)
+
+    def batch(self, idx: np.ndarray) -> dict:
+        """Windows of the normalised AR features, computed on the whole clip and then cut."""
         ci, start = np.asarray(idx) // WINDOW_STARTS, np.asarray(idx) % WINDOW_STARTS
-        f = rep.to_ar(np.asarray(self.motion[np.sort(self.clips[ci])], np.float64))
-        f = f[np.argsort(np.argsort(self.clips[ci], kind="stable"), kind="stable")]
+        if self.features is not None:
+            f = self.features[ci]
+        else:
+            f = self._features(np.sort(self.clips[ci]))
+            f = f[np.argsort(np.argsort(self.clips[ci], kind="stable"), kind="stable")]
         take = start[:, None] + np.arange(self.window)[None]
-        x = np.take_along_axis(f, take[..., None], axis=1)
-        return {"x": self.norm.normalize(x).astype(np.float32)}
+        return {"x": np.take_along_axis(f, take[..., None], axis=1)}
 
 
 def _ar_norm(ds):
@@ -136,46 +172,69 @@ def _norm_arrays(norm):
 # Training
 
 
-def make_loss(model: Q.FSQTokenizer, norm):
+def make_loss(model: Q.FSQTokenizer, norm, weights: str = "hands"):
     mean, scale = _norm_arrays(norm)
 
     def loss(params, batch, rng, train: bool):
         x = batch["x"]
-        xhat, _ = model.apply(params, x)
-        return Q.tokenizer_loss(xhat.astype(jnp.float32), x, mean, scale)
+        xhat, _, y = model.apply(params, x, method=model.reconstruct)
+        return Q.tokenizer_loss(xhat.astype(jnp.float32), x, mean, scale, weights, latent=y)
 
     return loss
 
 
+# Keys of the hook's row: models.fsq.reconstruction_errors' names → metrics.jsonl names.
+EVAL_KEYS = {"mpjpe": "eval/mpjpe_mm", "fingers": "eval/fingers_mm", "wrist_orient": "eval/wrist_orient_mm",
+             "root": "eval/root_mm", "global": "eval/global_mpjpe_mm"}
+
+
 def make_evaluate(model: Q.FSQTokenizer, cfg: Q.FSQConfig, x_val_n, norm):
-    """Validation hook: MPJPE (mm), usage and perplexity on full clips (§4.3)."""
+    """Validation hook on full clips (§4.3), every ``eval_every`` steps: MPJPE in mm in each hand's wrist
+    frame with the orientation applied (the reference's number), its split into fingers / wrist orientation
+    / root trajectory (``models.fsq.reconstruction_errors``), the global MPJPE with the root trajectory
+    integrated, the mean pose's MPJPE on the same clips (``mean_pose_*``; the normalised zero frame, a
+    constant, the floor any reconstruction must beat) and their ratio, codebook usage and perplexity."""
     mean, scale = _norm_arrays(norm)
+    B = 64
 
     @jax.jit
     def one(params, x):
         xhat, digits = model.apply(params, x)
-        d = jnp.linalg.norm(Q.wrist_relative_joints(xhat * scale + mean) - Q.wrist_relative_joints(x * scale + mean),
-                            axis=-1)
-        return 1000.0 * d.mean(axis=(1, 2, 3)), Q.digits_to_index(digits, cfg.levels)
+        return Q.reconstruction_errors(xhat * scale + mean, x * scale + mean), Q.digits_to_index(digits, cfg.levels)
+
+    @jax.jit
+    def mean_pose(x):
+        gt = x * scale + mean
+        return Q.reconstruction_errors(jnp.broadcast_to(mean, gt.shape), gt)
+
+    def batches():
+        for s in range(0, len(x_val_n), B):
+            yield jnp.asarray(x_val_n[s:s + B])
+
+    base = [mean_pose(x) for x in batches()]
+    baseline = {k: float(np.concatenate([np.asarray(b[k]) for b in base]).mean()) for k in ("mpjpe", "global")}
 
     def evaluate(params, ema, step):
         errs, codes = [], []
-        for s in range(0, len(x_val_n), 64):
-            e, c = one(params, jnp.asarray(x_val_n[s:s + 64]))
-            errs.append(np.asarray(e))
+        for x in batches():
+            e, c = one(params, x)
+            errs.append(jax.device_get(e))
             codes.append(np.asarray(c))
         st = Q.codebook_stats(np.concatenate(codes), cfg.nb_code)
-        return {"eval/mpjpe_mm": float(np.concatenate(errs).mean()), "eval/usage": st["usage"],
-                "eval/perplexity": st["perplexity"], "eval/codes_used": st["codes_used"]}
+        row = {EVAL_KEYS[k]: float(np.concatenate([e[k] for e in errs]).mean()) for k in EVAL_KEYS}
+        return {**row, "eval/mean_pose_mpjpe_mm": baseline["mpjpe"], "eval/mean_pose_global_mm": baseline["global"],
+                "eval/mpjpe_vs_mean_pose": row["eval/mpjpe_mm"] / baseline["mpjpe"],
+                "eval/usage": st["usage"], "eval/perplexity": st["perplexity"], "eval/codes_used": st["codes_used"]}
 
     return evaluate
 
 
-RESUME_KEYS = ("model", "data", "train")
+RESUME_KEYS = ("model", "data", "train", "loss")
 
 
 def run_record(cfg: TokenizerRunConfig, ds) -> dict:
     return {"family": FAMILY, "preset": cfg.preset, "model": to_dict(cfg.model), "data": to_dict(cfg.data),
+            "loss": cfg.loss,
             "data_fraction": cfg.data.fraction, "dataset_fingerprint": ds.fingerprint,
             "codebook": cfg.model.codebook, "nb_code": cfg.model.nb_code, "levels": list(cfg.model.levels),
             **numbers(cfg)}
@@ -209,7 +268,8 @@ def train(run_dir: str | os.PathLike, cfg: TokenizerRunConfig, *, stop_at: int |
     model = Q.FSQTokenizer(cfg.model)
     data = TrainData(ds.motion, clips, cfg.data.window, norm)
     return loop.train(run_dir, init=lambda rng: Q.init_tokenizer(cfg.model, rng, cfg.data.window)[1],
-                      loss=make_loss(model, norm), get_batch=data.batch, num_examples=data.num_items, cfg=cfg.train,
+                      loss=make_loss(model, norm, cfg.loss), get_batch=data.batch, num_examples=data.num_items,
+                      cfg=cfg.train,
                       config=record, stop_at=stop_at, on_log=on_log, flops_per_sample=record["flops_per_sample"],
                       evaluate=None if x_val is None else make_evaluate(model, cfg.model, x_val, norm),
                       resume_keys=RESUME_KEYS)
@@ -359,7 +419,6 @@ def read_codes(path: Path, meta: dict) -> np.ndarray:
                         f"{meta.get('tokenizer_fingerprint', '?')}, the first {int(codes[row, col])} at clip {row}, "
                         f"token {col}; rebuild it with `handx tokenize`", path=path)
     return codes
-
 
 
 def open_token_cache(data_dir: str | os.PathLike, tokenizer_dir: str | os.PathLike) -> TokenCache:
