@@ -27,6 +27,6 @@ def runs(preset: str = "tiny", steps: int | None = None, sampling: str = "clips"
             H = max(d // 64, 4)
             ov = (*model(L, d, H, F), *data(frac, sampling), *budget(preset, steps))
             axes = axes_of(ov, "layers", "dim", "data_fraction")
-            out.append(RunSpec(run_id(axes, ov), "diffusion", preset="tiny" if preset == "tiny" else "paper-4L", overrides=ov,
-                               axes=axes))
+            out.append(RunSpec(run_id(axes, ov), "diffusion", preset="tiny" if preset == "tiny" else "paper-4L",
+                               overrides=ov, axes=axes))
     return out

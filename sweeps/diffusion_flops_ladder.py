@@ -36,6 +36,6 @@ def runs(preset: str = "tiny", steps: int | None = None, fraction: float = 0.05,
         ov = (*model(L, d, H, F), *data(fraction, sampling), *budget(preset, steps),
               *(() if lr is None else (f"train.optim.lr={float(lr):g}",)))
         axes = axes_of(ov, "layers", "dim", "heads", "ff", "data_fraction")
-        out.append(RunSpec(run_id(axes, ov), "diffusion", preset="tiny" if preset == "tiny" else "paper-4L", overrides=ov,
-                           axes=axes))
+        out.append(RunSpec(run_id(axes, ov), "diffusion", preset="tiny" if preset == "tiny" else "paper-4L",
+                           overrides=ov, axes=axes))
     return out

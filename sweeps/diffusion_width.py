@@ -20,6 +20,6 @@ def runs(preset: str = "tiny", steps: int | None = None, layers: int | None = No
         H = max(d // 64, 4) if big else 4
         ov = (*model(L, d, H, 4 * d), *data(fraction, sampling), *budget(preset, steps))
         axes = axes_of(ov, "layers", "dim", "data_fraction")
-        out.append(RunSpec(run_id(axes, ov), "diffusion", preset="tiny" if preset == "tiny" else "paper-4L", overrides=ov,
-                           axes=axes))
+        out.append(RunSpec(run_id(axes, ov), "diffusion", preset="tiny" if preset == "tiny" else "paper-4L",
+                           overrides=ov, axes=axes))
     return out

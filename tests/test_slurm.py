@@ -75,7 +75,8 @@ def _sweep_file(path: Path, seconds: dict) -> Path:
         f"F = {FAKE!r}\nSECONDS = {seconds!r}\n"
         "RESOURCES = {'tiny': {'timeout_min': 10, 'cpus_per_task': 1, 'mem_gb': 1}}\n"
         "def runs(preset='tiny'):\n"
-        "    return [RunSpec(n, 'diffusion', command=(sys.executable, F, '--out', '{run}', '--seconds', str(s), '--size', str(i + 1)),"
+        "    return [RunSpec(n, 'diffusion',"
+        " command=(sys.executable, F, '--out', '{run}', '--seconds', str(s), '--size', str(i + 1)),"
         " axes={'layers': i + 1}) for i, (n, s) in enumerate(SECONDS.items())]\n")
     return path
 

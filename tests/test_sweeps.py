@@ -256,7 +256,8 @@ def test_kill9_of_the_launcher_ends_its_child_and_the_relaunch_finishes(tmp_path
     sweep = tmp_path / "slow.py"
     sweep.write_text(f"import sys\nfrom sweeps.launcher import RunSpec\nF = {FAKE!r}\n"
                      "def runs(seconds=0.2):\n"
-                     "    return [RunSpec(n, 'diffusion', command=(sys.executable, F, '--out', '{run}', '--seconds', str(s)),"
+                     "    return [RunSpec(n, 'diffusion',"
+                     " command=(sys.executable, F, '--out', '{run}', '--seconds', str(s)),"
                      " axes={'layers': i + 1}) for i, (n, s) in enumerate((('a', 0.2), ('b', 30), ('c', 0.2)))]\n")
     out = tmp_path / "sweep"
     cmd = [sys.executable, "-m", "handx_jax", "sweep", "run", str(sweep), "--data", str(tmp_path), "--out", str(out)]

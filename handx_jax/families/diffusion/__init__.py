@@ -387,7 +387,8 @@ def add_params_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--convention", choices=("analytic", "paper"), default="analytic",
                    help="analytic: 2 FLOPs per multiply-add of every matmul, denoiser only (default); paper: also "
                         "print the multiply-adds of the Linear layers (as fvcore/thop count them) plus the frozen "
-                        "T5-base encoder, which reproduces the paper's Table B FLOPs column (handx_jax/families/diffusion/flops.py)")
+                        "T5-base encoder, which reproduces the paper's Table B FLOPs column "
+                        "(handx_jax/families/diffusion/flops.py)")
     p.add_argument("--text-tokens", type=int, default=None,
                    help="paper convention: text tokens per branch the denoiser attends to (default 63, fitted to "
                         "Table B)")
