@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from typing import Any, Sequence
 
@@ -60,10 +61,21 @@ def load_inputs(specs: Sequence[str], family: str | None = None, strict: bool = 
     return rows
 
 
+# Why a row is left out (``fits.select_rows``): a run with no score yet (a sweep in progress, a failed run)
+# is named and skipped; a score or x that is there but unusable (NaN, inf, text, x <= 0 on a log axis) is a
+# broken table, refused unless the analyst asks to drop such rows, so a fit never quietly runs on n = 5 of 6.
+_NOT_SCORED = re.compile(r"column '[^']*': (no value|no such column|empty)$")
+
+
 def _left_out(args: argparse.Namespace, lines: Sequence[str]) -> None:
-    """Name every row an analysis leaves out, and why, on stderr (``fits.select_rows``)."""
+    """Name every row an analysis leaves out, and why, on stderr; refuse unusable values (exit 1) unless
+    ``--drop-bad-rows``."""
     for line in lines:
         print(f"handx analyze {args.analyze_command}: left out {line}", file=sys.stderr)
+    bad = [line for line in lines if not _NOT_SCORED.search(line)]
+    if bad and not getattr(args, "drop_bad_rows", False):
+        raise DataError(f"{len(bad)} row(s) hold values that cannot be used (named above; first: {bad[0]}); fix "
+                        "them, or pass --drop-bad-rows to analyse the others")
 
 
 def _emit_json(obj: Any) -> None:
@@ -328,6 +340,9 @@ def _add_results(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("results", nargs="+", metavar="RESULTS",
                    help="results .jsonl/.csv, run folder, sweep folder, or paper:2|paper:3|paper:B")
+    p.add_argument("--drop-bad-rows", action="store_true",
+                   help="leave out (and name) rows whose metric or x is NaN, not a number, or not > 0 on a log "
+                        "axis, instead of refusing the table (rows not scored yet are always left out and named)")
     p.add_argument("--family", choices=[f for f in families() if f != GROUND_TRUTH], default=None,
                    help="keep only runs of this family (and ground-truth rows)")
 

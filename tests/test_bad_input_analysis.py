@@ -63,7 +63,12 @@ def test_empty_or_header_only_table_is_refused_in_one_line(tmp_path, capsys, con
 
 def test_every_left_out_row_is_named_with_file_row_column_and_why(tmp_path, capsys):
     csv = _table_b_csv(tmp_path / "t.csv", nan_row=2, zero_row=0)
-    assert main(["analyze", "fit", str(csv), "--x", "flops", "--json", "--n-boot", "20"]) == 0
+    # By default a row that cannot be used is an error (a fit never runs quietly on n = 5 of 7) ...
+    msg = _fail(["analyze", "fit", str(csv), "--x", "flops", "--json", "--n-boot", "20"], capsys)
+    assert "2 row(s) hold values that cannot be used" in msg and "row 1, column 'flops'" in msg and "--drop-bad-rows" in msg
+    capsys.readouterr()
+    # ... and --drop-bad-rows fits the others, naming each row it leaves out
+    assert main(["analyze", "fit", str(csv), "--x", "flops", "--json", "--n-boot", "20", "--drop-bad-rows"]) == 0
     cap = capsys.readouterr()
     assert json.loads(cap.out)["n"] == 5
     lines = cap.err.strip().splitlines()
@@ -79,7 +84,10 @@ def test_every_left_out_row_is_named_with_file_row_column_and_why(tmp_path, caps
     rows += [{"run_id": f"r{i}", "family": "diffusion", "train_flops": 10.0 ** (12 + i), "rprec_top3": 0.1 * i}
              for i in (1, 2, 3)]
     jl.write_text("".join(json.dumps(r) + "\n" for r in rows))
-    assert main(["analyze", "fit", str(jl), "--x", "compute", "--json", "--n-boot", "20"]) == 0
+    msg = _fail(["analyze", "fit", str(jl), "--x", "compute", "--json", "--n-boot", "20"], capsys)
+    assert "1 row(s) hold values" in msg and "row 1 (run 'a')" in msg  # train_flops 0; the unscored b, c are not errors
+    capsys.readouterr()
+    assert main(["analyze", "fit", str(jl), "--x", "compute", "--json", "--n-boot", "20", "--drop-bad-rows"]) == 0
     cap = capsys.readouterr()
     assert json.loads(cap.out)["n"] == 3
     assert cap.err.strip().splitlines() == [
@@ -88,7 +96,7 @@ def test_every_left_out_row_is_named_with_file_row_column_and_why(tmp_path, caps
         f"handx analyze fit: left out file {jl}, row 3 (run 'c'), column 'rprec_top3': empty"]  # GT: not a run
 
     # Too few rows left: one line that says how many and names the first left out.
-    msg = _fail(["analyze", "fit", str(jl), "--x", "compute", "--y", "fid"], capsys)
+    msg = _fail(["analyze", "fit", str(jl), "--x", "compute", "--y", "fid", "--drop-bad-rows"], capsys)
     assert "need at least 3 rows with train_flops > 0 and fid, got 0 of 7" in msg and "row 1 (run 'a')" in msg
 
 
@@ -97,11 +105,14 @@ def test_factors_and_plot_name_their_left_out_rows(tmp_path, capsys):
     csv.write_text("run_id,family,flops_per_sample,samples_seen,rprec_top3\n"
                    "a,diffusion,1e9,1000,0.1\nb,diffusion,2e9,4000,0.2\nc,diffusion,4e9,2000,nan\n"
                    "d,diffusion,8e9,8000,0.35\ne,diffusion,1e9,8000,0.2\nf,diffusion,4e9,1000,0.25\n")
-    assert main(["analyze", "factors", str(csv), "--json"]) == 0
+    assert _fail(["analyze", "factors", str(csv), "--json"], capsys).endswith("to analyse the others")
+    capsys.readouterr()
+    assert main(["analyze", "factors", str(csv), "--json", "--drop-bad-rows"]) == 0
     cap = capsys.readouterr()
     assert json.loads(cap.out)["n"] == 5
     assert cap.err.strip() == f"handx analyze factors: left out file {csv}, row 3 (run 'c'), column 'rprec_top3': NaN"
-    assert main(["analyze", "plot", str(csv), "--x", "flops_analytic", "--out", str(tmp_path / "p.png")]) == 0
+    assert main(["analyze", "plot", str(csv), "--x", "flops_analytic", "--out", str(tmp_path / "p.png"),
+                 "--drop-bad-rows"]) == 0
     assert "left out file" in capsys.readouterr().err and (tmp_path / "p.png").stat().st_size > 5000
 
 
