@@ -292,7 +292,13 @@ def import_checkpoint(model_pt: str | os.PathLike, out: str | os.PathLike, *, en
     with atomic_dir(out, overwrite=overwrite) as tmp:
         atomic_write_json(tmp / "config.json", record)
         np.savez(tmp / fam.NORM_FILE, **norm.to_npz_dict("diffusion"))
-        state = {"params": params, "opt_state": {}, "ema": {}, "step": np.zeros((), np.int32)}
+        # JAX arrays, as the train loop saves them: orbax restores the types it saved, and NumPy parameters
+        # would be copied to the devices again on every sampler call.
+        import jax
+        import jax.numpy as jnp
+
+        state = {"params": jax.tree_util.tree_map(jnp.asarray, params), "opt_state": {}, "ema": {},
+                 "step": jnp.zeros((), jnp.int32)}
         mngr = ocp.CheckpointManager((tmp / "checkpoints").absolute(), options=ocp.CheckpointManagerOptions(
             create=True, enable_async_checkpointing=False))
         mngr.save(0, args=ocp.args.StandardSave(state))
