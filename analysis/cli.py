@@ -336,14 +336,18 @@ def _add_fit_options(p: argparse.ArgumentParser, *, xy: bool = True) -> None:
 
 
 def _add_results(p: argparse.ArgumentParser) -> None:
-    from analysis.schema import GROUND_TRUTH, families
+    from analysis.schema import ROW_KINDS
+    from handx_jax.families import entry, names
+
+    # the families whose runs are results rows (a tokenizer is a sweep step, not a point), and the evaluator's
+    kinds = [f for f in names() if entry(f).results] + [k for k in ROW_KINDS if k != "ground_truth"]
 
     p.add_argument("results", nargs="+", metavar="RESULTS",
                    help="results .jsonl/.csv, run folder, sweep folder, or paper:2|paper:3|paper:B")
     p.add_argument("--drop-bad-rows", action="store_true",
                    help="leave out (and name) rows whose metric or x is NaN, not a number, or not > 0 on a log "
                         "axis, instead of refusing the table (rows not scored yet are always left out and named)")
-    p.add_argument("--family", choices=[f for f in families() if f != GROUND_TRUTH], default=None,
+    p.add_argument("--family", choices=kinds, default=None,
                    help="keep only runs of this family (and ground-truth rows)")
 
 
