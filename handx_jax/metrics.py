@@ -89,9 +89,25 @@ def r_precision(text_NxD: jax.Array, motion_NxD: jax.Array, block: int = 32, top
     m = motion_NxD[: nb * b].reshape(nb, b, -1)
     d = jax.vmap(pairwise_dist)(t, m)  # (nb, b, b)
     diag = jnp.diagonal(d, axis1=1, axis2=2)  # (nb, b)
-    rank = jnp.sum(d < diag[..., None], axis=-1)  # how many motions are strictly closer
-    hits = jnp.stack([jnp.mean(rank < k) for k in range(1, top_k + 1)])
+    closer, tied = _closer_and_tied(d, diag)
+    hits = jnp.stack([jnp.mean(expected_hit(closer, tied, k)) for k in range(1, top_k + 1)])
     return hits, jnp.mean(diag)
+
+
+def _closer_and_tied(d_NBxBxB: jax.Array, diag_NBxB: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Per text: how many motions of its block are strictly closer than its own, and how many OTHER motions
+    are exactly as close (identical generated motions give identical embeddings, so identical distances)."""
+    closer = jnp.sum(d_NBxBxB < diag_NBxB[..., None], axis=-1)
+    tied = jnp.sum(d_NBxBxB == diag_NBxB[..., None], axis=-1) - 1  # the matching motion ties with itself
+    return closer, tied
+
+
+def expected_hit(closer, tied, k: int):
+    """P(the matching motion is among the k nearest) when ties are broken uniformly at random: its rank is
+    ``closer + U``, U uniform on {0, …, tied}. Counting only strictly closer motions (rank = closer) scores a
+    collapsed generator, whose samples are all the same motion, as perfectly aligned (every text a hit);
+    this scores it at chance, k / block."""
+    return jnp.clip((k - closer) / (tied + 1.0), 0.0, 1.0)
 
 
 @functools.cache
@@ -696,11 +712,12 @@ def _block_ranks(text_NxD, motion_NxD, perm_N, *, block: int):
     m = motion_NxD[used].reshape(n // b, b, -1)
     d = jax.vmap(pairwise_dist)(t, m)
     diag = jnp.diagonal(d, axis1=1, axis2=2)
-    rank = jnp.sum(d < diag[..., None], axis=-1)
-    rank_N = jnp.zeros(n, jnp.int32).at[used].set(rank.reshape(-1).astype(jnp.int32))
+    closer, tied = _closer_and_tied(d, diag)
+    closer_N = jnp.zeros(n, jnp.int32).at[used].set(closer.reshape(-1).astype(jnp.int32))
+    tied_N = jnp.zeros(n, jnp.int32).at[used].set(tied.reshape(-1).astype(jnp.int32))
     dist_N = jnp.zeros(n, d.dtype).at[used].set(diag.reshape(-1))
     valid_N = jnp.zeros(n, bool).at[used].set(True)
-    return rank_N, dist_N, valid_N
+    return (closer_N, tied_N), dist_N, valid_N
 
 
 @partial(jax.jit, static_argnames=("block",))
@@ -780,12 +797,12 @@ def replicate_embedding_metrics(text_NxD, gen_GxNxD, gt_NxD, cfg: MetricConfig =
             return point, bootstrap_half_width(resampled_B)
         return point, _per_prompt_ci(per_prompt_N, counts)
 
-    rank_RxGxN, dist_RxGxN, valid_RxGxN = map(np.asarray, _replicated_ranks(text, gen, jnp.asarray(perms),
-                                                                             block=cfg.rprec_block))
+    (closer_RxGxN, tied_RxGxN), dist_RxGxN, valid_RxGxN = jax.tree.map(
+        np.asarray, _replicated_ranks(text, gen, jnp.asarray(perms), block=cfg.rprec_block))
     n_valid_GxN = valid_RxGxN.sum(0).astype(np.float64)
     out = {}
     for k in range(1, cfg.top_k + 1):
-        hit_RxGxN = (rank_RxGxN < k) & valid_RxGxN
+        hit_RxGxN = np.asarray(expected_hit(closer_RxGxN, tied_RxGxN, k), np.float64) * valid_RxGxN
         per_group = hit_RxGxN.sum((0, 2)) / valid_RxGxN.sum((0, 2))
         per_prompt = np.where(n_valid_GxN[0] > 0, hit_RxGxN[:, 0].sum(0) / np.maximum(n_valid_GxN[0], 1), np.nan)
         out[f"rprec_top{k}"] = summarise(f"rprec_top{k}", per_group, per_prompt)

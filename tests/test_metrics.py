@@ -205,6 +205,25 @@ def test_mpjpe_and_accel():
     assert float(acc[0]) == pytest.approx(2.0, rel=1e-3) and float(jit_[0]) == pytest.approx(0.0, abs=1e-2)
 
 
+def test_a_collapsed_generator_scores_chance_not_perfect():
+    """Identical generated motions tie at the same distance from every text; counting only strictly closer
+    motions made every text a hit (R-Precision 1.0 for a generator that ignores its text). With ties broken
+    uniformly at random, the expected top-k is k / block exactly."""
+    rng = np.random.default_rng(1)
+    text = rng.normal(size=(64, 8)).astype(np.float32)
+    same = np.tile(rng.normal(size=(1, 8)).astype(np.float32), (64, 1))
+    hits, _ = M.r_precision(jnp.asarray(text), jnp.asarray(same), block=32, top_k=3)
+    np.testing.assert_allclose(np.asarray(hits), [1 / 32, 2 / 32, 3 / 32], rtol=1e-6)
+    row = M.replicate_embedding_metrics(text, same[None], text, M.MetricConfig(replications=3))
+    for k in (1, 2, 3):
+        assert row[f"rprec_top{k}"][0] == pytest.approx(k / 32, rel=1e-6)
+    # two distinct motions, each repeated: a text's own motion ties with the 15 other copies of it in its block
+    two = np.where(np.arange(64)[:, None] % 2 == 0, text[0], text[1]).astype(np.float32)
+    t2 = two + 1e-3 * rng.normal(size=two.shape).astype(np.float32)  # each text nearest its own kind
+    hits, _ = M.r_precision(jnp.asarray(t2), jnp.asarray(two), block=32, top_k=3)
+    np.testing.assert_allclose(np.asarray(hits), [1 / 16, 2 / 16, 3 / 16], rtol=1e-6)
+
+
 def test_replications_ground_truth_row_and_ci():
     rng = np.random.default_rng(0)
     text = rng.normal(size=(256, 8)).astype(np.float32)
