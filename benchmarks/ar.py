@@ -11,6 +11,10 @@ without the KV cache; MFU on a GPU.
 - **Decoding**: ``families.ar.decode.decode`` (one jitted ``while_loop``) greedy over 30 tokens with END masked
   out of the head so every row runs the full length; generated tokens/s with the KV cache and with a
   full recompute per step. The second call is timed.
+- **Peak host memory**: each training benchmark runs in a fresh child process of this script and reports
+  its peak resident set (``peak_rss_mb``, ``resource.getrusage(RUSAGE_SELF).ru_maxrss``): the process
+  keeps its peak by design (``handx_jax.hostmem``), so one process cannot tell two benchmarks apart.
+  The figure includes JAX, XLA's compiled programs and the benchmark's random data.
 - **MFU** (GPU only): analytic forward FLOPs (``models.fsq.forward_flops``, ``models.prefix_lm.forward_flops``)
   ×3 per training sample, over the peak dense bf16 FLOP/s of ``benchmarks/diffusion.py``'s table.
 
@@ -21,7 +25,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
+import os
 import platform
+import resource
+import subprocess
 import sys
 import tempfile
 import time
@@ -112,7 +120,36 @@ def bench_decode(preset: str, nb_code: int, text_len: int, text_dim: int, batch:
             "seconds": dt, "first_call_s": first}
 
 
+def peak_rss_mb() -> float:
+    """This process's peak resident set so far, in MB (Linux reports ru_maxrss in KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+CHILD_FLAG = "--child"
+
+
+def run_child(kind: str, kwargs: dict) -> dict:
+    """``bench_tokenizer``/``bench_lm`` in a fresh process of this script: its result plus ``peak_rss_mb``."""
+    proc = subprocess.run([sys.executable, __file__, CHILD_FLAG, kind, json.dumps(kwargs)], capture_output=True,
+                          text=True, env={**os.environ})
+    if proc.returncode:
+        raise RuntimeError(f"{kind} benchmark child failed (exit {proc.returncode}):\n{proc.stderr[-2000:]}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def child_main(kind: str, kwargs: str) -> int:
+    kw = json.loads(kwargs)
+    with tempfile.TemporaryDirectory() as tmp:
+        fn = bench_tokenizer if kind == "tokenizer" else bench_lm
+        res = fn(**kw, work=Path(tmp))
+    print(json.dumps({**res, "peak_rss_mb": peak_rss_mb()}))
+    return 0
+
+
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == [CHILD_FLAG]:
+        return child_main(argv[1], argv[2])
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--tokenizer-presets", default="tiny")
     ap.add_argument("--lm-presets", default="tiny,small")
@@ -148,19 +185,22 @@ def main(argv=None) -> int:
 
     with tempfile.TemporaryDirectory() as tmp:
         for p in filter(None, args.tokenizer_presets.split(",")):
-            res = bench_tokenizer(p, args.codebook, args.batch_size, args.train_steps, bf16, Path(tmp))
+            res = run_child("tokenizer", dict(preset=p, codebook=args.codebook, batch_size=args.batch_size,
+                                              steps=args.train_steps, bf16=bf16))
             add_peak_fractions(res)
             doc["tokenizer"].append(res)
-            print(f"[tokenizer {p}] {res['samples_per_s']:.1f} samples/s ({res['fraction_of_peak']:.0%} of peak)",
-                  file=sys.stderr, flush=True)
+            print(f"[tokenizer {p}] {res['samples_per_s']:.1f} samples/s ({res['fraction_of_peak']:.0%} of peak), "
+                  f"peak host memory {res['peak_rss_mb']:.0f} MB", file=sys.stderr, flush=True)
         for p in filter(None, args.lm_presets.split(",")):
-            res = bench_lm(p, nb, args.text_len, args.text_dim, args.batch_size, args.train_steps, bf16, Path(tmp))
+            res = run_child("lm", dict(preset=p, nb_code=nb, text_len=args.text_len, text_dim=args.text_dim,
+                                       batch_size=args.batch_size, steps=args.train_steps, bf16=bf16))
             add_peak_fractions(res)
             doc["lm"].append(res)
             dec = [bench_decode(p, nb, args.text_len, args.text_dim, args.decode_batch, c) for c in (True, False)]
             dec[0]["speedup_vs_no_cache"] = dec[0]["tokens_per_s"] / dec[1]["tokens_per_s"]
             doc["decode"] += dec
-            print(f"[lm {p}] train {res['tokens_per_s']:.0f} tokens/s ({res['fraction_of_peak']:.0%} of peak); "
+            print(f"[lm {p}] train {res['tokens_per_s']:.0f} tokens/s ({res['fraction_of_peak']:.0%} of peak), "
+                  f"peak host memory {res['peak_rss_mb']:.0f} MB; "
                   f"decode {dec[0]['tokens_per_s']:.0f} tokens/s (KV cache) vs {dec[1]['tokens_per_s']:.0f} (no cache)",
                   file=sys.stderr, flush=True)
     emit(doc, args.out)
