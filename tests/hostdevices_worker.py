@@ -12,6 +12,8 @@ import sys
 
 def samples() -> tuple[dict, dict]:
     """({case: samples}, {batch: devices its sampler used}) of a tiny denoiser with fixed inputs."""
+    import dataclasses
+
     import jax
     import numpy as np
 
@@ -20,7 +22,9 @@ def samples() -> tuple[dict, dict]:
     from handx_jax.families.diffusion.sampling import compile_sampler
     from handx_jax.models.dit import PRESETS, init_denoiser
 
-    m = PRESETS["tiny"]
+    # one layer: splitting the batch over devices does not depend on depth, and each sampler compiles
+    # twice (two devices, then one) for three cases, so depth is most of this test's time
+    m = dataclasses.replace(PRESETS["tiny"], layers=1)
     # committed to one device, as restored parameters are: the split sampler must copy them itself
     params = jax.device_put(init_denoiser(m, jax.random.PRNGKey(0), 8)[1], jax.devices()[0])
     rng = np.random.default_rng(1)
