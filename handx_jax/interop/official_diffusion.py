@@ -354,11 +354,12 @@ def export_run(run_dir: str | os.PathLike, out: str | os.PathLike, *, config: st
         f"d_model {m.text_dim}{'' if m.text_dim == 768 else ', not t5-base' + chr(39) + 's 768'})",
         "the normalisation statistics (the official loader reads data_dir/mean_std_joint_pos_w_scalar_rot/"
         "{mean,std}.npy" + (f"; written to {stats}" if stats else "; pass --stats DIR to write them") + ")",
-        f"the run's {'raw' if used_ema else 'EMA'} weights (exported: the {'EMA' if used_ema else 'raw'} ones, "
-        f"step {step})",
         f"the training recipe (joint_drop {cfg.diffusion.joint_drop}: the official training drops branches only "
         "independently) and the sampler settings (guidance, masks), which the official code takes from its own config",
     ]
+    if cfg.train.ema_decay > 0:
+        dropped.insert(2, f"the run's {'raw' if used_ema else 'EMA'} weights (exported: the "
+                          f"{'EMA' if used_ema else 'raw'} ones, step {step})")
     if stats:
         with np.load(Path(run_dir) / fam.NORM_FILE) as z:
             from handx_jax import representation as rep
