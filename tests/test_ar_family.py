@@ -56,8 +56,14 @@ def test_lm_run_records_tokenizer_provenance_and_vocabulary(built):
     assert cfg["family"] == "ar" and cfg["model"]["nb_code"] == 240 and (cfg["codebook"], cfg["nb_code"]) == (256, 240)
     assert cfg["tokenizer"]["tokenizer_path"] == str(tok.absolute())
     assert cfg["text_cache"]["fields"] == "joined" and cfg["flops_per_sample"] > 0
+    # Held-out token NLL on the val split: at init (step 0) ≈ uniform over 240 codes + END, at the end (step 8)
+    # below it; training's loss falls too (the first logged row is step 2's batch, after one update).
+    ev = [r for r in read_jsonl(run / "metrics.jsonl") if "eval/nll" in r]
+    assert [r["step"] for r in ev] == [0, 8]
+    assert ev[0]["eval/nll"] == pytest.approx(np.log(241), rel=0.15) and ev[1]["eval/nll"] < ev[0]["eval/nll"]
+    assert 0 <= ev[1]["eval/acc"] <= 1
     rows = [r for r in read_jsonl(run / "metrics.jsonl") if "loss" in r]
-    assert rows[0]["loss"] == pytest.approx(np.log(241), rel=0.1)  # ≈ uniform over 240 codes + END at init
+    assert rows[-1]["loss"] < rows[0]["loss"]
 
 
 def test_generate_writes_the_official_layout(built, tmp_path):

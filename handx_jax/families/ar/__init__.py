@@ -66,15 +66,29 @@ class SampleConfig:
     top_p: float = 1.0
 
 
+# Reference §4.7: batch 128, AdamW(3e-4, (0.9, 0.999), wd 1e-6, eps 1e-6), 10% linear warm-up then
+# cosine to 0. Weight decay here skips vectors (norm gains), as the shared loop does for all families.
+REFERENCE_TRAIN = TrainConfig(steps=150000, batch_size=128, log_every=100, ckpt_every=10000,
+                              optim=OptimConfig(lr=3e-4, b1=0.9, b2=0.999, eps=1e-6, weight_decay=1e-6,
+                                                warmup_steps=15000, schedule="cosine", grad_clip=1.0))
+# The CPU sizes' recipe (tiny, small): minutes on 2 cores, and something learnt at the tiny sweep's 300
+# steps: the reference's 15,000-step warm-up at 3e-4 would leave such a run near its initial loss.
+# Host memory is set by the batch: XLA's temporary buffer for one `small` step on the joined prefix
+# (~110 of 128 text slots filled, + 31 motion slots; attention scores and their gradients dominate) is
+# 1.07 GB at batch 64 and 2.14 GB at 128 (compiled memory_analysis), and the CPU loop keeps two steps
+# in flight: `handx train ar --preset small` on the 1,200-clip prefix peaked at 3.98 GB at batch 64
+# (6.5 GB at the reference's 128, issue 30).
+CPU_TRAIN = dataclasses.replace(REFERENCE_TRAIN, steps=2000, batch_size=64, log_every=50, ckpt_every=1000,
+                                eval_every=500,
+                                optim=dataclasses.replace(REFERENCE_TRAIN.optim, lr=1e-3, warmup_steps=100))
+TRAIN_PRESETS = {name: CPU_TRAIN if name in ("tiny", "small") else REFERENCE_TRAIN for name in PRESETS}
+
+
 @dataclass(frozen=True)
 class ARRunConfig:
     preset: str = "tiny"
     model: P.LMConfig = PRESETS["tiny"]
-    # Reference §4.7: batch 128, AdamW(3e-4, (0.9, 0.999), wd 1e-6, eps 1e-6), 10% linear warm-up then
-    # cosine to 0. Weight decay here skips vectors (norm gains), as the shared loop does for all families.
-    train: TrainConfig = TrainConfig(steps=150000, batch_size=128, log_every=100, ckpt_every=10000,
-                                     optim=OptimConfig(lr=3e-4, b1=0.9, b2=0.999, eps=1e-6, weight_decay=1e-6,
-                                                       warmup_steps=15000, schedule="cosine", grad_clip=1.0))
+    train: TrainConfig = CPU_TRAIN  # the preset's recipe (TRAIN_PRESETS)
     data: DataConfig = field(default_factory=DataConfig)
     sample: SampleConfig = SampleConfig()
 
@@ -103,7 +117,7 @@ def make_config(preset: str = "tiny", overrides: Sequence[str] = (), *, data: st
     model = get_preset(PRESETS, preset, "LM preset")
     if tokenizer:
         model = dataclasses.replace(model, nb_code=_tokenizer_record(tokenizer)["nb_code"])
-    cfg = ARRunConfig(preset=preset, model=model,
+    cfg = ARRunConfig(preset=preset, model=model, train=TRAIN_PRESETS[preset],
                       data=DataConfig(path=_abs(data), encoder=_abs(encoder), tokenizer=_abs(tokenizer)))
     return apply_overrides(cfg, overrides)
 
@@ -198,9 +212,32 @@ def make_loss(model: P.PrefixLM):
     return loss
 
 
+EVAL_ITEMS = 1024  # held-out (clip, level) pairs scored by the evaluation hook
+
+
+def make_evaluate(model: P.PrefixLM, data: TrainData, val_clips: np.ndarray, batch_size: int = 128):
+    """Held-out token NLL (nats per motion slot: 30 codes + END, §4.6) and next-token accuracy on the first
+    EVAL_ITEMS (clip, level) pairs of the val split, every ``eval_every`` steps and at the end."""
+    held = dataclasses.replace(data, clips=np.asarray(val_clips))
+    items = np.arange(min(held.num_items, EVAL_ITEMS))
+    step = jax.jit(lambda p, b: P.lm_loss(model, p, b["text"].astype(jnp.float32), b["mask"], b["codes"]))
+
+    def evaluate(params, ema, done):
+        nll = acc = 0.0
+        for s in range(0, len(items), batch_size):
+            idx = items[s:s + batch_size]
+            l, aux = step(params, held.batch(idx))
+            nll, acc = nll + float(l) * len(idx), acc + float(aux["acc"]) * len(idx)
+        return {"eval/nll": nll / len(items), "eval/acc": acc / len(items)}
+
+    return evaluate
+
+
 def train(run_dir: str | os.PathLike, cfg: ARRunConfig, *, stop_at: int | None = None, on_log=None,
           encoder=None) -> dict:
-    """Train (or resume) an LM run from the token cache and the joined text cache."""
+    """Train (or resume) an LM run from the token cache and the joined text cache; the evaluation hook logs
+    the held-out token NLL on the val split (``make_evaluate``)."""
+    from handx_jax.data.dataset import Dataset
     from handx_jax import train as loop
 
     cfg.validate()
@@ -213,10 +250,11 @@ def train(run_dir: str | os.PathLike, cfg: ARRunConfig, *, stop_at: int | None =
     loop.check_resume(run_dir, {**record, "train": to_dict(cfg.train)}, RESUME_KEYS)
     model = P.PrefixLM(cfg.model)
     L = int(data.cache.meta["Lmax"])
+    val = np.asarray(Dataset.open(cfg.data.path).split("val"))
     return loop.train(run_dir, init=lambda rng: P.init_lm(cfg.model, rng, text_len=L)[1], loss=make_loss(model),
                       get_batch=data.batch, num_examples=data.num_items, cfg=cfg.train, config=record,
                       stop_at=stop_at, on_log=on_log, flops_per_sample=record["flops_per_sample"],
-                      resume_keys=RESUME_KEYS)
+                      evaluate=make_evaluate(model, data, val) if len(val) else None, resume_keys=RESUME_KEYS)
 
 
 # ------------------------------------------------------------------------------------------------
