@@ -22,7 +22,6 @@ from ``--encoder``. The number of heads is in no tensor's shape: it comes from `
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import os
 from pathlib import Path
 from typing import Any, Mapping
@@ -32,6 +31,7 @@ import numpy as np
 from handx_jax.interop import torch_layers as tl
 from handx_jax.interop import torch_pickle
 from handx_jax.io import DataError, atomic_write_text
+from handx_jax.io import sha256_file as sha256
 from handx_jax.config import to_dict
 from handx_jax.models.dit import DiTConfig, sinusoidal_table, size_name
 
@@ -190,12 +190,6 @@ def _zeros_like_tree(cfg: DiTConfig) -> dict:
     return jax.tree_util.tree_map(lambda s: np.zeros(s.shape, np.float32), shapes)
 
 
-def sha256(path: str | os.PathLike) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 # --------------------------------------------------------------------------------------------------

@@ -155,7 +155,7 @@ def import_checkpoint(ckpt: str | os.PathLike, out: str | os.PathLike, *, mean: 
     from handx_jax.evaluation.checkpoint import FORMAT, FORMAT_VERSION, save_evaluator
     from handx_jax.evaluation.features import TextPolicy
     from handx_jax.evaluation.model import TrainedEvaluator, _init_params
-    from handx_jax.interop.official_diffusion import sha256
+    from handx_jax.io import sha256_file as sha256
     from handx_jax.io import atomic_dir
     from handx_jax.text.hf import as_encoder, save_hf_t5_encoder
 
