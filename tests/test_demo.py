@@ -31,3 +31,16 @@ def test_verdict_fits_the_sweep_and_shows_the_committed_study(tmp_path, capsys):
     assert "too short to show the scaling" in out
     assert (STUDY / "fit.txt").read_text().splitlines()[1] in out  # the committed fit, line for line
     assert (tmp_path / "sweep-cpu-fit.png").read_bytes() == (STUDY / "fit.png").read_bytes()
+
+
+def test_demo_preset_is_the_studys_sizes_with_data_seen_growing_with_size():
+    """make demo's mini sweep: the study's three sizes on all the prefix's clips, at the steps of the study's
+    20% runs (150 / 300 / 600: data seen grows with size, as the matched design's)."""
+    from sweeps.launcher import load_sweep
+
+    def steps(preset, frac):
+        return {s.axes["dim"]: int(dict(o.split("=", 1) for o in s.overrides)["train.steps"])
+                for s in load_sweep("sweeps/diffusion_cpu_study.py", preset=preset) if s.axes["data_fraction"] == frac}
+
+    assert steps("demo", 1.0) == steps("matched", 0.2) == {32: 150, 64: 300, 128: 600}
+    assert [s.axes["dim"] for s in load_sweep("sweeps/diffusion_cpu_study.py", preset="demo")] == [128, 64, 32]
