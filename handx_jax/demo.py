@@ -155,7 +155,8 @@ def main(argv: list[str] | None = None) -> int:
     # 4,000 clips: 230 standard test prompts, so the scores' ± (≈ 0.015-0.03 with 4 samples each) is below the
     # differences between the sizes; 1,200 clips gave 76 prompts and ± 0.05-0.08, wider than those differences
     p.add_argument("--clips", type=int, default=4000, help="first N clips of the standard corpus")
-    p.add_argument("--steps", type=int, help="training steps of each sweep run (default: the sweep's demo preset)")
+    p.add_argument("--steps", type=int,
+                   help="training steps of the middle size (the others x0.5 and x2; default: the demo preset's 300)")
     p.add_argument("--eval-limit", type=int, default=10000, help="test prompts generated and scored per run")
     p.add_argument("--eval-samples", type=int, default=4,
                    help="samples per test prompt (the ± is a t-interval over the groups; 1: a prompt bootstrap)")
