@@ -1,4 +1,4 @@
-"""``make demo``: the main job, end to end, on the built-in data (CPU-sized: about 8 minutes on 2 quiet cores, estimated).
+"""``make demo``: the main job, end to end, on the built-in data (CPU-sized: ~8 min on 2 quiet cores, estimated).
 
 1. Build the first ``--clips`` clips of the standard corpus (``handx standard corpus --clips N``: synthesis
    → clips + intensity filter → annotation → captions), print its statistics and render one clip with
