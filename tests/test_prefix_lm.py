@@ -164,7 +164,7 @@ def _top_k_top_p_by_sorting(lg, top_k, top_p):
     return out
 
 
-@pytest.mark.parametrize("top_k,top_p", [(0, 0.9), (50, 1.0), (7, 0.5), (1, 1.0), (0, 1e-6), (3000, 0.999), (0, 0.0)])
+@pytest.mark.parametrize("top_k,top_p", [(0, 0.9), (50, 1.0), (7, 0.5), (1, 1.0), (0, 1e-6), (3000, 0.999)])
 def test_top_k_top_p_cuts_equal_the_sorted_definition(top_k, top_p):
     r = np.random.default_rng(top_k + int(1000 * top_p))
     lg = (r.normal(size=(6, 4375)) * r.uniform(0.5, 4, size=(6, 1))).astype(np.float32)
@@ -184,6 +184,12 @@ def test_top_k_top_p_cuts_equal_the_sorted_definition(top_k, top_p):
         p /= p.sum()
         assert abs(p[after_k > lg[b, i]].sum() - top_p) < 1e-5, (b, i)
     assert (kept != kept_ref).sum() <= 2
+
+
+def test_top_p_zero_is_refused_not_treated_as_top_1():
+    # top-p 0 keeps nothing by its definition; the cut used to keep the top token silently (top_p=1e-6 does)
+    with pytest.raises(ValueError, match=r"top_p \(--top-p\) must be in \(0, 1\]"):
+        AD.DecodeOptions(1.0, top_p=0.0)
 
 
 def test_greedy_step_does_not_sort_the_vocabulary():
