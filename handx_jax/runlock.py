@@ -155,9 +155,16 @@ class RunLock:
                 if holder == {}:
                     # Written by a holder that died between open and write, or being written now.
                     time.sleep(0.2)
-                    holder = read_holder(self.run_dir) or {}
-                    if holder == {} and time.time() - self.path.stat().st_mtime < 5:
-                        raise RunLocked(self.run_dir, {"pid": "?", "host": "?", "started": self.path.stat().st_mtime})
+                    holder = read_holder(self.run_dir)
+                    if holder is None:
+                        continue  # released meanwhile: try again
+                    if holder == {}:
+                        try:
+                            made_at = self.path.stat().st_mtime
+                        except FileNotFoundError:
+                            continue  # released between the read and the stat (a sweep's parallel runs did)
+                        if time.time() - made_at < 5:
+                            raise RunLocked(self.run_dir, {"pid": "?", "host": "?", "started": made_at})
                 if (holder and holder.get("pid") == os.getppid() and holder.get("host") == socket.gethostname()
                         and pid_alive(os.getppid())):
                     self.inherited = True  # our parent holds it and started us to work in the folder

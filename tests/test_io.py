@@ -109,3 +109,19 @@ def test_tree_checksum_catches_a_changed_file(tmp_path):
     (d / "state" / "a.bin").unlink()
     with pytest.raises(DataError, match="listed in SHA256SUMS but missing"):
         verify_tree_checksum(d)
+
+
+def test_run_lock_taken_when_a_torn_lock_is_released_during_the_wait(tmp_path):
+    """A lock file that is still empty (its holder between open and write) and then released while the
+    next process waits: the waiter takes the lock. It used to stat the vanished file and die with
+    FileNotFoundError (a sweep's parallel runs sharing one step did, in scripts/gpu_lease_ar.sh's dry run)."""
+    import threading
+
+    from handx_jax.runlock import LOCK_NAME, RunLock, read_holder
+
+    lock_file = tmp_path / LOCK_NAME
+    lock_file.write_text("")  # torn: opened, not yet written
+    threading.Timer(0.05, lock_file.unlink).start()  # released within the waiter's 0.2 s pause
+    with RunLock(tmp_path):
+        assert read_holder(tmp_path)["pid"] == os.getpid()
+    assert not lock_file.exists()
