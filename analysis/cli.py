@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import sys
 from typing import Any, Sequence
 
@@ -61,18 +60,14 @@ def load_inputs(specs: Sequence[str], family: str | None = None, strict: bool = 
     return rows
 
 
-# Why a row is left out (``fits.select_rows``): a run with no score yet (a sweep in progress, a failed run)
-# is named and skipped; a score or x that is there but unusable (NaN, inf, text, x <= 0 on a log axis) is a
-# broken table, refused unless the analyst asks to drop such rows, so a fit never quietly runs on n = 5 of 6.
-_NOT_SCORED = re.compile(r"column '[^']*': (no value|no such column|empty)$")
-
-
-def _left_out(args: argparse.Namespace, lines: Sequence[str]) -> None:
-    """Name every row an analysis leaves out, and why, on stderr; refuse unusable values (exit 1) unless
-    ``--drop-bad-rows``."""
-    for line in lines:
-        print(f"handx analyze {args.analyze_command}: left out {line}", file=sys.stderr)
-    bad = [line for line in lines if not _NOT_SCORED.search(line)]
+def _left_out(args: argparse.Namespace, dropped: Sequence[Any]) -> None:
+    """Name every row an analysis leaves out (``fits.Dropped``: where, which column, why) on stderr. A run
+    with no score yet (a sweep in progress, a failed run) is named and skipped; a score or x that is there
+    but unusable (NaN, inf, text, x <= 0 on a log axis) is a broken table, refused (exit 1) unless the
+    analyst asks to drop such rows (``--drop-bad-rows``), so a fit never quietly runs on n = 5 of 6."""
+    for d in dropped:
+        print(f"handx analyze {args.analyze_command}: left out {d}", file=sys.stderr)
+    bad = [d for d in dropped if not d.unscored]
     if bad and not getattr(args, "drop_bad_rows", False):
         raise DataError(f"{len(bad)} row(s) hold values that cannot be used (named above; first: {bad[0]}); fix "
                         "them, or pass --drop-bad-rows to analyse the others")

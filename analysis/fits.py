@@ -18,6 +18,7 @@ Quantiles come from ``scipy.stats`` (scipy ships with jax; no hand-written speci
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
@@ -74,57 +75,108 @@ def resolve_column(name: str, rows: Sequence[Mapping[str, Any]] | None = None) -
     return col
 
 
-def _why_missing(row: Mapping[str, Any], col: str) -> str | None:
-    """Why ``row`` has no usable number in ``col`` (None if it has one)."""
+class DropKind(str, enum.Enum):
+    """Why :func:`select_rows` leaves a row out. The first three mean a run not scored yet (a sweep in
+    progress, a failed run): named and skipped. The others are a value that is there but unusable: a
+    broken table, which the CLI refuses unless asked to drop such rows (``--drop-bad-rows``)."""
+
+    NO_VALUE = "no value"  # a results record without this column's value
+    NO_COLUMN = "no such column"  # the file has no such column
+    EMPTY = "empty"  # an empty cell
+    NAN = "NaN"
+    TEXT = "not a number"  # a cell or value that is not a number (text, a bool)
+    NOT_FINITE = "not finite"  # ±inf
+    NOT_POSITIVE = "not > 0"  # x ≤ 0 on a log axis
+
+
+UNSCORED = frozenset({DropKind.NO_VALUE, DropKind.NO_COLUMN, DropKind.EMPTY})
+
+
+@dataclass(frozen=True)
+class Dropped:
+    """One row an analysis leaves out: where it is (``file`` and ``row``, or ``source`` for a run folder;
+    ``row`` alone is its place in rows given in code), its ``run`` id when the table names one, the
+    ``column`` and ``kind`` of the problem and the unusable ``value`` as read."""
+
+    kind: DropKind
+    column: str
+    value: Any = None
+    file: str | None = None
+    row: int | None = None
+    run: str | None = None
+    source: str | None = None
+
+    @property
+    def unscored(self) -> bool:
+        return self.kind in UNSCORED
+
+    @property
+    def reason(self) -> str:
+        if self.kind is DropKind.TEXT or self.kind is DropKind.NOT_FINITE:
+            return f"{self.kind.value} ({self.value!r})"
+        if self.kind is DropKind.NOT_POSITIVE:
+            return f"{float(self.value):g} is not > 0, which log10 needs"
+        return self.kind.value
+
+    @property
+    def where(self) -> str:
+        if self.source is None:
+            return f"run {self.run!r} (row {self.row} of the input)"
+        return self.source + (f" (run {self.run!r})" if self.run is not None else "")
+
+    def __str__(self) -> str:
+        return f"{self.where}, column {self.column!r}: {self.reason}"
+
+
+def _why_missing(row: Mapping[str, Any], col: str) -> tuple[DropKind, Any] | None:
+    """Why ``row`` has no usable number in ``col`` and the value as read (None if it has one)."""
     v = row.get(col)
     if v is None:
         cells = getattr(row, "cells", None)  # analysis.schema.Row: the cells as read
         if cells is None:
-            return "no value"
+            return DropKind.NO_VALUE, None
         if col not in cells:
-            return "no such column"
+            return DropKind.NO_COLUMN, None
         raw = cells[col]
         if raw is None or (isinstance(raw, str) and raw.strip().lower() in ("", "none", "null")):
-            return "empty"
-        return "NaN" if str(raw).strip().lower() == "nan" or raw != raw else f"no value ({raw!r})"
+            return DropKind.EMPTY, raw
+        return (DropKind.NAN, raw) if str(raw).strip().lower() == "nan" or raw != raw else (DropKind.TEXT, raw)
     if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
-        return f"not a number ({v!r})"
+        return DropKind.TEXT, v
     if not math.isfinite(float(v)):
-        return "NaN" if v != v else f"not finite ({v!r})"
+        return (DropKind.NAN, v) if v != v else (DropKind.NOT_FINITE, v)
     return None
 
 
-def _where(row: Mapping[str, Any], index: int) -> str:
-    source = getattr(row, "source", None)
-    cells = getattr(row, "cells", None)
-    if source is None:
-        return f"run {row.get('run_id')!r} (row {index + 1} of the input)"
-    named = cells is None or "run_id" in cells  # else run_id is made up from the file and row
-    return f"{source} (run {row.get('run_id')!r})" if named else source
+def _dropped(row: Mapping[str, Any], index: int, kind: DropKind, column: str, value: Any) -> Dropped:
+    source, cells = getattr(row, "source", None), getattr(row, "cells", None)
+    named = source is None or cells is None or "run_id" in cells  # else run_id is made up from the file and row
+    return Dropped(kind, column, value, file=getattr(row, "file", None),
+                   row=getattr(row, "line", None) if source is not None else index + 1,
+                   run=row.get("run_id") if named else None, source=source)
 
 
 def select_rows(rows: Sequence[Mapping[str, Any]], columns: Sequence[str], *, log_axis: Sequence[str] = ()
-                ) -> tuple[list[Mapping[str, Any]], list[str]]:
+                ) -> tuple[list[Mapping[str, Any]], list[Dropped]]:
     """The rows with a finite number in every column of ``columns`` (and > 0 in those of ``log_axis``),
-    ground-truth rows excluded, and one line per other row saying where it is (file and row, or run)
-    and why it was left out (which column: missing, NaN, empty, or a value log10 cannot take)."""
+    ground-truth rows excluded, and a :class:`Dropped` for every other row: where it is (file and row, or
+    run), which column, and why (missing, NaN, empty, text, or a value log10 cannot take)."""
     used, dropped = [], []
     for i, r in enumerate(rows):
         if r.get("family") == GROUND_TRUTH:
             continue
-        why = next(((c, w) for c in columns if (w := _why_missing(r, c)) is not None), None)
+        why = next(((c, *w) for c in columns if (w := _why_missing(r, c)) is not None), None)
         if why is None:
-            why = next(((c, f"{float(r[c]):g} is not > 0, which log10 needs") for c in log_axis
-                        if not float(r[c]) > 0), None)
+            why = next(((c, DropKind.NOT_POSITIVE, r[c]) for c in log_axis if not float(r[c]) > 0), None)
         if why is None:
             used.append(r)
         else:
-            dropped.append(f"{_where(r, i)}, column {why[0]!r}: {why[1]}")
+            dropped.append(_dropped(r, i, why[1], why[0], why[2]))
     return used, dropped
 
 
-def dropped_rows(rows: Sequence[Mapping[str, Any]], x: str, y: str) -> list[str]:
-    """One line per row a fit of ``y`` against ``x`` leaves out, naming it and why (:func:`select_rows`)."""
+def dropped_rows(rows: Sequence[Mapping[str, Any]], x: str, y: str) -> list[Dropped]:
+    """Every row a fit of ``y`` against ``x`` leaves out, where it is and why (:func:`select_rows`)."""
     return select_rows(rows, (resolve_column(x, rows), resolve_column(y, rows)),
                        log_axis=(resolve_column(x, rows),))[1]
 

@@ -288,16 +288,17 @@ def lenient_row(raw: Mapping[str, Any], *, path: Any = None, row: Any = None) ->
 
 
 class Row(dict):
-    """A results row that remembers where it was read: ``source`` (``file PATH, row N``) and ``cells`` (the
-    raw cells as read, before NaN and empty cells became None), so an analysis that leaves the row out
-    can say where it is and why (its cell was NaN or empty, or the file has no such column)."""
+    """A results row that remembers where it was read: ``source`` (``file PATH, row N``), that ``file`` and
+    ``line`` (its row, 1-based) apart, and ``cells`` (the raw cells as read, before NaN and empty cells
+    became None), so an analysis that leaves the row out can say where it is and why (its cell was NaN or
+    empty, or the file has no such column)."""
 
-    __slots__ = ("source", "cells")
+    __slots__ = ("source", "cells", "file", "line")
 
     def __init__(self, values: Mapping[str, Any], *, source: str | None = None,
-                 cells: Mapping[str, Any] | None = None):
+                 cells: Mapping[str, Any] | None = None, file: str | None = None, line: int | None = None):
         super().__init__(values)
-        self.source, self.cells = source, cells
+        self.source, self.cells, self.file, self.line = source, cells, file, line
 
 
 def make_row(**values: Any) -> dict[str, Any]:
@@ -312,8 +313,8 @@ def make_row(**values: Any) -> dict[str, Any]:
 def _load_jsonl(path: Path, strict: bool = True) -> list[dict[str, Any]]:
     raws = read_jsonl(path)
     check = validate_row if strict else lenient_row
-    return [Row(check(r, path=path, row=i + 1), source=_where(path, i + 1), cells=r if isinstance(r, dict) else None)
-            for i, r in enumerate(raws)]
+    return [Row(check(r, path=path, row=i + 1), source=_where(path, i + 1), cells=r if isinstance(r, dict) else None,
+                file=os.fspath(path), line=i + 1) for i, r in enumerate(raws)]
 
 
 def _load_csv(path: Path, strict: bool = True) -> list[dict[str, Any]]:
@@ -334,7 +335,7 @@ def _load_csv(path: Path, strict: bool = True) -> list[dict[str, Any]]:
             raise _error(f"has {len(cells)} cells but the header has {len(header)}", path=path, row=i + 1)
         raw = dict(zip(header, cells))
         rows.append(Row((validate_row if strict else lenient_row)(raw, path=path, row=i + 1),
-                        source=_where(path, i + 1), cells=raw))
+                        source=_where(path, i + 1), cells=raw, file=os.fspath(path), line=i + 1))
     return rows
 
 
@@ -567,4 +568,5 @@ def row_from_run_dir(run_dir: str | os.PathLike) -> dict[str, Any]:
         if isinstance(meta.get("evaluator_id"), str):
             values["evaluator_id"] = meta["evaluator_id"]
             values["evaluator"] = meta.get("evaluator_name") or meta["evaluator_id"]
-    return Row(validate_row(values, path=run_dir, row=values["run_id"]), source=f"run folder {run_dir}")
+    return Row(validate_row(values, path=run_dir, row=values["run_id"]), source=f"run folder {run_dir}",
+               file=os.fspath(run_dir))

@@ -160,5 +160,24 @@ def test_left_out_rows_from_a_loaded_table_keep_their_source(tmp_path):
     jl = tmp_path / "r.jsonl"
     jl.write_text(json.dumps({"run_id": "a", "family": "diffusion", "fid": 1.0}) + "\n")
     rows = load_results(jl)
-    assert fits.select_rows(rows, ("flops_per_sample", "fid"))[1] == [
-        f"file {jl}, row 1 (run 'a'), column 'flops_per_sample': no such column"]
+    (d,) = fits.select_rows(rows, ("flops_per_sample", "fid"))[1]
+    assert (d.kind, d.file, d.row, d.run, d.column, d.unscored) == (
+        fits.DropKind.NO_COLUMN, str(jl), 1, "a", "flops_per_sample", True)
+    assert str(d) == f"file {jl}, row 1 (run 'a'), column 'flops_per_sample': no such column"
+
+
+def test_dropped_rows_say_their_kind_without_parsing_the_message():
+    rows = [{"run_id": "a", "family": "diffusion", "flops_per_sample": 0.0, "fid": 1.0},
+            {"run_id": "b", "family": "diffusion", "flops_per_sample": 1e9, "fid": float("inf")},
+            {"run_id": "c", "family": "diffusion", "flops_per_sample": 1e9, "fid": "x"},
+            {"run_id": "d", "family": "diffusion", "flops_per_sample": 1e9}]
+    used, dropped = fits.select_rows(rows, ("flops_per_sample", "fid"), log_axis=("flops_per_sample",))
+    assert used == []
+    assert [(d.kind, d.row, d.run, d.column, d.unscored) for d in dropped] == [
+        (fits.DropKind.NOT_POSITIVE, 1, "a", "flops_per_sample", False),
+        (fits.DropKind.NOT_FINITE, 2, "b", "fid", False),
+        (fits.DropKind.TEXT, 3, "c", "fid", False),
+        (fits.DropKind.NO_VALUE, 4, "d", "fid", True)]
+    assert [d.reason for d in dropped] == ["0 is not > 0, which log10 needs", "not finite (inf)",
+                                           "not a number ('x')", "no value"]
+    assert str(dropped[0]) == "run 'a' (row 1 of the input), column 'flops_per_sample': 0 is not > 0, which log10 needs"
