@@ -62,6 +62,18 @@ def load_source(path: str, clip: str | None = None) -> SourceClip:
     return SourceClip(c.key, c.motion, [Prompt(*x) for x in zip(c.left, c.right, c.interaction)])
 
 
+def split_prompts(ds, split: str, limit: int | None = None, level: int = -1):
+    """Batch mode's prompts (``handx generate --reference``, ``handx eval prediction``): the clips of a
+    dataset split (at most ``limit``: shuffled with seed 42, the first ``limit`` taken, sorted back, as
+    the reference selects its evaluation clips), their captions at ``level`` and their motion.
+    Returns (clip indices, prompts, motions (float32, one per clip))."""
+    clips = np.asarray(ds.split(split))
+    if limit and limit < len(clips):
+        clips = np.sort(np.random.default_rng(42).permutation(clips)[:limit])
+    prompts = [Prompt(*(ds.texts[c][f][level] for f in ("left", "right", "interaction"))) for c in clips]
+    return clips, prompts, [np.asarray(ds.motion[c], np.float32) for c in clips]
+
+
 # ------------------------------------------------------------------------------------------------
 # Output
 

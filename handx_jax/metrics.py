@@ -374,9 +374,19 @@ def mpjpe_ra_mm(pred_NxTx2x21x3: jax.Array, gt_NxTx2x21x3: jax.Array) -> jax.Arr
     G-HTT also equalises the mean palm-bone length of estimate and GT, against the scale ambiguity of
     pose estimation from images; generated and GT joints here share metric units, so no scale is
     applied (MPJPE-PA is the error with scale removed)."""
-    p = pred_NxTx2x21x3 - pred_NxTx2x21x3[..., :1, :]
-    g = gt_NxTx2x21x3 - gt_NxTx2x21x3[..., :1, :]
-    return 1000.0 * jnp.mean(jnp.linalg.norm(p - g, axis=-1), axis=(1, 3))
+    return jnp.mean(joint_error_frames_mm(pred_NxTx2x21x3, gt_NxTx2x21x3, root_aligned=True), axis=1)
+
+
+@partial(jax.jit, static_argnames=("root_aligned",))
+def joint_error_frames_mm(pred_NxTx2x21x3: jax.Array, gt_NxTx2x21x3: jax.Array, *,
+                          root_aligned: bool = True) -> jax.Array:
+    """Mean joint distance per clip, frame and hand (N, T, 2), mm: MPJPE-RA's per-frame terms (each hand
+    relative to its own wrist in both) or, with ``root_aligned=False``, the distance in the clip's shared
+    frame. Per frame so that the prediction benchmark can bin it by horizon (evaluation/prediction.py)."""
+    p, g = pred_NxTx2x21x3, gt_NxTx2x21x3
+    if root_aligned:
+        p, g = p - p[..., :1, :], g - g[..., :1, :]
+    return 1000.0 * jnp.mean(jnp.linalg.norm(p - g, axis=-1), axis=3)
 
 
 def procrustes_align(x_BxJx3: jax.Array, y_BxJx3: jax.Array) -> jax.Array:
@@ -418,8 +428,14 @@ def mpjpe_pa_mm(pred_NxTx2x21x3: jax.Array, gt_NxTx2x21x3: jax.Array) -> jax.Arr
     """MPJPE-PA per clip and hand (N, 2), mm: each hand of each frame aligned to the GT's by its own
     similarity Procrustes (:func:`procrustes_align`: rotation, uniform scale, translation), then the
     mean joint distance (G-HTT §4.2, "Procrustes Analysis of MPJPE")."""
+    return jnp.mean(mpjpe_pa_frames_mm(pred_NxTx2x21x3, gt_NxTx2x21x3), axis=1)
+
+
+@jax.jit
+def mpjpe_pa_frames_mm(pred_NxTx2x21x3: jax.Array, gt_NxTx2x21x3: jax.Array) -> jax.Array:
+    """MPJPE-PA's per-frame terms (N, T, 2), mm: :func:`mpjpe_pa_mm` before the mean over frames."""
     def one(p, g):
-        return jnp.mean(jnp.linalg.norm(procrustes_align(p, g) - g, axis=-1), axis=(1, 3))
+        return jnp.mean(jnp.linalg.norm(procrustes_align(p, g) - g, axis=-1), axis=3)
 
     return 1000.0 * _chunked(one, pred_NxTx2x21x3, gt_NxTx2x21x3)
 
@@ -435,6 +451,12 @@ def apd_mm(samples_KxNxTx2x21x3) -> np.ndarray:
     K(K−1)/2 unordered pairs. Joints are in the clip's shared frame (no root alignment), as in G-HTT's
     samples. K identical samples give 0; K < 2 has no pair and is refused.
     """
+    return apd_frames_mm(samples_KxNxTx2x21x3).mean(1)
+
+
+def apd_frames_mm(samples_KxNxTx2x21x3) -> np.ndarray:
+    """APD's per-frame terms (N, T, 2), mm: :func:`apd_mm` before the mean over frames (the prediction
+    benchmark bins them by horizon, evaluation/prediction.py)."""
     x = jnp.asarray(samples_KxNxTx2x21x3, jnp.float32)
     K = x.shape[0]
     if K < 2:
@@ -445,11 +467,13 @@ def apd_mm(samples_KxNxTx2x21x3) -> np.ndarray:
 
 @jax.jit
 def _apd(x_KxNxTx2x21x3, a_P, b_P):
-    def pair(ab):  # one pair at a time: K(K−1)/2 = 190 pairs of (N, T, 2, 21, 3) never in memory together
+    def add_pair(total_NxTx2, ab):  # one pair at a time: K(K−1)/2 = 190 pairs never in memory together
         d = jnp.linalg.norm(x_KxNxTx2x21x3[ab[0]] - x_KxNxTx2x21x3[ab[1]], axis=-1)  # (N, T, 2, 21)
-        return jnp.mean(d, axis=(1, 3))
+        return total_NxTx2 + jnp.mean(d, axis=3), None
 
-    return 1000.0 * jnp.mean(jax.lax.map(pair, jnp.stack([a_P, b_P], -1)), axis=0)
+    N, T = x_KxNxTx2x21x3.shape[1:3]
+    total, _ = jax.lax.scan(add_pair, jnp.zeros((N, T, 2), jnp.float32), jnp.stack([a_P, b_P], -1))
+    return 1000.0 * total / a_P.shape[0]
 
 
 # Capsule radii (m) of the 20 bones of sk.BONES (parent → child), for inter-hand penetration. Each bone
@@ -681,6 +705,14 @@ def mean_ci(values) -> tuple[float, float]:
     if len(v) < 2:
         return float(v.mean()), 0.0
     return float(v.mean()), float(student_t.ppf(0.975, len(v) - 1) * v.std(ddof=1) / math.sqrt(len(v)))
+
+
+def prompt_mean_ci(values_N, cfg: MetricConfig = MetricConfig()) -> tuple[float, float]:
+    """Mean and bootstrap 95% half-width (prompts resampled, :func:`bootstrap_indices`) of a per-prompt
+    quantity: the "bootstrap_prompts" interval (APD here; every row of the prediction benchmark)."""
+    v = np.asarray(values_N, np.float64)
+    n = len(v)
+    return float(np.nanmean(v)), _per_prompt_ci(v, _counts(bootstrap_indices(n, cfg), n))
 
 
 def bootstrap_indices(n: int, cfg: MetricConfig) -> np.ndarray:

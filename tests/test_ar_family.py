@@ -153,3 +153,16 @@ def test_a_bad_token_cache_is_refused_before_training_with_no_run_folder(built, 
         else ("unreadable or truncated token cache",)
     assert all(w in err for w in words) and "\n" not in err
     assert not out.exists()
+
+
+def test_eval_prediction_scores_an_ar_run(built, tmp_path):
+    data, _, run = built
+    out = tmp_path / "pred.json"
+    assert main(["eval", "prediction", "--run", str(run), "--observed-frames", "20", "--limit", "1", "--samples", "2",
+                 "--temperature", "1.0", "--encoder", str(ENCODER), "--json", "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["_meta"]["family"] == "ar" and res["_meta"]["horizons"] == ["21-36", "37-52", "53-60"]
+    assert res["_meta"]["generation"].startswith("T=1.0")  # the family's own flag reached its options
+    # The observed frames come back through the tokenizer (8 prefilled tokens), not exactly; sampled
+    # continuations differ.
+    assert 0 < res["observed"]["mpjpe_ra_both"] < 1e3 and res["predicted"]["apd_both"] > 0

@@ -140,3 +140,38 @@ def test_generate_errors(setup, tmp_path, capsys):
     assert main(["generate", "--run", str(tmp_path), "--out", str(tmp_path / "x.npz"), "--left", "a"]) == 2
     assert "unknown model family 'difusion' (did you mean 'diffusion'?)" in capsys.readouterr().err
     assert not (tmp_path / "x.npz").exists()
+
+
+def test_prediction_keeps_the_observed_frames_and_never_reads_the_future(setup):
+    """Diffusion's prediction task (hard mask on the observed frames): they come back exactly, the rest is
+    generated, and changing the source after frame N changes nothing (neither the target nor the centre)."""
+    data, run = setup
+    r = load_run(run)
+    ds = Dataset.open(data)
+    src = np.asarray(ds.motion[3])
+    opts = SampleOptions(sampler="ddim", steps=8, observed_frames=16)  # batch 2: the tests above compile it
+    ps = [Prompt("a", "b", "c")]
+    j = generate(r, ps, opts, samples=2, task="prediction", sources=[src])
+    np.testing.assert_allclose(j[0, :, :16], np.broadcast_to(src[:16], j[0, :, :16].shape), atol=1e-4)
+    assert np.abs(j[0, :, 16:] - src[16:]).max() > 1e-3
+    other = src.copy()
+    other[16:] += np.random.default_rng(0).normal(0, 0.1, other[16:].shape)
+    np.testing.assert_array_equal(generate(r, ps, opts, samples=2, task="prediction", sources=[other]), j)
+    with pytest.raises(ValueError, match="--observed-frames must be in"):
+        SampleOptions(observed_frames=60)
+
+
+def test_eval_prediction_scores_a_diffusion_run(setup, capsys):
+    import json
+
+    data, run = setup
+    assert main(["eval", "prediction", "--run", str(run), "--observed-frames", "16", "--limit", "1",
+                 "--samples", "2", "--sampler", "ddim", "--steps", "8"]) == 0
+    assert "49-60" in capsys.readouterr().out
+    res = json.loads((run / "eval_prediction.json").read_text())  # the default place: the run folder
+    assert [h["frames"] for h in res["horizons"]] == ["17-32", "33-48", "49-60"]
+    assert res["_meta"]["family"] == "diffusion" and res["_meta"]["clips"] == 1 and res["_meta"]["samples"] == 2
+    assert res["observed"]["max_joint_error_mm"] < 0.1 and res["observed"]["mpjpe_ra_both"] < 0.1
+    for row in (*res["horizons"], res["predicted"]):
+        assert row["mpjpe_ra_both"] > 1 and row["apd_both"] > 0 and row["mpjpe_ra_best_of_k"] <= row["mpjpe_ra_both"]
+        assert {"mpjpe_ra_left_ci", "mpjpe_pa_right", "mpjpe_both", "apd_left"} <= set(row)

@@ -10,11 +10,12 @@ Prompt mode (G samples for one prompt; ``--task`` other than text2motion needs `
 Without prompts, a source clip's own annotation at ``--level`` is used. Tasks (paper App. D.2):
 inbetween (first/last 5 frames), keyframes (``--keyframes``), wrist (wrist trajectories), reaction
 (``--fixed-hand`` fully constrained), long (one segment per repeated --left/--right/--interaction;
-continues ``--source`` if given). A family may support only some tasks. Generation settings are the
-run's own config (its ``sample.*`` keys), changed with ``--set sample.KEY=VALUE`` for any family (the
-sweep launcher's one channel); the run's family adds flags for the same keys: ``handx generate --run
-RUN --help`` lists them (for diffusion ``--sampler``, ``--steps``, ``--guidance``; ``--set
-diffusion.p_hard=1.0`` etc.).
+continues ``--source`` if given), and prediction (the source's first ``--observed-frames`` frames are
+observed, the rest generated; scored by ``handx eval prediction``). A family may support only some
+tasks. Generation settings are the run's own config (its ``sample.*`` keys), changed with ``--set
+sample.KEY=VALUE`` for any family (the sweep launcher's one channel); the run's family adds flags for
+the same keys: ``handx generate --run RUN --help`` lists them (for diffusion ``--sampler``,
+``--steps``, ``--guidance``; ``--set diffusion.p_hard=1.0`` etc.).
 
 Batch mode (for evaluation): one prompt per clip of a dataset split, G samples each, entries in clip
 order with fields ``source_clip`` (clip id) and ``group`` (0..G−1):
@@ -26,8 +27,6 @@ from __future__ import annotations
 
 import argparse
 import time
-
-import numpy as np
 
 from handx_jax.commands import fail
 
@@ -111,14 +110,10 @@ def _generate(args: argparse.Namespace) -> int:
         if prompts:
             return fail(CMD, "--reference takes its prompts from the dataset; drop --left/--right/...")
         from handx_jax.data.dataset import Dataset
-        from handx_jax.generation import Prompt
+        from handx_jax.generation import split_prompts
 
         ds = Dataset.open(args.reference)
-        clips = np.asarray(ds.split(args.split))
-        if args.limit and args.limit < len(clips):  # the reference's selection: shuffle (seed 42), take N, sort
-            clips = np.sort(np.random.default_rng(42).permutation(clips)[:args.limit])
-        ps = [Prompt(*(ds.texts[c][f][args.level] for f in ("left", "right", "interaction"))) for c in clips]
-        sources = [np.asarray(ds.motion[c], np.float32) for c in clips]
+        clips, ps, sources = split_prompts(ds, args.split, args.limit, args.level)
         j = run.generate(ps, opts, samples=G, task=args.task, sources=sources, keyframes=keyframes,
                          fixed_hand=args.fixed_hand)
         ids = [ds.ids[c] for c in clips]
@@ -166,7 +161,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--right", action="append", help="right-hand prompt")
     p.add_argument("--interaction", action="append", help="interaction prompt")
     p.add_argument("--task", default="text2motion",
-                   help="text2motion (default), inbetween, keyframes, wrist, reaction, long; as the family supports")
+                   help="text2motion (default), inbetween, keyframes, wrist, reaction, long, prediction; as the "
+                        "family supports")
     p.add_argument("--source", help="constraint clip: official-layout .npz or a dataset directory (with --clip)")
     p.add_argument("--clip", help="key in the .npz, or clip id/index in the dataset")
     p.add_argument("--level", type=int, default=-1, help="annotation level for prompts taken from data (-1 = most detailed)")

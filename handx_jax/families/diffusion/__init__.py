@@ -426,6 +426,8 @@ def add_generate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sampler", choices=["ddpm", "ddim"], help="= --set sample.sampler=… (default: the run's, ddpm)")
     p.add_argument("--steps", type=int, help="= --set sample.steps=N: DDIM steps (DDPM always uses all T steps)")
     p.add_argument("--guidance", type=float, help="= --set diffusion.guidance=X: CFG scale (default: the run's, 2.5)")
+    p.add_argument("--observed-frames", type=int, default=20,
+                   help="--task prediction: observed frames, kept exactly, in (0, 60) (default 20)")
 
 
 def load_for_generate(args: argparse.Namespace, *, ema: bool, encoder, seed: int, batch_size: int):
@@ -436,7 +438,9 @@ def load_for_generate(args: argparse.Namespace, *, ema: bool, encoder, seed: int
 
     flags = [f"{k}={v}" for k, v in (("sample.sampler", args.sampler), ("sample.steps", args.steps),
                                      ("diffusion.guidance", args.guidance)) if v is not None]
+    SampleOptions(observed_frames=args.observed_frames)  # its range check, before the run is read
     run = load(args.run, ema=ema, encoder=encoder, overrides=[*args.set, *flags])
     run.check_prompts(typed_prompts(args))
     s = run.cfg.sample
-    return run, SampleOptions(sampler=s.sampler, steps=s.steps, seed=seed, batch_size=batch_size)
+    return run, SampleOptions(sampler=s.sampler, steps=s.steps, seed=seed, batch_size=batch_size,
+                              observed_frames=args.observed_frames)

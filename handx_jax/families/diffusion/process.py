@@ -145,12 +145,13 @@ def soft_mask(centers_FxJ: np.ndarray, p_hard: float = 0.85, p_soft: float = 0.1
     return g
 
 
-TASKS = ("text2motion", "inbetween", "keyframes", "wrist", "reaction", "long")
+TASKS = ("text2motion", "inbetween", "keyframes", "wrist", "reaction", "long", "prediction")
 
 
 def task_centers(task: str, frames: int = 60, joints: int = 42, *, k_inbet: int = 5, keyframes=(30,),
-                 fixed_hand: str = "left", k_hor: int = 5) -> np.ndarray:
-    """Boolean centre frames (F, J) for each task of App. D.2."""
+                 fixed_hand: str = "left", k_hor: int = 5, observed: int = 20) -> np.ndarray:
+    """Boolean centre frames (F, J) for each task of App. D.2, and for ``prediction`` (G-HTT's motion
+    prediction, issue 33): the first ``observed`` frames."""
     c = np.zeros((frames, joints), bool)
     if task == "text2motion":
         pass
@@ -165,6 +166,8 @@ def task_centers(task: str, frames: int = 60, joints: int = 42, *, k_inbet: int 
         c[:, slice(0, 21) if fixed_hand == "left" else slice(21, 42)] = True
     elif task == "long":
         c[:k_hor] = True
+    elif task == "prediction":
+        c[:observed] = True
     else:
         raise ValueError(f"unknown task {task!r}; choose from {TASKS}")
     return c

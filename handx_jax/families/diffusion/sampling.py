@@ -11,6 +11,10 @@ Long-horizon generation (App. D.2, Eq. Q) chains 60-frame segments: segment k+1 
 the last K_hor + k_trans frames of segment k placed at its frames 0..K_hor+k_trans−1 (centre frames
 0..K_hor−1, the band after them). The chained motion keeps segment k up to that overlap and then all
 of segment k+1, so each new segment adds 60 − K_hor − k_trans frames.
+
+Motion prediction (G-HTT's task, issue 33; ``task="prediction"``, ``SampleOptions.observed_frames``):
+the first N frames of the source, centred on their own mean, are kept exactly (γ = 1, no band) and the
+rest is generated; nothing after frame N of the source is read (``task_gamma``, ``generate``).
 """
 
 from __future__ import annotations
@@ -42,6 +46,12 @@ class SampleOptions:
     guidance: float | None = None  # None: the run's diffusion.guidance (2.5)
     seed: int = 0
     batch_size: int = 256  # samples per compiled call
+    observed_frames: int = 20  # for the prediction task
+
+    def __post_init__(self) -> None:
+        f = self.observed_frames  # the clip length bounds it too, checked against the model in ``generate``
+        if not (isinstance(f, int) and 0 < f < 60):
+            raise ValueError(f"--observed-frames must be in (0, 60), got {f}")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -49,10 +59,17 @@ class SampleOptions:
 
 
 def task_gamma(task: str, dcfg: D.DiffusionConfig, frames: int = 60, *, keyframes: Sequence[int] = (30,),
-               fixed_hand: str = "left") -> np.ndarray:
-    """γ (F, 42) for a task (App. D.2), with the run's p_hard/p_soft/k_trans."""
+               fixed_hand: str = "left", observed: int = 20) -> np.ndarray:
+    """γ (F, 42) for a task (App. D.2), with the run's p_hard/p_soft/k_trans.
+
+    ``prediction`` is the exception: γ = 1 on the ``observed`` frames and 0 after them, no band. The
+    observation is given, so the output keeps it exactly (γ < 1 would let the model move frames it was
+    shown), and a band after it would pull the first predicted frames toward a target that holds no
+    values there (the hidden future is never passed in)."""
     c = D.task_centers(task, frames, 42, k_inbet=K_INBET, keyframes=tuple(keyframes), fixed_hand=fixed_hand,
-                       k_hor=K_HOR)
+                       k_hor=K_HOR, observed=observed)
+    if task == "prediction":
+        return c.astype(np.float32)
     return D.soft_mask(c, dcfg.p_hard, dcfg.p_soft, dcfg.k_trans)
 
 
@@ -191,7 +208,20 @@ def generate(run: DiffusionRun, prompts: Sequence[Prompt], opts: SampleOptions, 
             raise ValueError(f"{len(sources)} sources for {P} prompts")
         src = np.stack([np.asarray(s, np.float64) for s in sources])
         centers = np.repeat(rep.diffusion_center(src), G, 0)
-        if task != "text2motion":
+        if task == "prediction":
+            n, F = opts.observed_frames, run.cfg.model.frames
+            if not 0 < n < min(F, src.shape[1]):
+                raise ValueError(f"--observed-frames must be in (0, {min(F, src.shape[1])}), got {n}")
+            # Only the observed frames are read: they are centred on their own mean wrist midpoint (as a
+            # continued segment is in generate_long), since the whole clip's centre would tell the model
+            # where the hidden future goes; the output is placed back at that centre.
+            obs = src[:, :n]
+            centers = np.repeat(rep.diffusion_center(obs), G, 0)
+            tgt = np.zeros((P, F, 42, 4), np.float32)
+            tgt[:, :n] = run.norm.normalize(rep.to_diffusion(obs).astype(np.float32))
+            targets = np.repeat(tgt, G, 0)  # frames >= n: γ = 0 there, so their value never enters
+            gamma = task_gamma(task, run.cfg.diffusion, F, observed=n)
+        elif task != "text2motion":
             x_src = run.norm.normalize(rep.to_diffusion(src).astype(np.float32))
             targets = np.repeat(x_src, G, 0)
             gamma = task_gamma(task, run.cfg.diffusion, src.shape[1], keyframes=keyframes, fixed_hand=fixed_hand)

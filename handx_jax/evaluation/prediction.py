@@ -1,0 +1,158 @@
+"""The motion-prediction benchmark (issue 33 item 3): ``handx eval prediction``.
+
+G-HTT (§4.1, "Prediction") observes one 16-frame segment of an action and predicts the rest, K = 20
+samples per observation, and scores them by MPJPE-RA / MPJPE-PA and APD (its Tables 2–4). Here each
+clip of a dataset split is the action: its first N frames are observed, a trained run (either family,
+``run.generate(task="prediction")``) continues it to the clip's length with the clip's own captions as
+text, K samples per clip, and the samples are scored against the clip by horizon:
+
+- **Horizon bins** (:func:`horizon_bins`): the frames after the observation in consecutive bins of
+  G-HTT's segment length, 16 frames (0.53 s at 30 fps), the last one cut at the clip's end; a last bin
+  shorter than half a segment is merged into the one before it. After N = 16 of 60 frames that gives
+  frames 17–32, 33–48 and 49–60 (1-based, inclusive); after N = 20: 21–36, 37–52, 53–60; after N = 40:
+  41–60 (41–56 and a 4-frame rest merged). ``--horizons 17-32,33-60`` names other bins.
+- **Rows**: the observed frames (the check that they are kept: a diffusion run keeps them exactly, an
+  AR run through its tokenizer's reconstruction), each bin, and all predicted frames together.
+- **Metrics per row**, in mm: MPJPE-RA per hand and both (G-HTT's "root aligned": each hand relative to
+  its wrist), MPJPE-PA (each hand and frame after its own similarity Procrustes), MPJPE in the clip's
+  frame (where the hands are, which RA and PA leave out), each the mean over the K samples, and, with
+  K > 1, APD over the K samples (G-HTT's diversity; 0 for K identical samples) and best-of-K MPJPE-RA
+  (the sample closest to the clip, per clip: the usual score of stochastic prediction).
+- **Intervals**: 95%, a bootstrap over clips (``metrics.prompt_mean_ci``, the project's
+  "bootstrap_prompts" interval) of each clip's value (for MPJPE its mean over the K samples). The clips
+  are the benchmark's sample: redrawing the K samples of the same clips moves the numbers far less (not
+  at all for a deterministic predictor such as the baseline or greedy decoding), so the interval over
+  sample groups that ``handx eval run`` gives for G > 1 would hide the clip-to-clip spread.
+
+``--baseline last-frame`` scores the trivial predictor that holds the last observed frame: the floor a
+model must beat to have learned any motion.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from handx_jax.io import DataError
+from handx_jax.metrics import MetricConfig, apd_frames_mm, joint_error_frames_mm, mpjpe_pa_frames_mm, prompt_mean_ci
+
+HORIZON = 16  # G-HTT's segment length in frames: its observation and its prediction steps (§4.1)
+RESULT_FILE = "eval_prediction.json"
+HANDS = ("left", "right")
+
+
+def horizon_bins(observed: int, frames: int = 60, width: int = HORIZON) -> tuple[tuple[int, int], ...]:
+    """The predicted frames in bins of ``width``, as 0-based half-open [start, end): consecutive from the
+    first unobserved frame, the last cut at ``frames``, and merged into the one before when it is shorter
+    than half a bin (a 2-frame bin would be all noise)."""
+    if not 0 < observed < frames:
+        raise ValueError(f"--observed-frames must be in (0, {frames}), got {observed}")
+    edges = [*range(observed, frames, width), frames]
+    bins = list(zip(edges[:-1], edges[1:]))
+    if len(bins) > 1 and bins[-1][1] - bins[-1][0] < width / 2:
+        bins[-2:] = [(bins[-2][0], frames)]
+    return tuple(bins)
+
+
+def parse_horizons(text: str, observed: int, frames: int = 60) -> tuple[tuple[int, int], ...]:
+    """``--horizons``: comma-separated 1-based inclusive frame ranges ("17-32,33-48,49-60", or "60" for
+    one frame), each after the observation and within the clip; returned as :func:`horizon_bins` does."""
+    bins = []
+    for item in filter(None, (s.strip() for s in text.split(","))):
+        m = re.fullmatch(r"(\d+)(?:\s*-\s*(\d+))?", item)
+        if m is None:
+            raise ValueError(f"--horizons: {item!r} is not a frame range like 17-32")
+        a, b = int(m[1]), int(m[2] or m[1])
+        if not observed < a <= b <= frames:
+            raise ValueError(f"--horizons: {item} must lie in frames {observed + 1}-{frames} (after the "
+                             f"{observed} observed frames, 1-based) and start at or before its end")
+        bins.append((a - 1, b))
+    if not bins:
+        raise ValueError("--horizons names no frame range")
+    return tuple(bins)
+
+
+def label(start: int, end: int) -> str:
+    """A 0-based [start, end) range as the 1-based inclusive frames a reader counts ("17-32")."""
+    return f"{start + 1}-{end}"
+
+
+def last_frame(sources_NxTx2x21x3: np.ndarray, observed: int) -> np.ndarray:
+    """The hold-the-last-observed-frame baseline: the observed frames, then frame ``observed`` − 1 repeated."""
+    x = np.array(sources_NxTx2x21x3, np.float32, copy=True)
+    x[:, observed:] = x[:, observed - 1:observed]
+    return x
+
+
+def run_data(run_dir: str | Path) -> str:
+    """The dataset a run was trained on (``config.json["data"]["path"]``), for the default ``--data``."""
+    from handx_jax.io import read_json
+
+    path = (read_json(Path(run_dir) / "config.json").get("data") or {}).get("path")
+    if not path:
+        raise DataError("config.json names no training dataset (data.path); give --data", path=run_dir)
+    return str(path)
+
+
+def _row(err: dict, apd_NxTx2: np.ndarray | None, start: int, end: int, cfg: MetricConfig) -> dict:
+    """One row's metrics over frames [start, end): name → value and name_ci → 95% half-width."""
+    out = {}
+
+    def put(name, v):
+        out[name], out[f"{name}_ci"] = v
+
+    for name, e_KxNxTx2 in err.items():
+        e_Nx2 = e_KxNxTx2[:, :, start:end].mean((0, 2))  # each clip's mean over its samples and the frames
+        for h, side in enumerate(HANDS):
+            put(f"{name}_{side}", prompt_mean_ci(e_Nx2[:, h], cfg))
+        put(f"{name}_both", prompt_mean_ci(e_Nx2.mean(-1), cfg))
+    if apd_NxTx2 is not None:  # K > 1
+        put("mpjpe_ra_best_of_k", prompt_mean_ci(err["mpjpe_ra"][:, :, start:end].mean((2, 3)).min(0), cfg))
+        apd_Nx2 = apd_NxTx2[:, start:end].mean(1)  # the mean of per-frame APDs is the bin's APD
+        for h, side in enumerate(HANDS):
+            put(f"apd_{side}", prompt_mean_ci(apd_Nx2[:, h], cfg))
+        put("apd_both", prompt_mean_ci(apd_Nx2.mean(-1), cfg))
+    return out
+
+
+def score(pred_KxNxTx2x21x3, gt_NxTx2x21x3, observed: int, bins, cfg: MetricConfig = MetricConfig()) -> dict:
+    """The benchmark's numbers for K predictions of N clips whose first ``observed`` frames were given:
+    ``observed`` (with ``max_joint_error_mm``, the largest joint distance over every sample's observed
+    frames), ``horizons`` (one row per bin, with its ``frames`` label) and ``predicted`` (all frames
+    after the observation)."""
+    pred = np.asarray(pred_KxNxTx2x21x3, np.float32)
+    gt = np.asarray(gt_NxTx2x21x3, np.float32)
+    K, N, T = pred.shape[:3]
+    if gt.shape != pred.shape[1:]:
+        raise ValueError(f"predictions {pred.shape[1:]} and ground truth {gt.shape} differ in shape")
+    err = {"mpjpe_ra": np.stack([np.asarray(joint_error_frames_mm(p, gt, root_aligned=True)) for p in pred]),
+           "mpjpe_pa": np.stack([np.asarray(mpjpe_pa_frames_mm(p, gt)) for p in pred]),
+           "mpjpe": np.stack([np.asarray(joint_error_frames_mm(p, gt, root_aligned=False)) for p in pred])}
+    apd = apd_frames_mm(pred) if K > 1 else None
+    obs = {"frames": label(0, observed), **_row(err, apd, 0, observed, cfg)}
+    obs["max_joint_error_mm"] = float(1000.0 * np.linalg.norm(pred[:, :, :observed] - gt[:, :observed], axis=-1).max())
+    horizons = [{"frames": label(a, b), **_row(err, apd, a, b, cfg)} for a, b in bins]
+    return {"observed": obs, "horizons": horizons,
+            "predicted": {"frames": label(observed, T), **_row(err, apd, observed, T, cfg)}}
+
+
+# ------------------------------------------------------------------------------------------------
+# The printed table
+
+COLUMNS = (("MPJPE-RA L", "mpjpe_ra_left"), ("MPJPE-RA R", "mpjpe_ra_right"), ("MPJPE-RA", "mpjpe_ra_both"),
+           ("MPJPE-PA", "mpjpe_pa_both"), ("MPJPE", "mpjpe_both"), ("best-of-K RA", "mpjpe_ra_best_of_k"),
+           ("APD", "apd_both"))
+
+
+def format_table(result: dict) -> str:
+    """The rows as a plain-text table, mm, value ± 95% half-width ("–" where K = 1 has no APD)."""
+    rows = [("observed " + result["observed"]["frames"], result["observed"]),
+            *((r["frames"], r) for r in result["horizons"]),
+            ("all " + result["predicted"]["frames"], result["predicted"])]
+    cell = lambda r, k: f"{r[k]:.1f} ± {r[k + '_ci']:.1f}" if k in r else "–"  # noqa: E731
+    table = [("frames", *(c for c, _ in COLUMNS))] + [(name, *(cell(r, k) for _, k in COLUMNS)) for name, r in rows]
+    w = [max(len(line[i]) for line in table) for i in range(len(table[0]))]
+    return "\n".join("  ".join(s.ljust(w[i]) if i == 0 else s.rjust(w[i]) for i, s in enumerate(line))
+                     for line in table)
