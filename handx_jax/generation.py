@@ -5,7 +5,7 @@ writing generated motion in the official ``.npz`` layout. Each family samples in
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
@@ -19,6 +19,9 @@ class Prompt:
     left: str
     right: str
     interaction: str
+    # The structured record (events.jsonl) the captions were written from, where the prompt comes from a
+    # dataset clip and a sampler asks for it (contact guidance from the caption, guidance.py); else None.
+    record: dict | None = field(default=None, compare=False, repr=False)
 
     def texts(self) -> tuple[str, str, str]:
         return self.left, self.right, self.interaction
@@ -35,9 +38,10 @@ class SourceClip:
     prompts: list[Prompt]  # one per annotation level
 
 
-def load_source(path: str, clip: str | None = None) -> SourceClip:
+def load_source(path: str, clip: str | None = None, *, records: bool = False) -> SourceClip:
     """A constraint clip from an official-layout ``.npz`` (``clip`` = key, default the first) or a
-    dataset directory (``clip`` = id or index, required)."""
+    dataset directory (``clip`` = id or index, required). ``records``: a dataset clip's prompts carry its
+    structured record (``Prompt.record``; an .npz holds none)."""
     from handx_jax.data.dataset import Dataset
     from handx_jax.data.handx_npz import read_handx_npz
 
@@ -51,8 +55,9 @@ def load_source(path: str, clip: str | None = None) -> SourceClip:
         if i is None:
             raise DataError(f"no clip {clip!r} in the dataset", path=p)
         t = ds.texts[i]
-        return SourceClip(ids[i], np.asarray(ds.motion[i], np.float32),
-                          [Prompt(*x) for x in zip(t["left"], t["right"], t["interaction"])])
+        ps = [Prompt(*x) for x in zip(t["left"], t["right"], t["interaction"])]
+        return SourceClip(ids[i], np.asarray(ds.motion[i], np.float32), with_records(ps, ds, [i] * len(ps)) if records
+                          else ps)
     clips = read_handx_npz(p, clip_len=None)
     if not clips:
         raise DataError("archive holds no clips", path=p)
@@ -60,6 +65,17 @@ def load_source(path: str, clip: str | None = None) -> SourceClip:
     if c is None:
         raise DataError(f"no key {clip!r} in the archive (keys {[c.key for c in clips[:5]]}…)", path=p)
     return SourceClip(c.key, c.motion, [Prompt(*x) for x in zip(c.left, c.right, c.interaction)])
+
+
+def with_records(prompts: Sequence[Prompt], ds, clips) -> list[Prompt]:
+    """``prompts`` with the structured record (events.jsonl) of their clip attached; a DataError where the
+    dataset has no records."""
+    import dataclasses
+
+    events = ds.events
+    if events is None:
+        raise DataError("the dataset has no events.jsonl: its clips carry no structured records", path=ds.root)
+    return [dataclasses.replace(p, record=events[int(c)]) for p, c in zip(prompts, clips)]
 
 
 def split_prompts(ds, split: str, limit: int | None = None, level: int = -1):

@@ -175,3 +175,49 @@ def test_eval_prediction_scores_a_diffusion_run(setup, capsys):
     for row in (*res["horizons"], res["predicted"]):
         assert row["mpjpe_ra_both"] > 1 and row["apd_both"] > 0 and row["mpjpe_ra_best_of_k"] <= row["mpjpe_ra_both"]
         assert {"mpjpe_ra_left_ci", "mpjpe_pa_right", "mpjpe_both", "apd_left"} <= set(row)
+
+
+def test_contact_guidance_from_a_spec_and_from_the_caption(setup, tmp_path, capsys):
+    """--contact (issue 33 item 2) through the real sampler of a (tiny) run: a written spec brings the requested
+    tips together on the requested frames; ``caption`` takes the source clip's record; a bad spec, or a caption
+    request for a typed prompt (no record), is one line and writes nothing."""
+    from handx_jax import metrics as M
+    from handx_jax import skeleton as sk
+    from handx_jax.generation import load_source
+
+    data, run = setup
+    base = ["generate", "--run", str(run), *FAST, "--left", "a", "--right", "b", "--interaction", "c"]
+    out = tmp_path / "c.npz"
+    for bad, says in ((["--contact", "L.thum-R.index@20:40"], "bad side 'L.thum'"),
+                      (["--set", "sample.contact=L.index-R.index@40:20"], "frames '40:20' are empty"),
+                      (["--contact", "caption"], "needs each prompt's structured record")):
+        assert main(base + bad + ["--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert says in err and len(err.splitlines()) == 1, err
+    assert not out.exists()
+    # In process (one loaded run: the guided and the unguided program compile once each).
+    r = load_run(run)
+    off = SampleOptions(sampler="ddim", steps=8, seed=1)
+    on = SampleOptions(sampler="ddim", steps=8, seed=1, contact="L.index-R.index@20:40", contact_strength=20.0)
+    p = [Prompt("a", "b", "c")]
+    index_tips = [generate(r, p, o, samples=2)[0][:, :, :, sk.TIPS[1]] for o in (on, off)]  # (G, T, 2, 3)
+    d_on, d_off = (np.linalg.norm(x[:, :, 0] - x[:, :, 1], axis=-1) for x in index_tips)
+    # In contact (the records' 2 cm) on most requested frames and within 2.5 cm on all (measured: 75%, 2.3 cm);
+    # the unguided samples on none. The step's cap closes a gap exactly for a pull along one axis; across frames
+    # the z-score's per-axis scales make it approximate.
+    assert (d_on[:, 20:40] < 0.02).mean() >= 0.6 and d_on[:, 20:40].max() < 0.025 and d_off[:, 20:40].min() > 0.02
+    # The caption's events: the source clip's record (24 named contacts here, not all compatible at once), far
+    # more of them realised in the guided samples than in the unguided ones (measured 1/3 vs 1/24).
+    ds = Dataset.open(data)
+    named = M.named_contacts(ds.events)
+    clip = int(named.clip_E[np.argmax(named.end_E - named.start_E)])  # the clip with the longest named contact
+    own = M.NamedContacts(*(a[named.clip_E == clip] for a in (np.zeros_like(named.clip_E), named.channel_E,
+                                                                named.start_E, named.end_E)))
+    src = load_source(str(data), str(clip), records=True)
+    feas = {}
+    for name, o in (("on", SampleOptions(sampler="ddim", steps=8, seed=1, contact="caption", contact_strength=20.0)),
+                    ("off", off)):
+        j = generate(r, src.prompts[-1:], o, samples=2, sources=[src.joints])[0]
+        feas[name] = M.contact_feasibility_counts(j, M.NamedContacts(np.repeat([0, 1], len(own)), *(
+            np.tile(a, 2) for a in (own.channel_E, own.start_E, own.end_E))), M.palm_barycentric())[0] / len(own)
+    assert feas["on"].min() >= feas["off"].max() + 0.2, feas

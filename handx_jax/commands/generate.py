@@ -114,6 +114,10 @@ def _generate(args: argparse.Namespace) -> int:
 
         ds = Dataset.open(args.reference)
         clips, ps, sources = split_prompts(ds, args.split, args.limit, args.level)
+        if getattr(opts, "needs_records", False):  # the sampler reads each prompt's record (contact guidance)
+            from handx_jax.generation import with_records
+
+            ps = with_records(ps, ds, clips)
         j = run.generate(ps, opts, samples=G, task=args.task, sources=sources, keyframes=keyframes,
                          fixed_hand=args.fixed_hand)
         ids = [ds.ids[c] for c in clips]
@@ -122,7 +126,8 @@ def _generate(args: argparse.Namespace) -> int:
         n = len(ps) * G
         first, first_prompt = j[0, 0], ps[0]
     else:
-        src = load_source(args.source, args.clip) if args.source else None
+        records = getattr(opts, "needs_records", False)
+        src = load_source(args.source, args.clip, records=records) if args.source else None
         if not prompts:
             if src is None:
                 return fail(CMD, "give --left/--right/--interaction, a --source clip, or --reference")
@@ -178,7 +183,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--encoder", help="encoder folder (default: the one the run was trained with)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override the run's generation settings, any family: sample.* (diffusion: sample.sampler, "
-                        "sample.steps; ar: sample.temperature, sample.top_k, sample.top_p) and the keys the family "
+                        "sample.steps, sample.contact, sample.contact_strength, sample.contact_schedule; ar: "
+                        "sample.temperature, sample.top_k, sample.top_p) and the keys the family "
                         "allows (diffusion.*: guidance, masks); the family's flags below name the same keys")
     p.add_argument("--out", help="output .npz (official layout; required)")
     p.add_argument("--gif", help="also render the first sample as a GIF")

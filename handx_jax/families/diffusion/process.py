@@ -202,7 +202,7 @@ def respaced_timesteps(T: int, steps: int) -> np.ndarray:
 
 
 def sample(denoise: DenoiseFn, sched: Schedule, shape, rng, cfg: DiffusionConfig, *, sampler: str = "ddpm",
-           steps: int | None = None, guidance: float | None = None, target=None, gamma_FxJ=None):
+           steps: int | None = None, guidance: float | None = None, target=None, gamma_FxJ=None, steer=None):
     """Draw samples with a single ``lax.scan`` over timesteps.
 
     ``sampler``: "ddpm" (ancestral over all T steps, FIXED_SMALL variance, reference §3.4) or "ddim"
@@ -214,6 +214,10 @@ def sample(denoise: DenoiseFn, sched: Schedule, shape, rng, cfg: DiffusionConfig
     ordinary step from (x_t, blended x̂0). Where γ = 0 that is the unmasked step, so free joints keep
     the exact sampler's statistics; Eq. L read literally ("x0_renoise") re-noises the blended x̂0 with
     fresh noise and forgets x_t, which shrinks their variance.
+
+    ``steer(x0_hat, t) -> x0_hat``: applied to the clean prediction (after CFG, before the mask blend, so
+    constrained joints still end on their target) at every step, e.g. contact guidance (handx_jax/guidance.py,
+    BimArt Eq. 6). None traces nothing extra: the compiled sampler is the unguided one.
     """
     s = cfg.guidance if guidance is None else guidance
     model = guided(denoise, s)
@@ -238,6 +242,8 @@ def sample(denoise: DenoiseFn, sched: Schedule, shape, rng, cfg: DiffusionConfig
         t, t_prev, key = inp
         t_B = jnp.full((B,), t, jnp.int32)
         x0_hat = model(x, t_B)
+        if steer is not None:
+            x0_hat = steer(x0_hat, t)
         eps = jax.random.normal(key, x.shape)
         ac_prev = jnp.where(t_prev >= 0, ac[jnp.maximum(t_prev, 0)], 1.0)
         if masked and cfg.blend in ("x0", "x0_renoise"):

@@ -15,6 +15,12 @@ of segment k+1, so each new segment adds 60 − K_hor − k_trans frames.
 Motion prediction (G-HTT's task, issue 33; ``task="prediction"``, ``SampleOptions.observed_frames``):
 the first N frames of the source, centred on their own mean, are kept exactly (γ = 1, no band) and the
 rest is generated; nothing after frame N of the source is read (``task_gamma``, ``generate``).
+
+Contact guidance (``sample.contact``, issue 33 item 2; handx_jax/guidance.py): a request (B, F, 43) of named
+contacts per frame, from a written spec or the prompt record's contact events, and its strength are
+traced inputs of the same compiled sampler (a new request or strength does not recompile); every step
+moves x̂0 down the contact energy's gradient (``guidance.make_steer``). Without a request the sampler is
+compiled exactly as before.
 """
 
 from __future__ import annotations
@@ -27,6 +33,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from handx_jax import guidance as G
+from handx_jax import metrics as M
 from handx_jax import representation as rep
 from handx_jax.families.diffusion import process as D
 from handx_jax.generation import Prompt
@@ -46,12 +54,22 @@ class SampleOptions:
     guidance: float | None = None  # None: the run's diffusion.guidance (2.5)
     seed: int = 0
     batch_size: int = 256  # samples per compiled call
+    # Contact guidance (guidance.py): "" off, "caption" (the prompt record's contact events) or a written
+    # spec ("L.thumb-R.index@20:40,..."); strength s (1 = BimArt's unit step) and schedule w(t).
+    contact: str = ""
+    contact_strength: float = 16.0
+    contact_schedule: str = "late"
     observed_frames: int = 20  # for the prediction task
 
     def __post_init__(self) -> None:
         f = self.observed_frames  # the clip length bounds it too, checked against the model in ``generate``
         if not (isinstance(f, int) and 0 < f < 60):
             raise ValueError(f"--observed-frames must be in (0, 60), got {f}")
+
+    @property
+    def needs_records(self) -> bool:
+        """Whether prompts must carry their structured record (``Prompt.record``): ``contact=caption``."""
+        return self.contact.strip() == G.CAPTION
 
 
 # ------------------------------------------------------------------------------------------------
@@ -77,11 +95,12 @@ def task_gamma(task: str, dcfg: D.DiffusionConfig, frames: int = 60, *, keyframe
 # Sampling
 
 
-def _sample_impl(params, text_KxBxLxD, mask_KxBxL, rng, target, gamma, *, model, sched, dcfg, sampler, steps,
-                 guidance, mesh=None):
+def _sample_impl(params, text_KxBxLxD, mask_KxBxL, rng, target, gamma, request_BxFxC=None, strength=None, *, model,
+                 sched, dcfg, sampler, steps, guidance, mesh=None, norm=None, schedule="late"):
     """The whole sampler as one traced function. ``mesh`` (``hostdevices.inference_mesh``): split every
     denoiser call's samples over its devices (the noise, the text encoding and the update stay global:
-    the same numbers on one device or several)."""
+    the same numbers on one device or several). ``request_BxFxC`` and ``strength`` (traced): contact
+    guidance on x̂0 with the run's normalisation ``norm`` and the strength ``schedule`` (guidance.py)."""
     B = text_KxBxLxD.shape[1]
     # The text memory is the same at every step: project it and compute each layer's cross-attention
     # keys/values once, outside the scan (issue 15).
@@ -100,9 +119,12 @@ def _sample_impl(params, text_KxBxLxD, mask_KxBxL, rng, target, gamma, *, model,
             return denoise_rows(params, x, t_B, memory, B)
         return _split_over(mesh, denoise_rows, params, x, t_B, memory, B)
 
+    steer = None
+    if request_BxFxC is not None:
+        steer = G.make_steer(request_BxFxC, strength, schedule, sched.alphas_cumprod, norm.mean, norm.std + norm.eps)
     shape = (B, model.cfg.frames, model.cfg.joints, model.cfg.channels)
     return D.sample(denoise, sched, shape, rng, dcfg, sampler=sampler, steps=steps, guidance=guidance,
-                    target=target, gamma_FxJ=gamma)
+                    target=target, gamma_FxJ=gamma, steer=steer)
 
 
 def _split_over(mesh, denoise_rows, params, x_GBxFxJxC, t_GB, memory, B):
@@ -128,15 +150,19 @@ def _split_over(mesh, denoise_rows, params, x_GBxFxJxC, t_GB, memory, B):
     return y.reshape(G * B, *y.shape[2:])
 
 
-def compile_sampler(model, dcfg: D.DiffusionConfig, *, sampler: str, steps: int, guidance: float, batch: int):
+def compile_sampler(model, dcfg: D.DiffusionConfig, *, sampler: str, steps: int, guidance: float, batch: int,
+                    norm=None, contact_schedule: str = "late"):
     """The compiled sampler for batches of ``batch`` samples: ``fn(params, text_KxBxLxD, mask_KxBxL, rng,
-    target, gamma) -> x0 (B, F, J, C)``, with the inference XLA options (``xla_options``) and, where the
-    host has several CPU devices, the batch split over them (``hostdevices``)."""
+    target, gamma[, request_BxFxC, strength]) -> x0 (B, F, J, C)``, with the inference XLA options
+    (``xla_options``) and, where the host has several CPU devices, the batch split over them
+    (``hostdevices``). A request (contact guidance) needs the run's ``norm``; called without one, the
+    program is the unguided sampler's."""
     from handx_jax import hostdevices
 
     mesh = hostdevices.inference_mesh(batch)
     fn = jit_inference(partial(_sample_impl, model=model, sched=D.cosine_schedule(dcfg.steps), dcfg=dcfg,
-                               sampler=sampler, steps=steps, guidance=guidance, mesh=mesh), model.cfg.dim)
+                               sampler=sampler, steps=steps, guidance=guidance, mesh=mesh, norm=norm,
+                               schedule=contact_schedule), model.cfg.dim)
     if mesh is None:
         return fn
 
@@ -150,17 +176,19 @@ def compile_sampler(model, dcfg: D.DiffusionConfig, *, sampler: str, steps: int,
 def _compiled(run: DiffusionRun, opts: SampleOptions, masked: bool, batch: int):
     cache = run.__dict__.setdefault("_compiled", {})
     g = run.cfg.diffusion.guidance if opts.guidance is None else float(opts.guidance)
-    key = (opts.sampler, opts.steps if opts.sampler == "ddim" else None, g, masked, run.cfg.diffusion, batch)
+    key = (opts.sampler, opts.steps if opts.sampler == "ddim" else None, g, masked, run.cfg.diffusion, batch,
+           opts.contact_schedule)
     if key not in cache:
         cache[key] = compile_sampler(run.model, run.cfg.diffusion, sampler=opts.sampler, steps=opts.steps,
-                                     guidance=g, batch=batch)
+                                     guidance=g, batch=batch, norm=run.norm, contact_schedule=opts.contact_schedule)
     return cache[key]
 
 
 def sample_normalised(run: DiffusionRun, prompts: Sequence[Prompt], opts: SampleOptions, *,
                       targets_BxFx42x4: np.ndarray | None = None, gamma_FxJ: np.ndarray | None = None,
-                      rng: jax.Array | None = None) -> np.ndarray:
-    """One sample per prompt, (B, F, 42, 4) in normalised space, in chunks of ``opts.batch_size``."""
+                      rng: jax.Array | None = None, request_BxFxC: np.ndarray | None = None) -> np.ndarray:
+    """One sample per prompt, (B, F, 42, 4) in normalised space, in chunks of ``opts.batch_size``.
+    ``request_BxFxC``: contact guidance (one request per prompt, guidance.py) at ``opts.contact_strength``."""
     rng = jax.random.PRNGKey(opts.seed) if rng is None else rng
     masked = targets_BxFx42x4 is not None
     out = []
@@ -179,9 +207,29 @@ def sample_normalised(run: DiffusionRun, prompts: Sequence[Prompt], opts: Sample
             tgt = np.asarray(targets_BxFx42x4[s:s + bs], np.float32)
             tgt = np.concatenate([tgt, np.repeat(tgt[-1:], bs - real, 0)])
             gam = np.asarray(gamma_FxJ, np.float32)
-        x = fn(run.params, jnp.asarray(h), jnp.asarray(m), jax.random.fold_in(rng, ci), tgt, gam)
+        guide = ()
+        if request_BxFxC is not None:
+            req = np.asarray(request_BxFxC[s:s + bs], np.float32)
+            req = np.concatenate([req, np.repeat(req[-1:], bs - real, 0)])
+            guide = (jnp.asarray(req), jnp.float32(opts.contact_strength))
+        x = fn(run.params, jnp.asarray(h), jnp.asarray(m), jax.random.fold_in(rng, ci), tgt, gam, *guide)
         out.append(np.asarray(x)[:real])
     return np.concatenate(out)
+
+
+def contact_request(prompts: Sequence[Prompt], contact: str, frames: int) -> np.ndarray | None:
+    """(B, F, 43) request per prompt of ``sample.contact`` (guidance.py): None when off; ``caption``: the
+    contact events of each prompt's record (``Prompt.record``); else a written spec, the same for all."""
+    contact = contact.strip()
+    if not contact:
+        return None
+    if contact != G.CAPTION:
+        return G.request_from_spec(contact, len(prompts), frames)
+    if any(p.record is None for p in prompts):
+        raise ValueError("contact guidance from the caption needs each prompt's structured record: take the prompts "
+                         "from a dataset with events.jsonl (--reference DIR, or --source DIR --clip ID); typed "
+                         "prompts and .npz sources carry none")
+    return G.request_from_named(M.named_contacts([p.record for p in prompts]), len(prompts), frames)
 
 
 def to_joints(run: DiffusionRun, x_BxFx42x4: np.ndarray, centers_Bx3: np.ndarray | None = None) -> np.ndarray:
@@ -225,7 +273,8 @@ def generate(run: DiffusionRun, prompts: Sequence[Prompt], opts: SampleOptions, 
             x_src = run.norm.normalize(rep.to_diffusion(src).astype(np.float32))
             targets = np.repeat(x_src, G, 0)
             gamma = task_gamma(task, run.cfg.diffusion, src.shape[1], keyframes=keyframes, fixed_hand=fixed_hand)
-    x = sample_normalised(run, flat, opts, targets_BxFx42x4=targets, gamma_FxJ=gamma)
+    x = sample_normalised(run, flat, opts, targets_BxFx42x4=targets, gamma_FxJ=gamma,
+                          request_BxFxC=contact_request(flat, opts.contact, run.cfg.model.frames))
     j = to_joints(run, x, centers)
     return j.reshape(P, G, *j.shape[1:])
 
@@ -235,6 +284,8 @@ def generate_long(run: DiffusionRun, segments: Sequence[Prompt], opts: SampleOpt
     """Chain one 60-frame segment per prompt (App. D.2, Eq. Q): joints (G, T, 2, 21, 3) with
     T = 60 + (S − 1)(60 − K_hor − k_trans), or S·(60 − K_hor − k_trans) more frames after ``source``
     when a source clip is continued (the source itself is not part of the output)."""
+    if opts.contact.strip():
+        raise ValueError("contact guidance is for one 60-frame clip per prompt, not --task long")
     dcfg = run.cfg.diffusion
     overlap = K_HOR + dcfg.k_trans
     F = run.cfg.model.frames
