@@ -31,7 +31,10 @@ def main() -> None:
         t = timing["conditions"][name]
         r["timing"] = {"prompts": timing["prompts"], "samples": timing["samples"], "seconds_steady": t["seconds"],
                        "seconds_first_call": t["seconds_first_call"]}
-    (Path(args.dest) / "ablation.json").write_text(json.dumps(abl, indent=1) + "\n")
+    dest = Path(args.dest) / "ablation.json"
+    if dest.exists() and "typed_prompt" in json.loads(dest.read_text()):  # the README's typed-prompt figures
+        abl["typed_prompt"] = json.loads(dest.read_text())["typed_prompt"]
+    dest.write_text(json.dumps(abl, indent=1) + "\n")
 
     def table(head, rows):
         print("| " + " | ".join(head) + " |")
