@@ -122,13 +122,17 @@ def test_baseline_through_the_cli(data, tmp_path, capsys):
     (["--baseline", "last-frame", "--data", "{data}", "--observed-frames", "16", "--sampler", "ddim"],
      "family flags need --run"),
     (["--run", "{ar}", "--data", "{data}", "--observed-frames", "15"], "--observed-frames must be even"),
+    (["--run", "{ar}", "--data", "{data}", "--observed-frames", "16", "--bogus", "3"],
+     "unrecognized arguments: --bogus"),
+    (["--run", "{tok}", "--data", "{data}", "--observed-frames", "16"],
+     "family tokenizer does not do --task prediction"),
 ])
 def test_bad_input_is_one_line(data, tmp_path, capsys, argv, words):
-    ar = tmp_path / "ar"
-    ar.mkdir()
-    (ar / "config.json").write_text('{"family": "ar"}')  # the AR range check comes before the run is read
-    argv = [a.format(tmp=tmp_path, data=data, ar=ar) for a in argv]
+    for fam in ("ar", "tokenizer"):  # the family's flags are checked before its run is read
+        (tmp_path / fam[:3]).mkdir()
+        (tmp_path / fam[:3] / "config.json").write_text(f'{{"family": "{fam}"}}')
+    argv = [a.format(tmp=tmp_path, data=data, ar=tmp_path / "ar", tok=tmp_path / "tok") for a in argv]
     assert main(["eval", "prediction", *argv]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("handx eval prediction: error: ") and words in err and "\n" not in err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["ar"]  # nothing written
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ar", "tok"]  # nothing written

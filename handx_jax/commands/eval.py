@@ -158,6 +158,7 @@ def _predict(args: argparse.Namespace) -> int:
         from handx_jax.commands.generate import family_parser
 
         fam, fp = family_parser(args.run)
+        fp.prog = f"{PREDICTION} --run {args.run}"  # argparse's own errors (a bad family flag) name this command
     data = args.data or PR.run_data(args.run)
     ds = Dataset.open(data)
     F = int(ds.motion.shape[1])
@@ -170,8 +171,12 @@ def _predict(args: argparse.Namespace) -> int:
             "clip_ids": [ds.ids[c] for c in clips], "level": args.level, "seed": args.seed}
     t0 = time.perf_counter()
     if args.run:
-        fargs = fp.parse_args([*args.extra, "--observed-frames", str(N)], namespace=argparse.Namespace(
+        fargs, rest = fp.parse_known_args([*args.extra, "--observed-frames", str(N)], namespace=argparse.Namespace(
             run=args.run, set=args.set, left=None, right=None, interaction=None))
+        if "--observed-frames" in rest:  # a family that predicts takes the flag (handx generate --task prediction)
+            return fail(PREDICTION, f"family {fam.FAMILY} does not do --task prediction")
+        if rest:
+            return fail(PREDICTION, f"unrecognized arguments: {' '.join(rest)}")
         run, opts = fam.load_for_generate(fargs, ema=not args.no_ema, encoder=args.encoder, seed=args.seed,
                                           batch_size=args.batch_size)
         if "prediction" not in run.tasks:
