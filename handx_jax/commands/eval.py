@@ -162,6 +162,8 @@ def _predict(args: argparse.Namespace) -> int:
     data = args.data or PR.run_data(args.run)
     ds = Dataset.open(data)
     F = int(ds.motion.shape[1])
+    if not N < F:
+        return fail(PREDICTION, f"--observed-frames must be in (0, {F}), got {N}")
     bins = PR.parse_horizons(args.horizons, N, F) if args.horizons else PR.horizon_bins(N, F)
     clips, prompts, sources = split_prompts(ds, args.split, args.limit, args.level)
     if not len(clips):
@@ -193,8 +195,7 @@ def _predict(args: argparse.Namespace) -> int:
     t1 = time.perf_counter()
     res = PR.score(np.swapaxes(pred_NxK, 0, 1), np.stack(sources), N, bins, MetricConfig(seed=args.seed))
     meta["seconds"] = {"generation": round(t1 - t0, 3), "metrics": round(time.perf_counter() - t1, 3)}
-    meta["ci"] = ("95%: MPJPE over the K sample groups (Student-t; K = 1: bootstrap over clips); APD and "
-                  "best-of-K: bootstrap over clips (handx_jax/metrics.py)")
+    meta["ci"] = PR.CI
     res["_meta"] = meta
     if out is not None:
         atomic_write_json(out, res)

@@ -40,6 +40,8 @@ from handx_jax.metrics import MetricConfig, apd_frames_mm, joint_error_frames_mm
 
 HORIZON = 16  # G-HTT's segment length in frames: its observation and its prediction steps (§4.1)
 RESULT_FILE = "eval_prediction.json"
+CI = ("95%: a bootstrap over clips (metrics.prompt_mean_ci) of each clip's value; for MPJPE its mean over the K "
+      "samples")  # the result's _meta.ci
 HANDS = ("left", "right")
 
 
