@@ -50,9 +50,9 @@ from handx_jax.train import OptimConfig, TrainConfig, train  # noqa: E402
 from _peak import device_peak, emit, matmul_peak  # noqa: E402
 
 
-def _loop_cfg(batch_size, steps, bf16):
+def _loop_cfg(batch_size, steps, bf16, microbatch=0):
     return TrainConfig(steps=2 * steps, batch_size=batch_size, log_every=steps, ckpt_every=10 * steps, wandb="disabled",
-                       bf16=bf16, prefetch=2, optim=OptimConfig(lr=1e-4))
+                       bf16=bf16, prefetch=2, microbatch=microbatch, optim=OptimConfig(lr=1e-4))
 
 
 def bench_tokenizer(preset: str, codebook: int, batch_size: int, steps: int, bf16: bool, work: Path) -> dict:
@@ -77,7 +77,7 @@ def bench_tokenizer(preset: str, codebook: int, batch_size: int, steps: int, bf1
 
 
 def bench_lm(preset: str, nb_code: int, text_len: int, text_dim: int, batch_size: int, steps: int, bf16: bool,
-             work: Path) -> dict:
+             work: Path, microbatch: int = 0) -> dict:
     cfg = dataclasses.replace(P.PRESETS[preset], nb_code=nb_code, text_dim=text_dim)
     model = P.PrefixLM(cfg)
     n = 4 * batch_size
@@ -89,10 +89,11 @@ def bench_lm(preset: str, nb_code: int, text_len: int, text_dim: int, batch_size
     train(work / f"lm_{preset}", init=lambda k: P.init_lm(cfg, k, text_len)[1],
           loss=lambda p, b, k, t: P.lm_loss(model, p, b["text"].astype(jnp.float32), b["mask"], b["codes"]),
           get_batch=lambda idx: {"codes": codes[idx], "text": text[idx], "mask": mask[idx]}, num_examples=n,
-          cfg=_loop_cfg(batch_size, steps, bf16), config={"family": "ar"}, on_log=rows.append)
+          cfg=_loop_cfg(batch_size, steps, bf16, microbatch), config={"family": "ar"}, on_log=rows.append)
     sps = rows[-1]["samples_per_s"]
     return {"preset": preset, "nb_code": nb_code, **P.param_counts(cfg), "flops_per_sample": P.forward_flops(cfg, text_len),
-            "batch_size": batch_size, "bf16": bf16, "samples_per_s": sps, "tokens_per_s": 31 * sps}
+            "batch_size": batch_size, "microbatch": microbatch, "bf16": bf16, "samples_per_s": sps,
+            "tokens_per_s": 31 * sps}
 
 
 def bench_decode(preset: str, nb_code: int, text_len: int, text_dim: int, batch: int, use_cache: bool) -> dict:
@@ -158,6 +159,7 @@ def main(argv=None) -> int:
     ap.add_argument("--text-dim", type=int, default=768)
     ap.add_argument("--batch-size", type=int, default=32)
     ap.add_argument("--train-steps", type=int, default=10, help="timed steps (after as many warm-up)")
+    ap.add_argument("--microbatch", type=int, default=0, help="LM training: train.microbatch (0: the whole batch)")
     ap.add_argument("--decode-batch", type=int, default=16)
     ap.add_argument("--bf16", choices=["auto", "on", "off"], default="auto")
     ap.add_argument("--out", help="also write the JSON here")
@@ -193,7 +195,8 @@ def main(argv=None) -> int:
                   f"peak host memory {res['peak_rss_mb']:.0f} MB", file=sys.stderr, flush=True)
         for p in filter(None, args.lm_presets.split(",")):
             res = run_child("lm", dict(preset=p, nb_code=nb, text_len=args.text_len, text_dim=args.text_dim,
-                                       batch_size=args.batch_size, steps=args.train_steps, bf16=bf16))
+                                       batch_size=args.batch_size, steps=args.train_steps, bf16=bf16,
+                                       microbatch=args.microbatch))
             add_peak_fractions(res)
             doc["lm"].append(res)
             dec = [bench_decode(p, nb, args.text_len, args.text_dim, args.decode_batch, c) for c in (True, False)]

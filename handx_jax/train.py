@@ -79,6 +79,11 @@ class TrainConfig:
     prefetch: int = 2
     # Steps between calls of the family's evaluation hook (0: only at the end, if a hook is given).
     eval_every: int = 0
+    # Examples per gradient computation (0: the whole batch). The batch is split into batch_size /
+    # microbatch equal parts whose gradients are averaged in one jitted step: the same update up to float
+    # rounding, with the step's temporary memory of one part (the AR `small` LM, docs/results/ar_memory).
+    # The loss must be a mean over examples; its metrics are averaged over the parts.
+    microbatch: int = 0
     optim: OptimConfig = OptimConfig()
 
 
@@ -285,6 +290,10 @@ class RunLogger:
             self._wandb.finish()
 
 
+# TrainConfig fields added after runs were written: absent from an older config.json, they read as the default.
+_ADDED_TRAIN_FIELDS = {"microbatch": TrainConfig.microbatch}
+
+
 def check_resume(run_dir: str | os.PathLike, config: dict, keys: Sequence[str] | None = None) -> None:
     """Re-running on an existing run folder resumes it, but only with the same configuration: the
     ``keys`` of ``config`` (all of them by default) must equal those in the folder's config.json."""
@@ -298,6 +307,9 @@ def check_resume(run_dir: str | os.PathLike, config: dict, keys: Sequence[str] |
     except json.JSONDecodeError as e:
         raise DataError(f"config.json is not valid JSON ({e}); move the folder away or use a new --out",
                         path=p) from None
+    if isinstance(old.get("train"), dict) and isinstance(config.get("train"), dict):
+        # a run written before a TrainConfig field existed ran with that field's default
+        old = {**old, "train": {**_ADDED_TRAIN_FIELDS, **old["train"]}}
     diff = diff_keys(old, config, list(config) if keys is None else keys)
     if diff:
         raise DataError(f"run folder exists with a different configuration ({', '.join(diff)} differ); "
@@ -387,6 +399,8 @@ def train(
     replicated = NamedSharding(mesh, P())
     if cfg.batch_size % mesh.size:
         raise ValueError(f"batch size {cfg.batch_size} is not divisible by {mesh.size} devices")
+    if cfg.microbatch < 0 or (cfg.microbatch and cfg.batch_size % cfg.microbatch):
+        raise ValueError(f"train.microbatch {cfg.microbatch} must divide train.batch_size {cfg.batch_size} (0: whole batch)")
 
     rng = jax.random.PRNGKey(cfg.seed)
 
@@ -418,13 +432,31 @@ def train(
 
     compute_dtype = jnp.bfloat16 if cfg.bf16 else jnp.float32
 
+    def lf(p, batch, step_rng):
+        l, aux = loss(_cast(p, compute_dtype) if cfg.bf16 else p, batch, step_rng, True)
+        return l.astype(jnp.float32), aux
+
+    value_and_grad = jax.value_and_grad(lf, has_aux=True)
+    parts = cfg.batch_size // cfg.microbatch if cfg.microbatch else 1
+
+    def averaged_value_and_grad(params, batch, step_rng):
+        """value_and_grad of the mean loss over `parts` equal slices of the batch, one slice at a time
+        (a scan, so XLA keeps one slice's activations); slice i draws its randomness from fold_in(rng, i)."""
+        sliced = jax.tree_util.tree_map(lambda x: x.reshape(parts, x.shape[0] // parts, *x.shape[1:]), batch)
+
+        def add(total, i_part):
+            out = value_and_grad(params, i_part[1], jax.random.fold_in(step_rng, i_part[0]))
+            return jax.tree_util.tree_map(jnp.add, total, out), None
+
+        first = jax.tree_util.tree_map(lambda x: x[0], sliced)
+        zero = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype),
+                                      jax.eval_shape(value_and_grad, params, first, step_rng))
+        total, _ = jax.lax.scan(add, zero, (jnp.arange(parts), sliced))
+        return jax.tree_util.tree_map(lambda t: t / parts, total)
+
     def step_fn(state, batch, step_rng, sched_v):
         tx, sched = tx_of(sched_v), schedule_of(sched_v)
-        def lf(p):
-            l, aux = loss(_cast(p, compute_dtype) if cfg.bf16 else p, batch, step_rng, True)
-            return l.astype(jnp.float32), aux
-
-        (l, aux), grads = jax.value_and_grad(lf, has_aux=True)(state["params"])
+        (l, aux), grads = (averaged_value_and_grad if parts > 1 else value_and_grad)(state["params"], batch, step_rng)
         grads = _cast(grads, jnp.float32)
         updates, opt_state = tx.update(grads, state["opt_state"], state["params"])
         params = optax.apply_updates(state["params"], updates)
@@ -446,8 +478,12 @@ def train(
     # the loop waits for N - 1. Waiting for each step (one in flight) was as fast for paper-4L but
     # cost the tiny tokenizer, whose steps take ~20 ms, a quarter of its throughput: the Python
     # dispatch no longer overlaps a running step (docs/results/perf_cpu.json, host_malloc_2026_11_24).
+    # A step whose temporary buffer is large keeps one in flight (cpu_steps_in_flight): it runs long
+    # enough to hide the dispatch, and a second buffer was most of the AR `small` run's peak (issue 30).
     # Accelerators keep JAX's unbounded asynchronous dispatch.
     bounded = jax.devices()[0].platform == "cpu"
+    in_flight: list = []  # the losses of the steps queued and not yet waited for
+    depth = None
     end = min(cfg.steps, stop_at) if stop_at is not None else cfg.steps
 
     def run_eval(done: int) -> None:
@@ -461,15 +497,17 @@ def train(
     if evaluate is not None and start == 0 and end > 0:
         run_eval(0)  # the untrained model's numbers, the start of every curve
     t_last, n_since = time.perf_counter(), 0
-    prev_loss = None
     for step, local in _host_batches(get_batch, range(start, end), num_examples, cfg.batch_size, cfg.seed,
                                      cfg.prefetch, get_step_batch):
         batch = _global_batch(local, cfg.batch_size, data_sharding)
-        state, metrics = jstep(state, batch, jax.random.fold_in(jax.random.fold_in(rng, 1), step), sched_v)
-        if bounded:  # step `step` is queued: wait for the one before it (its loss; its state was donated)
-            if prev_loss is not None:
-                jax.block_until_ready(prev_loss)
-            prev_loss = metrics["loss"]
+        args = (state, batch, jax.random.fold_in(jax.random.fold_in(rng, 1), step), sched_v)
+        if bounded and depth is None:
+            depth = cpu_steps_in_flight(jstep, *args)
+        state, metrics = jstep(*args)
+        if bounded:  # step `step` is queued: wait until fewer than `depth` are (a loss; the states were donated)
+            in_flight.append(metrics["loss"])
+            while len(in_flight) > depth - 1:
+                jax.block_until_ready(in_flight.pop(0))
         n_since += cfg.batch_size
         done = step + 1
         if done % cfg.log_every == 0 or done == cfg.steps:
@@ -494,6 +532,25 @@ def train(
     mngr.close()
     logger.close()
     return {"params": state["params"], "ema": state["ema"], "step": int(state["step"])}
+
+
+# A CPU step whose XLA temporary buffer is larger than this keeps one step in flight, not two: it runs
+# long enough to hide the Python dispatch, and a second step in flight only adds a second buffer (paper-4L,
+# ~1 GB: as fast with one, 2.9 GB peak against 3.9, the comment in train()). The tokenizer's steps, whose
+# throughput needs two, have buffers far below it (37 MB tiny, 73 MB small at batch 64; the AR `small`
+# LM 713 MB, or 356 MB per microbatch of 32, docs/results/ar_memory).
+IN_FLIGHT_TEMP_BYTES = 256 * 2**20
+
+
+def cpu_steps_in_flight(jstep, *args) -> int:
+    """2, or 1 when the compiled step's temporary buffer exceeds IN_FLIGHT_TEMP_BYTES (2 for a step that
+    is not a jitted function). Compiling here costs nothing extra: the jitted step reuses this
+    executable at its first call."""
+    if not hasattr(jstep, "lower"):
+        return 2
+    ma = jstep.lower(*args).compile().memory_analysis()
+    temp = getattr(ma, "temp_size_in_bytes", None)
+    return 1 if temp is not None and temp > IN_FLIGHT_TEMP_BYTES else 2
 
 
 def load_params(run_dir: str | os.PathLike, *, ema: bool = False, step: int | None = None):

@@ -224,3 +224,25 @@ def test_warmup_longer_than_the_run_is_capped_and_the_logged_lr_reaches_its_peak
     assert max(lrs) == pytest.approx(0.1)
     values = schedule_values(cfg.optim, cfg.steps)
     assert float(learning_rate(2, values, schedule)) == pytest.approx(0.1)
+
+
+def test_microbatches_give_the_whole_batch_update_and_the_old_config_resumes(tmp_path):
+    import dataclasses
+
+    init, loss, get_batch, _ = _problem()
+    kw = dict(init=init, loss=loss, get_batch=get_batch, num_examples=96, config={"family": "toy"})
+    cfg = dataclasses.replace(CFG, steps=10, ckpt_every=10)
+    whole = train(tmp_path / "whole", **kw, cfg=cfg)
+    parts = train(tmp_path / "parts", **kw, cfg=dataclasses.replace(cfg, microbatch=4))  # 4 slices of 4
+    # the same ten updates up to float rounding (a mean of means of equal slices is the mean)
+    np.testing.assert_allclose(parts["params"]["w"], whole["params"]["w"], rtol=1e-5, atol=1e-6)
+    rows = [json.loads(line) for line in (tmp_path / "parts" / "metrics.jsonl").read_text().splitlines()]
+    ref = [json.loads(line) for line in (tmp_path / "whole" / "metrics.jsonl").read_text().splitlines()]
+    assert [r["loss"] for r in rows] == pytest.approx([r["loss"] for r in ref], rel=1e-5)
+    with pytest.raises(ValueError, match="train.microbatch 5 must divide train.batch_size 16"):
+        train(tmp_path / "bad", **kw, cfg=dataclasses.replace(cfg, microbatch=5))
+    # a run folder written before the field existed resumes with its default (0: the whole batch)
+    doc = json.loads((tmp_path / "whole" / "config.json").read_text())
+    del doc["train"]["microbatch"]
+    (tmp_path / "whole" / "config.json").write_text(json.dumps(doc))
+    assert train(tmp_path / "whole", **kw, cfg=cfg)["step"] == 10

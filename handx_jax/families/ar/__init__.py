@@ -73,15 +73,17 @@ REFERENCE_TRAIN = TrainConfig(steps=150000, batch_size=128, log_every=100, ckpt_
                                                 warmup_steps=15000, schedule="cosine", grad_clip=1.0))
 # The CPU sizes' recipe (tiny, small): minutes on 2 cores, and something learnt at the tiny sweep's 300
 # steps: the reference's 15,000-step warm-up at 3e-4 would leave such a run near its initial loss.
-# Host memory is set by the batch: XLA's temporary buffer for one `small` step on the joined prefix
-# (~110 of 128 text slots filled, + 31 motion slots; attention scores and their gradients dominate) is
-# 1.07 GB at batch 64 and 2.14 GB at 128 (compiled memory_analysis), and the CPU loop keeps two steps
-# in flight: `handx train ar --preset small` on the 1,200-clip prefix peaked at 3.98 GB at batch 64
-# (6.5 GB at the reference's 128, issue 30).
+# Host memory is set by XLA's temporary buffer of one step, which the glibc heap (handx_jax.hostmem)
+# holds two or three times over: for `small` on the joined prefix (128 text + 31 motion slots) it was
+# 1,069 MB at batch 64, most of it attention weights and SwiGLU intermediates kept for the backward
+# pass. The LM's own backward passes (models.prefix_lm.attend, swiglu) bring it to 713 MB, and `small`
+# computes its batch of 64 as two microbatches of 32 (train.microbatch; 356 MB each): `handx train ar
+# --preset small` on the 1,200-clip prefix peaked at 3.96 GB before, 1.42 GB after (docs/results/ar_memory).
 CPU_TRAIN = dataclasses.replace(REFERENCE_TRAIN, steps=2000, batch_size=64, log_every=50, ckpt_every=1000,
                                 eval_every=500,
                                 optim=dataclasses.replace(REFERENCE_TRAIN.optim, lr=1e-3, warmup_steps=100))
 TRAIN_PRESETS = {name: CPU_TRAIN if name in ("tiny", "small") else REFERENCE_TRAIN for name in PRESETS}
+TRAIN_PRESETS["small"] = dataclasses.replace(CPU_TRAIN, microbatch=32)
 
 
 @dataclass(frozen=True)
