@@ -78,7 +78,8 @@ REFERENCE_TRAIN = TrainConfig(steps=150000, batch_size=128, log_every=100, ckpt_
 # 1,069 MB at batch 64, most of it attention weights and SwiGLU intermediates kept for the backward
 # pass. The LM's own backward passes (models.prefix_lm.attend, swiglu) bring it to 713 MB, and `small`
 # computes its batch of 64 as two microbatches of 32 (train.microbatch; 356 MB each): `handx train ar
-# --preset small` on the 1,200-clip prefix peaked at 3.96 GB before, 1.42 GB after (docs/results/ar_memory).
+# --preset small` on the 1,200-clip prefix peaked at 3.96 GB before, 1.42 GB after over 20 steps and
+# 1.81 GB over 60 (the heap still grows by a buffer now and then; docs/results/ar_memory).
 CPU_TRAIN = dataclasses.replace(REFERENCE_TRAIN, steps=2000, batch_size=64, log_every=50, ckpt_every=1000,
                                 eval_every=500,
                                 optim=dataclasses.replace(REFERENCE_TRAIN.optim, lr=1e-3, warmup_steps=100))
