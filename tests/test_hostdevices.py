@@ -22,6 +22,9 @@ WORKER = str(HERE / "hostdevices_worker.py")
 
 def _env(**kw):
     env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAX_NUM_CPU_DEVICES")}
+    # the suite's XLA flags (tests/conftest.py) without a device count: the worker sets its own
+    flags = " ".join(f for f in os.environ.get("XLA_FLAGS", "").split() if "device_count" not in f)
+    env.update({"XLA_FLAGS": flags} if flags else {})
     return {**env, "PYTHONPATH": str(HERE.parent), "JAX_PLATFORMS": "cpu", "WANDB_MODE": "disabled", **kw}
 
 
