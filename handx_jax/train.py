@@ -79,10 +79,10 @@ class TrainConfig:
     prefetch: int = 2
     # Steps between calls of the family's evaluation hook (0: only at the end, if a hook is given).
     eval_every: int = 0
-    # Examples per gradient computation (0: the whole batch). The batch is split into batch_size /
-    # microbatch equal parts whose gradients are averaged in one jitted step: the same update up to float
-    # rounding, with the step's temporary memory of one part (the AR `small` LM, docs/results/ar_memory).
-    # The loss must be a mean over examples; its metrics are averaged over the parts.
+    # Examples per gradient computation (0, or batch_size or more: the whole batch). The batch is split
+    # into batch_size / microbatch equal parts whose gradients are averaged in one jitted step: the same
+    # update up to float rounding, with the step's temporary memory of one part (the AR `small` LM,
+    # docs/results/ar_memory). The loss must be a mean over examples; its metrics are averaged too.
     microbatch: int = 0
     optim: OptimConfig = OptimConfig()
 
@@ -399,8 +399,9 @@ def train(
     replicated = NamedSharding(mesh, P())
     if cfg.batch_size % mesh.size:
         raise ValueError(f"batch size {cfg.batch_size} is not divisible by {mesh.size} devices")
-    if cfg.microbatch < 0 or (cfg.microbatch and cfg.batch_size % cfg.microbatch):
-        raise ValueError(f"train.microbatch {cfg.microbatch} must divide train.batch_size {cfg.batch_size} (0: whole batch)")
+    if cfg.microbatch < 0 or (0 < cfg.microbatch < cfg.batch_size and cfg.batch_size % cfg.microbatch):
+        raise ValueError(f"train.microbatch {cfg.microbatch} must divide train.batch_size {cfg.batch_size} "
+                         "(0: the whole batch)")
 
     rng = jax.random.PRNGKey(cfg.seed)
 
@@ -437,7 +438,7 @@ def train(
         return l.astype(jnp.float32), aux
 
     value_and_grad = jax.value_and_grad(lf, has_aux=True)
-    parts = cfg.batch_size // cfg.microbatch if cfg.microbatch else 1
+    parts = max(cfg.batch_size // cfg.microbatch, 1) if cfg.microbatch else 1
 
     def averaged_value_and_grad(params, batch, step_rng):
         """value_and_grad of the mean loss over `parts` equal slices of the batch, one slice at a time

@@ -241,6 +241,9 @@ def test_microbatches_give_the_whole_batch_update_and_the_old_config_resumes(tmp
     assert [r["loss"] for r in rows] == pytest.approx([r["loss"] for r in ref], rel=1e-5)
     with pytest.raises(ValueError, match="train.microbatch 5 must divide train.batch_size 16"):
         train(tmp_path / "bad", **kw, cfg=dataclasses.replace(cfg, microbatch=5))
+    # a microbatch of the batch or more is the whole batch (a preset's 32 with --set train.batch_size=8)
+    over = train(tmp_path / "over", **kw, cfg=dataclasses.replace(cfg, microbatch=32))
+    np.testing.assert_array_equal(over["params"]["w"], whole["params"]["w"])
     # a run folder written before the field existed resumes with its default (0: the whole batch)
     doc = json.loads((tmp_path / "whole" / "config.json").read_text())
     del doc["train"]["microbatch"]
