@@ -10,7 +10,7 @@ STANDARD_WORK ?= runs/standard-build
 # below uses them; `make test CONSTRAINTS=` installs the newest versions pyproject.toml allows instead.
 CONSTRAINTS ?= constraints.txt
 
-.PHONY: venv demo sweep-cpu test lock bench standard-assets clean
+.PHONY: venv demo sweep-cpu sweep-ar-cpu test lock bench standard-assets clean
 
 $(STAMP): pyproject.toml $(CONSTRAINTS)
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -63,6 +63,30 @@ sweep-cpu: $(STAMP)
 	$$H analyze fit $(SWEEP_CPU_DIR)/sweep/results.csv --x compute --y rprec_top3 --mean-replicates --json \
 	    > $(SWEEP_CPU_DIR)/sweep/fit.json; \
 	echo "sweep-cpu finished in $$(( $$(date +%s) - start )) s (corpus prefix, text cache, runs, fit)"
+
+# The AR CPU study (sweeps/ar_size_codebook.py --preset cpu, issue 30 item 5): the codebook axis end to end on
+# 2 cores. A prefix of the standard corpus, 3 LM sizes x 3 codebooks (one tokenizer per codebook, shared by
+# the three LMs; the joined text cache is the sweep's shared step), two runs at a time, each scored by the
+# packaged standard evaluator (4 sampled generations per test prompt), then Table 3, the fit of top-3
+# against per-sample FLOPs (the paper's axis) and against training compute, and the factors LM size vs
+# codebook. docs/results/ar_cpu_study/README.md has the measured wall time and what the axis shows.
+SWEEP_AR_CPU_DIR ?= runs/sweep-ar-cpu
+SWEEP_AR_CPU_CLIPS ?= 4000
+SWEEP_AR_CPU_ARGS ?= --eval-limit 10000 --eval-samples 4 --max-parallel 2
+sweep-ar-cpu: $(STAMP)
+	@start=$$(date +%s); set -e; export JAX_PLATFORMS=cpu WANDB_MODE=disabled; \
+	H="$(BIN)/python -m handx_jax"; D=$(SWEEP_AR_CPU_DIR)/data; S=$(SWEEP_AR_CPU_DIR)/sweep; \
+	ENC=$$($(BIN)/python -c "from handx_jax import standard; print(standard.encoder_dir())"); \
+	EV=$$($(BIN)/python -c "from handx_jax import standard; print(standard.evaluator_dir())"); \
+	test -f $$D/meta.json || $$H standard corpus --clips $(SWEEP_AR_CPU_CLIPS) --out $$D --quiet; \
+	$$H sweep run sweeps/ar_size_codebook.py --preset cpu --data $$D --encoder $$ENC --evaluator $$EV \
+	    $(SWEEP_AR_CPU_ARGS) --out $$S; \
+	$$H analyze table $$S/results.csv --layout table3 | tee $$S/table3.md; \
+	$$H analyze fit $$S/results.csv --x flops --y rprec_top3 --plot $$S/fit.png | tee $$S/fit.txt; \
+	$$H analyze fit $$S/results.csv --x flops --y rprec_top3 --json > $$S/fit.json; \
+	$$H analyze fit $$S/results.csv --x compute --y rprec_top3 | tee $$S/fit_compute.txt; \
+	$$H analyze factors $$S/results.csv --factors flops_analytic,codebook --y rprec_top3 | tee $$S/factors.txt; \
+	echo "sweep-ar-cpu finished in $$(( $$(date +%s) - start )) s (corpus prefix, text cache, tokenizers, runs, fits)"
 
 # One pytest worker per core, each test file on one worker (its module fixtures are built once):
 # single-process pytest leaves the second core idle most of the run (wall time ~ user CPU time).

@@ -19,11 +19,24 @@ and the LM's run records it from the token cache (``config.json["codebook"]``). 
 
 ``paper``: LM {8L-512, 12L-768, 16L-1024} (Table C's AR sizes) × codebook {512, 1024, 2048, 4096},
 full data: 12 runs, 4 tokenizers. ``tiny``: LM {2L-64, 3L-64, 4L-128} × codebook {256, 512}.
+
+``cpu`` (``make sweep-ar-cpu``, issue 30 item 5; docs/results/ar_cpu_study): the codebook axis end to end on
+2 CPU cores, aimed at under an hour (measured: ~63 min at load average 12–15 on a shared machine; every LM
+scored at chance, top-3 0.089–0.097, the text barely used at this budget: see that README). LM {CPU_LMS} ×
+codebook {CPU_CODEBOOKS}, each tokenizer the rate–distortion study's equal-budget recipe (tiny preset at
+width 64, CPU_TOKENIZER_STEPS × 64 windows: ~100 CPU-s; docs/results/ar_tokenizer). Why the LMs are this
+small: every LM layer runs over the joined text prefix (~110 of 128 slots) as well as the 31 motion slots,
+so even the ``small`` preset (4L-128) took ~15 s per step of 64 on this machine (benchmarks/ar.py) and a
+3L-96 step of 32 ~0.5 CPU-s, and nine LMs must share ~1.5 core-hours. The sizes' steps grow with size
+(CPU_STEPS: more data seen with more capacity, as the diffusion CPU study's ``matched``). Generation samples
+at temperature 0.6 (CPU_SAMPLE; chosen once from pilots at greedy / 0.6 / 1.0) rather than decoding
+greedily: greedy decoding of a short-trained LM repeats one motion for most prompts (a 3-layer LM's
+diversity was 0), and with ``--eval-samples 4`` the evaluator's ± is then over 4 generation groups.
 """
 
 from __future__ import annotations
 
-from sweeps.common import RESOURCES  # noqa: F401
+from sweeps.common import RESOURCES as _RESOURCES
 from sweeps.launcher import RunSpec, Step, family_step, run_id
 
 # (LM preset, extra overrides, layers, dim) — presets from handx_jax.models.prefix_lm.PRESETS.
@@ -31,6 +44,16 @@ PAPER_LMS = (("8L-512", (), 8, 512), ("12L-768", (), 12, 768), ("16L-1024", (), 
 TINY_LMS = (("tiny", (), 2, 64), ("tiny", ("model.layers=3",), 3, 64), ("small", (), 4, 128))
 PAPER_CODEBOOKS = (512, 1024, 2048, 4096)
 TINY_CODEBOOKS = (256, 512)
+# ``cpu``: (preset, overrides, layers, dim) and each size's LM steps (batch CPU_BATCH).
+CPU_LMS = (("tiny", ("model.layers=1", "model.dim=32", "model.heads=2"), 1, 32), ("tiny", (), 2, 64),
+           ("tiny", ("model.layers=3", "model.dim=96"), 3, 96))
+CPU_STEPS = (150, 300, 600)
+CPU_BATCH = 32
+CPU_CODEBOOKS = (256, 1024, 4096)
+CPU_TOKENIZER_STEPS = 400
+CPU_TOKENIZER = ("model.width=64", "train.eval_every=400")
+CPU_SAMPLE = ("sample.temperature=0.6",)
+RESOURCES = {**_RESOURCES, "cpu": {"timeout_min": 90, "cpus_per_task": 1, "mem_gb": 4}}
 
 TEXT_JOINED = Step("text-joined", (("handx", "text", "cache", "--data", "{data}", "--encoder", "{encoder}",
                                     "--joined"),))
@@ -46,8 +69,10 @@ def runs(preset: str = "tiny", steps: int | None = None, tokenizer_steps: int | 
          codebooks: tuple | None = None, lm_set: tuple = (), tokenizer_set: tuple = ()) -> list[RunSpec]:
     """``lm_set``/``tokenizer_set``: more dotted overrides of every LM run / every tokenizer step, e.g.
     ``--arg 'lm_set=["train.batch_size=32"]'`` (they change the run ids and step keys, as any setting does)."""
-    if preset not in ("tiny", "paper"):
-        raise ValueError(f"unknown preset {preset!r} (tiny | paper)")
+    if preset not in ("tiny", "paper", "cpu"):
+        raise ValueError(f"unknown preset {preset!r} (tiny | paper | cpu)")
+    if preset == "cpu":
+        return _cpu_runs(steps, tokenizer_steps, codebooks, lm_set, tokenizer_set)
     lms = PAPER_LMS if preset == "paper" else TINY_LMS
     books = codebooks or (PAPER_CODEBOOKS if preset == "paper" else TINY_CODEBOOKS)
     st = steps or (100_000 if preset == "paper" else 300)
@@ -57,6 +82,24 @@ def runs(preset: str = "tiny", steps: int | None = None, tokenizer_steps: int | 
         tok = tokenizer_step(K, preset, tok_steps, tuple(tokenizer_set))
         for lm, extra, L, d in lms:
             ov = (*extra, f"train.steps={st}", *lm_set)
+            axes = {"layers": L, "dim": d, "codebook": K}
+            out.append(RunSpec(run_id(axes, (lm, tok.key, *ov)), "ar", preset=lm, overrides=ov, axes=axes,
+                               needs=(TEXT_JOINED, tok)))
+    return out
+
+
+def _cpu_runs(steps, tokenizer_steps, codebooks, lm_set, tokenizer_set) -> list[RunSpec]:
+    """``steps``: one LM step count for every size instead of CPU_STEPS. Largest LM first (longest first: two
+    runs at a time finish together), each codebook's tokenizer built by the first run that needs it."""
+    out = []
+    toks = {K: tokenizer_step(K, "tiny", tokenizer_steps or CPU_TOKENIZER_STEPS, (*CPU_TOKENIZER, *tokenizer_set))
+            for K in codebooks or CPU_CODEBOOKS}
+    for (lm, extra, L, d), st in reversed(list(zip(CPU_LMS, CPU_STEPS))):
+        st = steps or st
+        for K, tok in toks.items():
+            ov = (*extra, f"train.steps={st}", f"train.batch_size={CPU_BATCH}", f"train.log_every={max(st // 10, 1)}",
+                  f"train.eval_every={st}", f"train.ckpt_every={st}", f"train.optim.warmup_steps={min(100, st // 10)}",
+                  "train.wandb=disabled", *CPU_SAMPLE, *lm_set)
             axes = {"layers": L, "dim": d, "codebook": K}
             out.append(RunSpec(run_id(axes, (lm, tok.key, *ov)), "ar", preset=lm, overrides=ov, axes=axes,
                                needs=(TEXT_JOINED, tok)))

@@ -89,6 +89,18 @@ def test_sweep_files_define_the_grids(tmp_path):
     assert sorted(keys) == [512, 1024, 2048, 4096] and all(len(v) == 1 for v in keys.values())
     assert len({k for v in keys.values() for k in v}) == 4
     assert {s.preset for s in ar} == {"8L-512", "12L-768", "16L-1024"}
+    # ``cpu`` (make sweep-ar-cpu): 3 LM sizes x 3 codebooks, one tokenizer per codebook shared by the sizes, the
+    # largest (longest) LMs first, steps growing with size, sampled generation as a run setting.
+    cpu = load_sweep("sweeps/ar_size_codebook.py", preset="cpu")
+    assert [(s.axes["layers"], s.axes["dim"], s.axes["codebook"]) for s in cpu] == [
+        (L, d, K) for L, d in ((3, 96), (2, 64), (1, 32)) for K in (256, 1024, 4096)]
+    toks = {}
+    for s in cpu:
+        toks.setdefault(s.axes["codebook"], set()).add(s.needs[1].key)
+        st = {o.split("=")[0]: o.split("=")[1] for o in s.overrides}
+        assert st["train.steps"] == {1: "150", 2: "300", 3: "600"}[s.axes["layers"]]
+        assert st["sample.temperature"] == "0.6"
+    assert all(len(v) == 1 for v in toks.values()) and len({k for v in toks.values() for k in v}) == 3
 
     bad = tmp_path / "bad.py"
     bad.write_text("from sweeps.launcher import RunSpec\ndef runs():\n    return [RunSpec('a'), RunSpec('a')]\n")
