@@ -55,6 +55,12 @@ def test_train_learns_and_writes_run_files(tmp_path):
     np.testing.assert_array_equal(p["w"], out["params"]["w"])
     ema, _ = load_params(tmp_path / "run", ema=True)
     assert not np.array_equal(ema["w"], p["w"])
+    # A second load of the same verified checkpoint comes from the process's cache of restored trees: the
+    # same values, in containers of its own (editing the first result's dicts changes nothing later).
+    p["w"] = None
+    again, _ = load_params(tmp_path / "run")
+    np.testing.assert_array_equal(again["w"], out["params"]["w"])
+    np.testing.assert_array_equal(load_params(tmp_path / "run", ema=True)[0]["w"], ema["w"])
 
 
 def test_kill_and_resume_is_exact(tmp_path):
