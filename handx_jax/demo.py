@@ -1,4 +1,5 @@
-"""``make demo``: the main job, end to end, on the built-in data (CPU-sized: ~8 min on 2 quiet cores, estimated).
+"""``make demo``: the main job, end to end, on the built-in data (CPU-sized: 632 s on 2 quiet cores, measured
+with .venv built; ≈ 1 min more to install).
 
 1. Build the first ``--clips`` clips of the standard corpus (``handx standard corpus --clips N``: synthesis
    → clips + intensity filter → annotation → captions), print its statistics and render one clip with
@@ -136,8 +137,12 @@ def verdict(sweep: Path, out: Path) -> bool:
     print(f"\n== the demo's curve {'rises' if ok else 'does NOT rise'}: {why}")
     if (STUDY / "fit.txt").exists():
         shutil.copyfile(STUDY / "fit.png", out / "sweep-cpu-fit.png")
-        print(("" if ok else "A sweep of 10 minutes on 2 cores is too short to show the scaling reliably on this "
-               "yardstick; ") + "the committed `make sweep-cpu` study (6 configurations x 3 seeds, ~20 min per seed, "
+        # Issue 31 item 4: a rising curve within 10 minutes on 2 cores was not reached. The first design (133 s
+        # of sweep) fell (r -0.60); this one rises but takes 632 s plus the install. Say so, and show the study.
+        print(("" if ok else "This sweep's curve does not show the scaling on this yardstick; ")
+              + "a mini sweep short enough for 10 minutes on 2 cores is too noisy to show the scaling reliably (this "
+              "demo takes about 11 min with its install, measured); the committed `make sweep-cpu` study "
+              "(6 configurations x 3 seeds, ~20 min per seed, "
               f"same evaluator; {STUDY.relative_to(STUDY.parents[4])}) gives, beside the demo's:\n"
               + "".join("    " + ln + "\n" for ln in (STUDY / "fit.txt").read_text().splitlines()[:5])
               + f"its plot: {out / 'sweep-cpu-fit.png'}; the demo's: {sweep / 'fit.png'}")
