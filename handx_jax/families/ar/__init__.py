@@ -55,6 +55,14 @@ class DataConfig:
     fraction: float = 1.0
     text_max_len: int = 128  # the joined text cache's max_len
     cache_dtype: str = "float16"
+    # Conditioning dropout: each training item's prefix is replaced by the null prefix
+    # (decode.null_prefix) with this probability, so that the LM also learns l_u, the unconditional
+    # logits classifier-free guidance (sample.guidance) extrapolates from. 0 = off (the reference: §4.6).
+    text_drop: float = 0.0
+    # Caption levels the training items use (0 = most concise; empty = all, the reference). The standard
+    # evaluator scores at level 0. On the 1,200-clip prefix, tiny LMs trained on all five levels kept a
+    # held-out text gap near 0 for hundreds of steps, one trained on level 0 alone did not (docs/results/ar_text).
+    levels: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -64,6 +72,7 @@ class SampleConfig:
     temperature: float = 0.0  # greedy, the paper's default
     top_k: int = 0
     top_p: float = 1.0
+    guidance: float = 1.0  # classifier-free guidance on the logits (decode.DecodeOptions); 1 = off
 
 
 # Reference §4.7: batch 128, AdamW(3e-4, (0.9, 0.999), wd 1e-6, eps 1e-6), 10% linear warm-up then
@@ -101,8 +110,12 @@ class ARRunConfig:
             raise ConfigError(f"model.dim {m.dim} / model.heads {m.heads} must be an even integer (RoPE pairs)")
         if not 0 < self.data.fraction <= 1:
             raise ConfigError(f"data.fraction must be in (0, 1], got {self.data.fraction}")
+        if not 0 <= self.data.text_drop < 1:
+            raise ConfigError(f"data.text_drop must be in [0, 1), got {self.data.text_drop}")
+        if len(set(self.data.levels)) != len(self.data.levels) or any(v < 0 for v in self.data.levels):
+            raise ConfigError(f"data.levels must be distinct caption levels >= 0, got {list(self.data.levels)}")
         try:  # the decoding options' own range checks (decode.DecodeOptions)
-            AD.DecodeOptions(self.sample.temperature, self.sample.top_k, self.sample.top_p)
+            AD.DecodeOptions(self.sample.temperature, self.sample.top_k, self.sample.top_p, self.sample.guidance)
         except ValueError as e:
             raise ConfigError(f"sample.{e}") from None
 
@@ -155,13 +168,19 @@ class TrainData:
     levels: int
     codes: np.ndarray  # (N_all, 30) token cache, dataset clip order
     cache: Any  # joined TextCache
+    level_ids: tuple[int, ...] = ()  # data.levels: the caption levels items use (empty: 0..levels-1)
+
+    @property
+    def used_levels(self) -> np.ndarray:
+        return np.asarray(self.level_ids or range(self.levels))
 
     @property
     def num_items(self) -> int:
-        return len(self.clips) * self.levels
+        return len(self.clips) * len(self.used_levels)
 
     def batch(self, idx: np.ndarray) -> dict:
-        ci, lv = np.asarray(idx) // self.levels, np.asarray(idx) % self.levels
+        n = len(self.used_levels)
+        ci, lv = np.asarray(idx) // n, self.used_levels[np.asarray(idx) % n]
         clip = self.clips[ci]
         h, m = self.cache.lookup(clip, "joined", lv)
         return {"codes": self.codes[clip].astype(np.int32), "text": h, "mask": m}
@@ -181,7 +200,10 @@ def load_train_data(cfg: ARRunConfig):
     clips = np.asarray(ds.split("train", cfg.data.fraction))
     if not len(clips):
         raise DataError("the train split is empty", path=cfg.data.path)
-    return TrainData(clips, int(ds.meta["levels"]), tokens.codes, cache), tokens
+    levels = int(ds.meta["levels"])
+    if any(v >= levels for v in cfg.data.levels):
+        raise ConfigError(f"data.levels {list(cfg.data.levels)}: the dataset has caption levels 0..{levels - 1}")
+    return TrainData(clips, levels, tokens.codes, cache, tuple(cfg.data.levels)), tokens
 
 
 RESUME_KEYS = ("model", "data", "train", "tokenizer")
@@ -208,9 +230,15 @@ def run_record(cfg: ARRunConfig, cache_meta: dict, tokens) -> dict:
     }
 
 
-def make_loss(model: P.PrefixLM):
+def make_loss(model: P.PrefixLM, text_drop: float = 0.0):
     def loss(params, batch, rng, train: bool):
-        return P.lm_loss(model, params, batch["text"].astype(jnp.float32), batch["mask"], batch["codes"])
+        text, mask = batch["text"].astype(jnp.float32), batch["mask"]
+        if train and text_drop > 0:  # data.text_drop: the item sees the null prefix (CFG's l_u)
+            drop_B = jax.random.bernoulli(rng, text_drop, (mask.shape[0],))
+            null_text, null_mask = AD.null_prefix(text, mask)
+            text = jnp.where(drop_B[:, None, None], null_text, text)
+            mask = jnp.where(drop_B[:, None], null_mask, mask)
+        return P.lm_loss(model, params, text, mask, batch["codes"])
 
     return loss
 
@@ -218,20 +246,34 @@ def make_loss(model: P.PrefixLM):
 EVAL_ITEMS = 1024  # held-out (clip, level) pairs scored by the evaluation hook
 
 
+def other_text_items(items: np.ndarray, n_clips: int, levels: int) -> np.ndarray:
+    """Item ids whose text is the NEXT held-out clip's at the same level (cyclic): the control of the text gap."""
+    items = np.asarray(items)
+    return ((items // levels + 1) % n_clips) * levels + items % levels
+
+
 def make_evaluate(model: P.PrefixLM, data: TrainData, val_clips: np.ndarray, batch_size: int = 128):
     """Held-out token NLL (nats per motion slot: 30 codes + END, §4.6) and next-token accuracy on the first
-    EVAL_ITEMS (clip, level) pairs of the val split, every ``eval_every`` steps and at the end."""
+    EVAL_ITEMS (clip, level) pairs of the val split, every ``eval_every`` steps and at the end; and
+    ``eval/nll_other_text``, the same codes after another held-out clip's text (``other_text_items``), whose
+    excess over ``eval/nll`` (``eval/text_gap``) is how much the LM uses its text: 0 for an LM that ignores it
+    (docs/results/ar_text)."""
     held = dataclasses.replace(data, clips=np.asarray(val_clips))
     items = np.arange(min(held.num_items, EVAL_ITEMS))
+    other = other_text_items(items, len(held.clips), len(held.used_levels))
     step = jax.jit(lambda p, b: P.lm_loss(model, p, b["text"].astype(jnp.float32), b["mask"], b["codes"]))
 
     def evaluate(params, ema, done):
-        nll = acc = 0.0
+        nll = acc = nll_o = 0.0
         for s in range(0, len(items), batch_size):
             idx = items[s:s + batch_size]
-            l, aux = step(params, held.batch(idx))
-            nll, acc = nll + float(l) * len(idx), acc + float(aux["acc"]) * len(idx)
-        return {"eval/nll": nll / len(items), "eval/acc": acc / len(items)}
+            b = held.batch(idx)
+            l, aux = step(params, b)
+            lo, _ = step(params, {**held.batch(other[s:s + batch_size]), "codes": b["codes"]})
+            nll, acc, nll_o = nll + float(l) * len(idx), acc + float(aux["acc"]) * len(idx), nll_o + float(lo) * len(idx)
+        n = len(items)
+        return {"eval/nll": nll / n, "eval/acc": acc / n, "eval/nll_other_text": nll_o / n,
+                "eval/text_gap": (nll_o - nll) / n}
 
     return evaluate
 
@@ -254,7 +296,8 @@ def train(run_dir: str | os.PathLike, cfg: ARRunConfig, *, stop_at: int | None =
     model = P.PrefixLM(cfg.model)
     L = int(data.cache.meta["Lmax"])
     val = np.asarray(Dataset.open(cfg.data.path).split("val"))
-    return loop.train(run_dir, init=lambda rng: P.init_lm(cfg.model, rng, text_len=L)[1], loss=make_loss(model),
+    return loop.train(run_dir, init=lambda rng: P.init_lm(cfg.model, rng, text_len=L)[1],
+                      loss=make_loss(model, cfg.data.text_drop),
                       get_batch=data.batch, num_examples=data.num_items, cfg=cfg.train, config=record,
                       stop_at=stop_at, on_log=on_log, flops_per_sample=record["flops_per_sample"],
                       evaluate=make_evaluate(model, data, val) if len(val) else None, resume_keys=RESUME_KEYS)
@@ -356,6 +399,7 @@ class ARRun:
     def describe(self, opts: GenerateOptions) -> str:
         d = opts.decode
         how = "greedy" if d.temperature <= 0 else f"T={d.temperature}, top-k {d.top_k}, top-p {d.top_p}"
+        how += f", guidance {d.guidance}" if d.guidance != 1 else ""
         return (f"{how} decoding{' with KV cache' if opts.use_cache else ''}, "
                 f"{'EMA' if self.used_ema else 'raw'} params at step {self.step}")
 
@@ -448,6 +492,8 @@ def add_generate_args(p) -> None:
     p.add_argument("--temperature", type=float, help="sampling temperature >= 0 (default: the run's, 0 = greedy)")
     p.add_argument("--top-k", type=int, help="keep the k most likely tokens, k >= 0 (0 = off)")
     p.add_argument("--top-p", type=float, help="nucleus mass in (0, 1] (1 = off)")
+    p.add_argument("--guidance", type=float,
+                   help="classifier-free guidance scale s >= 0 on the logits (1 = off; for runs trained with data.text_drop)")
     p.add_argument("--observed-frames", type=int, default=20,
                    help="--task prediction: observed frames, even and in (0, 60) (default 20)")
     p.add_argument("--no-kv-cache", action="store_true", help="recompute the whole sequence every step")
@@ -460,11 +506,12 @@ def load_for_generate(args: argparse.Namespace, *, ema: bool, encoder, seed: int
     d = AD.DecodeOptions()
     # The flags' range checks (DecodeOptions, GenerateOptions) before the run is read.
     GenerateOptions(AD.DecodeOptions(pick(args.temperature, d.temperature), pick(args.top_k, d.top_k),
-                                     pick(args.top_p, d.top_p)), observed_frames=args.observed_frames)
+                                     pick(args.top_p, d.top_p), pick(args.guidance, d.guidance)),
+                    observed_frames=args.observed_frames)
     run = load(args.run, ema=ema, encoder=encoder, overrides=args.set)
     run.check_prompts(typed_prompts(args))
     s = run.cfg.sample
     dec = AD.DecodeOptions(temperature=pick(args.temperature, s.temperature), top_k=pick(args.top_k, s.top_k),
-                           top_p=pick(args.top_p, s.top_p))
+                           top_p=pick(args.top_p, s.top_p), guidance=pick(args.guidance, s.guidance))
     return run, GenerateOptions(decode=dec, seed=seed, batch_size=batch_size, observed_frames=args.observed_frames,
                                 use_cache=not args.no_kv_cache)

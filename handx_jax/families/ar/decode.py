@@ -28,15 +28,20 @@ from handx_jax.models.prefix_lm import MOTION_TOKENS, PrefixLM, attention_mask, 
 from handx_jax.xla_options import jit_inference
 
 
-@partial(jax.tree_util.register_dataclass, data_fields=["temperature", "top_k", "top_p"], meta_fields=["max_tokens"])
+@partial(jax.tree_util.register_dataclass, data_fields=["temperature", "top_k", "top_p", "guidance"],
+         meta_fields=["max_tokens"])
 @dataclass(frozen=True)
 class DecodeOptions:
     """Sampling settings. They are traced values inside the jitted loop, so changing them does not
-    recompile; only ``max_tokens`` is static."""
+    recompile; only ``max_tokens`` is static (and whether guidance is on: :func:`decode`)."""
 
     temperature: float = 0.0  # 0 = greedy (paper default)
     top_k: int = 0  # 0 = off
     top_p: float = 1.0  # 1 = off
+    # Classifier-free guidance on the logits, l = l_c + (s − 1)·(l_c − l_u) = l_u + s·(l_c − l_u), with l_u
+    # the logits after the null prefix (:func:`null_prefix`; a run trained with ``data.text_drop`` > 0 has
+    # learnt it). 1 = off, the reference's decoding (§4.6 has no guidance); written so that 1 is l_c exactly.
+    guidance: float = 1.0
     max_tokens: int = MOTION_TOKENS
 
     def __post_init__(self) -> None:
@@ -51,6 +56,9 @@ class DecodeOptions:
             raise ValueError(f"top_k (--top-k) must be a whole number >= 0 (0 = off), got {k}")
         if _number(p) and not 0 < p <= 1:
             raise ValueError(f"top_p (--top-p) must be in (0, 1] (1 = off), got {p}")
+        g = self.guidance
+        if _number(g) and not (math.isfinite(g) and g >= 0):
+            raise ValueError(f"guidance (--guidance) must be a finite number >= 0 (1 = off), got {g}")
 
 
 def _number(v) -> bool:
@@ -171,11 +179,12 @@ def _full(m: PrefixLM, text, text_mask, tokens_BxT, i):
 
 
 def decode(model: PrefixLM, params, text_BxLxDt, text_mask_BxL, observed_BxO, rng, opts: DecodeOptions = DecodeOptions(),
-           use_cache: bool = True):
+           use_cache: bool = True, guided: bool | None = None):
     """Generate motion tokens after the prefix (and the O observed tokens, O may be 0).
 
     Returns (tokens (B, max_tokens) int32 with the observed ones first and PAD after END, lengths (B,):
-    the number of codes before END). One jitted ``while_loop``, compiled with the inference options
+    the number of codes before END). With classifier-free guidance (``opts.guidance`` != 1, or ``guided``)
+    every row also runs after the null prefix and draws from :func:`guide`'s logits. One jitted ``while_loop``, compiled with the inference options
     (``xla_options``; for 8L-512 1.06× on CPU). Where the host has several CPU devices (``hostdevices``)
     the rows are split over them, each device running its own loop: the same tokens (sampling draws per
     row, :func:`sample_logits`); greedy decoding of the small LM 1.10-1.19× faster at batch 16 on 2 cores.
@@ -186,25 +195,44 @@ def decode(model: PrefixLM, params, text_BxLxDt, text_mask_BxL, observed_BxO, rn
     inputs = (params, text_BxLxDt, text_mask_BxL, observed_BxO, rng, opts)
     if mesh is not None:
         inputs = hostdevices.replicate(mesh, inputs)
-    return _decode_jit(model.cfg.dim, mesh)(model, *inputs, use_cache)
+    # Guidance doubles the rows (conditional | null prefix), so whether it is on is static (``guided``;
+    # None: on unless the scale is 1); its scale is traced. A traced scale counts as on.
+    if guided is None:
+        guided = not (_number(opts.guidance) and opts.guidance == 1)
+    return _decode_jit(model.cfg.dim, mesh)(model, *inputs, use_cache, guided)
 
 
 @cache
 def _decode_jit(width: int, mesh):
     # built on first use, not at import: the options depend on the backend, which must not start at import
     fn = _decode_impl if mesh is None else partial(_decode_split, mesh=mesh)
-    return jit_inference(fn, width, static_argnames=("model", "use_cache"))
+    return jit_inference(fn, width, static_argnames=("model", "use_cache", "guided"))
+
+
+def null_prefix(text_BxLxDt, text_mask_BxL):
+    """The unconditional input (training's ``data.text_drop``, guidance's l_u): the same shapes with only
+    the first slot valid and zero, which the text projection maps to its bias, a learnt "no text" vector.
+    Motion slot k then sits at RoPE position 1 + k, in training and decoding alike."""
+    first = jnp.arange(text_mask_BxL.shape[1])[None] == 0
+    return jnp.zeros_like(text_BxLxDt), jnp.broadcast_to(first, text_mask_BxL.shape)
+
+
+def guide(logits_2BxV, scale):
+    """l_c + (s − 1)·(l_c − l_u) over rows [conditional | unconditional] → (B, V)."""
+    B = logits_2BxV.shape[0] // 2
+    lc, lu = logits_2BxV[:B], logits_2BxV[B:]
+    return lc + (scale - 1) * (lc - lu)
 
 
 def _decode_split(model: PrefixLM, params, text_BxLxDt, text_mask_BxL, observed_BxO, rng, opts: DecodeOptions,
-                  use_cache: bool, *, mesh):
+                  use_cache: bool, guided: bool = False, *, mesh):
     """:func:`_decode_impl` with the rows split over ``mesh``: every device decodes its slice in its own
     ``while_loop`` (no communication; each stops when its own rows are done)."""
     from jax.sharding import PartitionSpec as P
 
     def body(params, text, mask, observed, rng, opts):
         row0 = jax.lax.axis_index("b") * text.shape[0]  # the slice's first row in the whole batch
-        return _decode_impl(model, params, text, mask, observed, rng, opts, use_cache, row0=row0)
+        return _decode_impl(model, params, text, mask, observed, rng, opts, use_cache, guided, row0=row0)
 
     rows = P("b")
     # check_vma off: the loop's carry mixes per-device rows with the replicated key and step counter
@@ -213,21 +241,28 @@ def _decode_split(model: PrefixLM, params, text_BxLxDt, text_mask_BxL, observed_
 
 
 def _decode_impl(model: PrefixLM, params, text_BxLxDt, text_mask_BxL, observed_BxO, rng, opts: DecodeOptions,
-                 use_cache: bool, row0=0):
+                 use_cache: bool, guided: bool = False, row0=0):
     c, T = model.cfg, opts.max_tokens
     B, Lp = text_mask_BxL.shape
     rows_B = row0 + jnp.arange(B)
     n_obs = observed_BxO.shape[1]
     S = Lp + T
     tokens = jnp.full((B, T), c.pad_id, jnp.int32).at[:, :n_obs].set(observed_BxO.astype(jnp.int32))
+    text, mask, observed = text_BxLxDt, text_mask_BxL, observed_BxO
+    both = lambda x: x  # noqa: E731  the rows the model runs on: B, or [conditional | null] 2B when guided
+    if guided:
+        nt, nm = null_prefix(text, mask)
+        both = lambda x: jnp.concatenate([x, x])  # noqa: E731
+        text, mask, observed = jnp.concatenate([text, nt]), jnp.concatenate([mask, nm]), both(observed)
+    pick = (lambda lg: guide(lg, opts.guidance)) if guided else (lambda lg: lg)  # noqa: E731
     run = lambda f, *a: model.apply(params, *a, method=f)  # noqa: E731
     if use_cache:
         dtype = jax.tree_util.tree_leaves(params)[0].dtype
-        logits, cache = run(lambda m, *a: _prefill(m, *a, S), text_BxLxDt, text_mask_BxL, observed_BxO,
-                            _empty_cache(model, B, S, dtype))
+        logits, cache = run(lambda m, *a: _prefill(m, *a, S), text, mask, observed,
+                            _empty_cache(model, mask.shape[0], S, dtype))
     else:
         cache = None
-        logits = run(_full, text_BxLxDt, text_mask_BxL, tokens, jnp.full((B,), n_obs))
+        logits = run(_full, text, mask, both(tokens), jnp.full((mask.shape[0],), n_obs))
 
     def cond(s):
         i, _, done, *_ = s
@@ -236,13 +271,13 @@ def _decode_impl(model: PrefixLM, params, text_BxLxDt, text_mask_BxL, observed_B
     def body(s):
         i, toks, done, cache, logits, rng = s
         rng, sub = jax.random.split(rng)
-        tok = jnp.where(done, c.pad_id, sample_logits(logits, sub, opts, rows_B))
+        tok = jnp.where(done, c.pad_id, sample_logits(pick(logits), sub, opts, rows_B))
         toks = toks.at[:, i].set(tok)
         done = done | (tok == c.end_id)
         if use_cache:
-            logits, cache = run(lambda m, *a: _extend(m, *a, S), tok, i, text_mask_BxL, cache)
+            logits, cache = run(lambda m, *a: _extend(m, *a, S), both(tok), i, mask, cache)
         else:
-            logits = run(_full, text_BxLxDt, text_mask_BxL, toks, jnp.full((B,), i + 1))
+            logits = run(_full, text, mask, both(toks), jnp.full((mask.shape[0],), i + 1))
         return i + 1, toks, done, cache, logits, rng
 
     state = (jnp.asarray(n_obs, jnp.int32), tokens, jnp.zeros((B,), bool), cache, logits, rng)
