@@ -1,17 +1,31 @@
-"""Run by tests/test_hostdevices.py in a fresh process (the CPU device count is fixed at JAX start-up),
-and imported by it for :func:`samples`, which the test then runs on its own single device.
+"""Run by tests/test_hostdevices.py in a fresh process (the CPU device count is fixed at JAX start-up).
 
-As a script: configures the host's CPU devices as the CLI does (HANDX_CPU_DEVICES from the environment),
-samples a tiny denoiser with the compiled sampler (guided and unguided on a batch the devices divide,
-guided on one they do not) and writes the samples to the .npz named by argv[1].
+Configures the host's CPU devices as the CLI does (HANDX_CPU_DEVICES from the environment), samples a tiny
+denoiser with the compiled sampler (guided and unguided on a batch the devices divide, guided on one they do
+not) and decodes a tiny prefix LM, and writes the samples to the .npz named by argv[1]. Then it runs the same
+cases again as a one-device host does (``hostdevices.inference_mesh`` answering None: no split) and writes
+those to argv[2]. Both passes in one process: a two-device process's cached compilations do not serve a
+one-device process (the device count is part of XLA's cache key), and the one-device programs are the same
+programs either way.
 """
 
 import json
 import sys
 
 
+def _random_params(init, seed: int):
+    """Parameters of ``init``'s structure from a host draw (tests/random_params.py: no compiled initialiser;
+    splitting the batch must not change the numbers for any weights), committed to one device as restored
+    parameters are: the split sampler must copy them itself."""
+    import jax
+
+    from random_params import random_params
+
+    return jax.device_put(random_params(init, seed), jax.devices()[0])
+
+
 def samples() -> tuple[dict, dict]:
-    """({case: samples}, {batch: devices its sampler used}) of a tiny denoiser with fixed inputs."""
+    """({case: samples}, {batch: devices its sampler used}) of a tiny denoiser and LM with fixed inputs."""
     import dataclasses
 
     import jax
@@ -22,11 +36,9 @@ def samples() -> tuple[dict, dict]:
     from handx_jax.families.diffusion.sampling import compile_sampler
     from handx_jax.models.dit import PRESETS, init_denoiser
 
-    # one layer: splitting the batch over devices does not depend on depth, and each sampler compiles
-    # twice (two devices, then one) for three cases (95 -> 89 s of CPU for the test, 2026-11-27)
+    # one layer: splitting the batch over devices does not depend on depth
     m = dataclasses.replace(PRESETS["tiny"], layers=1)
-    # committed to one device, as restored parameters are: the split sampler must copy them itself
-    params = jax.device_put(init_denoiser(m, jax.random.PRNGKey(0), 8)[1], jax.devices()[0])
+    params = _random_params(lambda r: init_denoiser(m, r, 8)[1], 0)
     rng = np.random.default_rng(1)
     out, used = {}, {}
     for B, cases in ((4, (("guided", 2.5), ("unguided", 1.0))), (3, (("guided", 2.5),))):
@@ -42,9 +54,9 @@ def samples() -> tuple[dict, dict]:
     from handx_jax import hostdevices
     from handx_jax.models import prefix_lm as PL
 
-    lm_cfg = PL.PRESETS["tiny"]
-    lm, lm_params = PL.init_lm(lm_cfg, jax.random.PRNGKey(4))
-    lm_params = jax.device_put(lm_params, jax.devices()[0])
+    lm_cfg = dataclasses.replace(PL.PRESETS["tiny"], layers=1)
+    lm = PL.PrefixLM(lm_cfg)
+    lm_params = _random_params(lambda r: PL.init_lm(lm_cfg, r)[1], 4)
     B = 4
     text = rng.normal(size=(B, 8, lm_cfg.text_dim)).astype(np.float32)
     mask = np.ones((B, 8), bool)
@@ -67,7 +79,12 @@ if __name__ == "__main__":
 
     from handx_jax import train as T
 
-    out, used = samples()
-    np.savez(sys.argv[1], **out)
+    two, used = samples()
+    np.savez(sys.argv[1], **two)
+    # the one-device reference: hostdevices' answer on a one-device host (no mesh), so every case runs
+    # the unsplit program
+    hostdevices.inference_mesh = lambda batch: None
+    one, used_one = samples()
+    np.savez(sys.argv[2], **one)
     print(json.dumps({"configured": configured, "devices": jax.device_count(), "train_mesh": int(T._mesh().size),
-                      "sample_devices": used}), flush=True)
+                      "sample_devices": used, "reference_devices": used_one}), flush=True)

@@ -29,22 +29,22 @@ def _env(**kw):
 
 
 def test_split_sampling_matches_one_device(tmp_path):
-    import importlib.util
+    import jax
 
-    out = tmp_path / "two.npz"
-    p = subprocess.run([sys.executable, WORKER, str(out)], env=_env(HANDX_CPU_DEVICES="2"), capture_output=True,
-                       text=True, timeout=300)
+    from handx_jax import hostdevices
+
+    p = subprocess.run([sys.executable, WORKER, str(tmp_path / "two.npz"), str(tmp_path / "one.npz")],
+                       env=_env(HANDX_CPU_DEVICES="2"), capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
     info = json.loads(p.stdout.strip().splitlines()[-1])
-    # two devices: batch 4 split in two, batch 3 (odd) on one device; training on one device (train._mesh)
-    assert info == {"configured": 2, "devices": 2, "train_mesh": 1, "sample_devices": {"4": 2, "3": 1, "ar": 2}}
-    two = dict(np.load(out))
-    # the same cases in this (one-device) process
-    spec = importlib.util.spec_from_file_location("hostdevices_worker", WORKER)
-    worker = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(worker)
-    one, used = worker.samples()
-    assert used == {"4": 1, "3": 1, "ar": 1} and sorted(one) == sorted(two)
+    # two devices: batch 4 split in two, batch 3 (odd) on one device; training on one device (train._mesh);
+    # the reference pass (hostdevices' one-device answer, no mesh) splits nothing
+    assert info == {"configured": 2, "devices": 2, "train_mesh": 1, "sample_devices": {"4": 2, "3": 1, "ar": 2},
+                    "reference_devices": {"4": 1, "3": 1, "ar": 1}}
+    # ... which is what this one-device process gets for every batch
+    assert jax.device_count() == 1 and all(hostdevices.inference_mesh(b) is None for b in (3, 4))
+    two, one = dict(np.load(tmp_path / "two.npz")), dict(np.load(tmp_path / "one.npz"))
+    assert sorted(one) == sorted(two)
     # AR decoding: the same tokens, greedy and sampled (each row draws with its own key)
     assert not np.array_equal(one["ar_temperature"], one["ar_greedy"])  # sampling really sampled
     for k in [k for k in one if k.startswith("ar_")]:

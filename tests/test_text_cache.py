@@ -3,10 +3,11 @@
 import argparse
 import json
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+
+from random_params import random_params
 
 from handx_jax.data.dataset import TEXT_FIELDS, Dataset
 from handx_jax.io import DataError
@@ -21,8 +22,8 @@ def _random_encoder(path, tok, seed):
     cfg = T5Config(vocab_size=tok.vocab_size, d_model=32, d_kv=8, d_ff=64, num_layers=2, num_heads=4,
                    feed_forward_proj="gated-gelu")
     ids = jnp.ones((1, 4), jnp.int32)
-    params = jax.jit(T5EncoderModel(cfg).init)(jax.random.key(seed), ids, ids)["params"]
-    return save_hf_t5_encoder(path, cfg, jax.device_get(params), tok)
+    params = random_params(lambda r: T5EncoderModel(cfg).init(r, ids, ids), seed)["params"]  # no compiled init
+    return save_hf_t5_encoder(path, cfg, params, tok)
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +75,7 @@ def test_float16_and_determinism(setup):
                                        log=lambda s: None))
     assert again.root == a.root
     np.testing.assert_array_equal(again.hidden, before)  # same settings, same numbers
-    other = TextCache.open(build_cache(data, enc_dir, dtype="float32", batch_size=7, overwrite=True,
+    other = TextCache.open(build_cache(data, enc_dir, dtype="float32", batch_size=8, overwrite=True,
                                        log=lambda s: None))
     assert np.abs(other.hidden - before).max() < 1e-5  # batch composition: float rounding only
 
@@ -147,7 +148,7 @@ def test_full_disk_is_a_clean_error_and_leaves_nothing(setup, monkeypatch):
     root = data / "text_cache"
     monkeypatch.setattr(hio, "free_bytes", lambda path: 100)
     with pytest.raises(hio.DiskFullError, match=r"writing .*text_cache/[0-9a-f]{16}; it needs .* 100 B free"):
-        build_cache(data, enc_dir, dtype="float32", max_len=40, overwrite=True, log=lambda s: None)
+        build_cache(data, enc_dir, dtype="float32", max_len=48, batch_size=32, overwrite=True, log=lambda s: None)
     monkeypatch.setattr(hio, "free_bytes", lambda path: None)
 
     def append(self, rows):  # the disk fills up during the build
@@ -156,7 +157,7 @@ def test_full_disk_is_a_clean_error_and_leaves_nothing(setup, monkeypatch):
 
     monkeypatch.setattr(hio.NpyWriter, "append", append)
     with pytest.raises(hio.DiskFullError, match=r"writing .*text_cache/[0-9a-f]{16}/hidden\.npy; it needs"):
-        build_cache(data, enc_dir, dtype="float32", max_len=40, overwrite=True, log=lambda s: None)
+        build_cache(data, enc_dir, dtype="float32", max_len=48, batch_size=32, overwrite=True, log=lambda s: None)
     assert not [p for p in root.iterdir() if p.name.startswith(".")]
 
 
@@ -167,7 +168,7 @@ def test_cache_follows_check_compatible_on_captions(setup, tmp_path):
     from handx_jax.data.dataset import write_dataset
 
     data, enc_dir, _ = setup
-    root = build_cache(data, enc_dir, dtype="float32", max_len=40, log=lambda s: None)
+    root = build_cache(data, enc_dir, dtype="float32", max_len=48, batch_size=32, log=lambda s: None)
     ds = Dataset.open(data)
     splits = {k: ds.splits[k].tolist() for k in ("train", "val", "test")}
     jitter = np.float32(1e-6) * np.sign(np.random.default_rng(0).normal(size=ds.motion.shape)).astype(np.float32)
