@@ -39,7 +39,7 @@ launcher waits for every job and records each failure (with SLURM's state, e.g. 
 Results: after every run, OUT/results.jsonl and OUT/results.csv are rebuilt (atomically) from the run
 folders, one row per run of the sweep: axis values, params, FLOPs in both conventions, training
 compute, metrics with CIs, wall time, device kind, git commit, status. All runs share a persistent
-JAX compilation cache in OUT/jax_cache (JAX_COMPILATION_CACHE_DIR).
+JAX compilation cache: the user's JAX_COMPILATION_CACHE_DIR if set, else OUT/jax_cache.
 """
 
 from __future__ import annotations
@@ -390,8 +390,10 @@ def _env(cfg: SweepConfig) -> dict:
     return {"WANDB_RUN_GROUP": cfg.name or out.name,
             # One persistent compilation cache for every run of the sweep: the same shapes (a resumed run,
             # the evaluator in every run's eval stage) compile once. JAX caches only compilations over
-            # 1 s by default; tiny CPU runs compile faster than that.
-            "JAX_COMPILATION_CACHE_DIR": str(out / "jax_cache"),
+            # 1 s by default; tiny CPU runs compile faster than that. A cache the user names is kept (shared
+            # with their other sweeps and commands: another sweep's evaluate stages, a relaunch into a new
+            # --out, compile nothing again); without one, OUT/jax_cache.
+            "JAX_COMPILATION_CACHE_DIR": os.environ.get("JAX_COMPILATION_CACHE_DIR") or str(out / "jax_cache"),
             "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": os.environ.get("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS",
                                                                          "0.2"),
             "PYTHONPATH": os.pathsep.join(p for p in (str(REPO), os.environ.get("PYTHONPATH")) if p)}

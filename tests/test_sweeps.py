@@ -163,7 +163,8 @@ def test_collect_refuses_a_mistyped_path(tmp_path):
 # Launch, failures, shared steps, results
 
 
-def test_failure_is_recorded_and_the_sweep_goes_on(tmp_path):
+def test_failure_is_recorded_and_the_sweep_goes_on(tmp_path, monkeypatch):
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)  # a user who names no cache
     cfg = cfg_for(tmp_path)
     specs = [fake("a", size=1), fake("b", "--fail", size=2), fake("c", size=3)]
     res = launch(specs, cfg)
@@ -178,8 +179,11 @@ def test_failure_is_recorded_and_the_sweep_goes_on(tmp_path):
     assert a["params"] == 1000 and a["flops_per_sample"] == 1e6 and a["layers"] == 1
     csv = (tmp_path / "sweep/results.csv").read_text().splitlines()
     assert csv[0].startswith("run_id,family") and len(csv) == 4 and "status" in csv[0]
-    # Every run shares one persistent JAX compilation cache under the sweep folder.
+    # Every run shares one persistent JAX compilation cache under the sweep folder, unless the user names one.
     assert invocations(tmp_path / "sweep/runs/a")[0]["cache"] == str(tmp_path / "sweep/jax_cache")
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "mine"))
+    launch([fake("d")], SweepConfig(**{**cfg.__dict__, "out": str(tmp_path / "sweep2")}))
+    assert invocations(tmp_path / "sweep2/runs/d")[0]["cache"] == str(tmp_path / "mine")
     st = {r["name"]: r["status"] for r in status(tmp_path / "sweep")}
     assert st == {"a": "done", "b": "failed", "c": "done"}
     # The CLI exits non-zero at the end, after running every run.
@@ -277,7 +281,8 @@ def test_kill9_of_the_launcher_ends_its_child_and_the_relaunch_finishes(tmp_path
     launcher = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     pid_file = out / "runs/b/pid"
     deadline = time.time() + 60
-    while not pid_file.exists() and time.time() < deadline:
+    # Non-empty: the fake stage creates the file, then writes its pid (a read in between finds it empty).
+    while not (pid_file.exists() and pid_file.read_text().strip()) and time.time() < deadline:
         time.sleep(0.05)
     assert pid_file.exists(), "run b never started"
     child = int(pid_file.read_text())
@@ -542,28 +547,30 @@ def test_scores_at_another_block_are_redone_from_the_same_samples(tmp_path, monk
 
 
 @pytest.mark.slow
-def test_launch_resume_and_results(tmp_path):
+def test_a_real_diffusion_run_and_its_row(tmp_path, monkeypatch):
+    """One real diffusion run through the launcher (its stages: ``handx train diffusion --encoder``). Killing
+    and relaunching a sweep of real stages (a finished run left as it is, the debug executor's path) is
+    tests/test_ar_sweep.py's."""
     from diffusion_fixtures import ENCODER, make_dataset
 
+    from handx_jax.families.diffusion import make_config
+
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)  # a user who names no cache: OUT/jax_cache
     data = make_dataset(tmp_path)
-    specs = [RunSpec("a", "diffusion", overrides=TINY, axes={"layers": 1}),
-             RunSpec("b", "diffusion", overrides=TINY + ("data.fraction=0.5", "data.sampling=pairs"))]
+    specs = [RunSpec("b", "diffusion", overrides=TINY + ("data.fraction=0.5", "data.sampling=pairs"),
+                     axes={"layers": 1})]
     cfg = SweepConfig(data=str(data), encoder=str(ENCODER), out=str(tmp_path / "sweep"))
-    # "Killed" after the first run: only it finished.
-    launch(specs[:1], cfg)
-    assert stage_state(cfg, specs[0])["train"] and not stage_state(cfg, specs[1])["train"]
-    mtime = (tmp_path / "sweep/runs/a/metrics.jsonl").stat().st_mtime_ns
-    # Re-running the whole sweep skips the finished run and completes the other (debug = submitit path).
-    res = launch(specs, SweepConfig(**{**cfg.__dict__, "executor": "debug"}))
+    res = launch(specs, cfg)
     assert not res.failed
-    assert (tmp_path / "sweep/runs/a/metrics.jsonl").stat().st_mtime_ns == mtime
     rows = rows_of(res.results)
-    assert [r["run_id"] for r in rows] == ["a", "b"]
-    assert rows[1]["data_fraction"] == 0.5 and rows[1]["data_sampling"] == "pairs"
-    assert rows[0]["data_sampling"] == "clips" and rows[0]["params"] > 0
-    # Both FLOPs conventions on every row.
+    assert [r["run_id"] for r in rows] == ["b"]
+    assert rows[0]["data_fraction"] == 0.5 and rows[0]["data_sampling"] == "pairs"
+    assert rows[0]["params"] > 0 and rows[0]["layers"] == 1
+    # A run that sets no sampling draws whole clips (the row reads its config.json like this one's "pairs").
+    assert make_config("tiny", TINY, data="", encoder="").data.sampling == "clips"
+    # Both FLOPs conventions on the row.
     assert rows[0]["flops_per_sample"] > 0 and rows[0]["flops_per_sample_paper"] > rows[0]["flops_per_sample"] / 2
-    assert [s["status"] for s in status(tmp_path / "sweep")] == ["done", "done"]
+    assert [s["status"] for s in status(tmp_path / "sweep")] == ["done"]
     assert any((tmp_path / "sweep/jax_cache").iterdir())  # the runs' shared persistent compilation cache
     # data.sampling=pairs draws (clip, level) items as the reference does: RandomState(42).choice without
     # replacement over all train items, nested across fractions; "clips" keeps every level of each clip.
