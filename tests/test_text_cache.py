@@ -62,8 +62,9 @@ def test_cache_reads_back_direct_encoding(setup):
 
 def test_float16_and_determinism(setup):
     data, enc_dir, _ = setup
-    a = TextCache.open(build_cache(data, enc_dir, dtype="float32", batch_size=32, log=lambda s: None))
-    b = TextCache.open(build_cache(data, enc_dir, dtype="float16", batch_size=32, log=lambda s: None))
+    # captions cut to 32 tokens: two padded lengths (16, 32) to compile per dtype and batch size, not four
+    a = TextCache.open(build_cache(data, enc_dir, dtype="float32", max_len=32, batch_size=32, log=lambda s: None))
+    b = TextCache.open(build_cache(data, enc_dir, dtype="float16", max_len=32, batch_size=32, log=lambda s: None))
     assert b.hidden.dtype == np.float16 and a.fingerprint != b.fingerprint
     assert np.abs(np.asarray(b.hidden, np.float32) - a.hidden).max() < 1e-2
     # the cast is round-to-nearest of the float32 value (at most half a float16 step away), padding exact zeros
@@ -71,11 +72,11 @@ def test_float16_and_determinism(setup):
     assert (np.abs(np.asarray(b.hidden, np.float32) - a.hidden) <= 0.5 * step + 1e-6).mean() > 0.999
     assert not np.asarray(b.hidden)[~np.asarray(b.mask)].any() and not np.asarray(a.hidden)[~np.asarray(a.mask)].any()
     before = np.array(a.hidden)
-    again = TextCache.open(build_cache(data, enc_dir, dtype="float32", batch_size=32, overwrite=True,
+    again = TextCache.open(build_cache(data, enc_dir, dtype="float32", max_len=32, batch_size=32, overwrite=True,
                                        log=lambda s: None))
     assert again.root == a.root
     np.testing.assert_array_equal(again.hidden, before)  # same settings, same numbers
-    other = TextCache.open(build_cache(data, enc_dir, dtype="float32", batch_size=8, overwrite=True,
+    other = TextCache.open(build_cache(data, enc_dir, dtype="float32", max_len=32, batch_size=8, overwrite=True,
                                        log=lambda s: None))
     assert np.abs(other.hidden - before).max() < 1e-5  # batch composition: float rounding only
 
@@ -118,7 +119,8 @@ def test_cli_cache_and_encode(setup, capsys):
     data, enc_dir, _ = setup
     p = argparse.ArgumentParser()
     cli.add_parser(p.add_subparsers())
-    a = p.parse_args(["text", "cache", "--data", str(data), "--encoder", str(enc_dir), "--nn-check", "100"])
+    a = p.parse_args(["text", "cache", "--data", str(data), "--encoder", str(enc_dir), "--nn-check", "100",
+                      "--max-len", "32", "--batch-size", "32"])  # test_float16_and_determinism's float16 shapes
     assert a.func(a) == 0
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
     assert lines[0]["rows"] > 0 and lines[0]["dtype"] == "float16" and "captions_per_s" in lines[0]
