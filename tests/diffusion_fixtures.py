@@ -4,8 +4,10 @@
 from __future__ import annotations
 
 import fcntl
+import functools
 import os
 import shutil
+import types
 from pathlib import Path
 
 ENCODER = Path(__file__).parent / "fixtures" / "t5_tiny_gated"
@@ -48,6 +50,60 @@ def tiny_config(data: Path, *overrides: str):
     base = ("train.steps=6", "train.batch_size=8", "train.log_every=2", "train.ckpt_every=3", "train.wandb=disabled",
             "train.optim.warmup_steps=0", "train.optim.lr=1e-3")
     return make_config("tiny", base + overrides, data=str(data), encoder=str(ENCODER))
+
+
+# The session's tiny diffusion run: 4 steps (test_generate.py's measured contact-guidance figures are this
+# model's), a checkpoint every 2 and a metrics row every step (test_diffusion_train.py kills a copy of it after
+# step 3 and resumes). Checkpoints and logging do not change the trained numbers.
+RUN_OVERRIDES = ("train.steps=4", "train.ckpt_every=2", "train.log_every=1")
+
+
+def make_run(root: Path) -> tuple[Path, Path]:
+    """The 32-clip corpus (per-field cache) under ``root/ds`` and a tiny run trained on it with
+    ``tiny_config(data, *RUN_OVERRIDES)`` under ``root/run``: built once per test session in the session
+    folder, under a file lock, and copied (tests write into the run folder: ``handx eval prediction``'s
+    results). The run's config.json names the session's copy of the corpus, the same bytes as ``root/ds``."""
+    from handx_jax.families.diffusion import train
+
+    session = os.environ.get("HANDX_TEST_SESSION")
+    if not session:
+        data = make_dataset(root)
+        train(root / "run", tiny_config(data, *RUN_OVERRIDES))
+        return data, root / "run"
+    shared = Path(session) / "shared" / "tinyrun4"
+    shared.parent.mkdir(parents=True, exist_ok=True)
+    with open(shared.parent / ".tinyrun.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (shared / "done").exists():
+            shutil.rmtree(shared, ignore_errors=True)
+            train(shared / "run", tiny_config(make_dataset(shared), *RUN_OVERRIDES))
+            (shared / "done").touch()
+    shutil.copytree(shared / "ds", root / "ds")
+    shutil.copytree(shared / "run", root / "run")
+    return root / "ds", root / "run"
+
+
+@functools.lru_cache(maxsize=None)
+def tiny_denoiser():
+    """The tiny preset's denoiser with dropout 0 (its training path then computes what the forward-only path
+    computes), params from PRNGKey(0), and its paths jitted with every array an argument: one process compiles
+    each path once for every test that calls it, and tests in other processes load it from the session's
+    compilation cache (same program, same name). Returns (cfg, model, params, programs)."""
+    import dataclasses
+
+    import jax
+
+    from handx_jax.models.dit import PRESETS, init_denoiser
+
+    cfg = dataclasses.replace(PRESETS["tiny"], dropout=0.0)
+    model, params = init_denoiser(cfg, jax.random.PRNGKey(0), 8)
+    programs = types.SimpleNamespace(
+        encode=jax.jit(lambda p, text, mask: model.apply(p, text, mask, method=model.encode)),
+        full=jax.jit(lambda p, x, t, text, mask, drop, det: model.apply(p, x, t, text, mask, drop, deterministic=det),
+                     static_argnums=6),
+        denoise=jax.jit(lambda p, x, t, memory, null_rows, repeats: model.apply(
+            p, x, t, memory, null_rows, repeats, method=model.denoise), static_argnums=(4, 5)))
+    return cfg, model, params, programs
 
 
 def make_evaluator(dst: Path) -> Path:

@@ -83,13 +83,18 @@ def _drops_seen_by_make_loss(dcfg, batch_size):
 
     class Recorder:
         def apply(self, params, x_t, t, text, mask, drop, deterministic, rngs):
-            seen["drop"] = np.asarray(drop)
+            seen["drop"] = drop
             return x_t
 
     batch = {"x0": jnp.zeros((batch_size, 2, 1, 4)), "text": jnp.zeros((batch_size, 3, 1, 1)),
              "mask": jnp.ones((batch_size, 3, 1), bool)}
-    make_loss(Recorder(), dcfg)(None, batch, jax.random.PRNGKey(3), True)
-    return seen["drop"]
+
+    @jax.jit  # as the train step runs it: one program, not one compile per random op
+    def drops(rng):
+        make_loss(Recorder(), dcfg)(None, batch, rng, True)
+        return seen["drop"]
+
+    return np.asarray(drops(jax.random.PRNGKey(3)))
 
 
 def test_joint_drop_rate_of_all_three_null():
@@ -113,5 +118,5 @@ def test_joint_drop_rate_of_all_three_null():
     p_two = (1 - cfg.joint_drop) * 3 * cfg.cond_drop ** 2 * (1 - cfg.cond_drop)
     assert close((drop.sum(1) == 2).mean(), p_two)
     # joint_drop = 0 is the reference's independent per-branch dropout
-    ref = D.cond_drop_mask(jax.random.PRNGKey(1), N, D.DiffusionConfig(joint_drop=0.0))
+    ref = jax.jit(D.cond_drop_mask, static_argnums=(1, 2))(jax.random.PRNGKey(1), N, D.DiffusionConfig(joint_drop=0.0))
     assert close(float(np.asarray(ref).all(1).mean()), 0.001)

@@ -15,7 +15,7 @@ from handx_jax.families.diffusion import (DiffusionRunConfig, apply_overrides, l
 from handx_jax.families.diffusion import train as train_diffusion
 from handx_jax.models.dit import PRESETS, forward_flops, init_denoiser, param_count
 from handx_jax.train import load_params
-from tests.diffusion_fixtures import ENCODER, make_dataset, tiny_config
+from tests.diffusion_fixtures import ENCODER, RUN_OVERRIDES, make_dataset, make_run, tiny_config
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +74,9 @@ def test_training_lowers_the_loss_and_writes_a_results_row(data, tmp_path):
     model = make_model(cfg.model)
     loss = jax.jit(make_loss(model, cfg.diffusion), static_argnums=3)  # one compile, not one per op (eager)
     batch = tr.batch(np.arange(0, tr.num_items, 2)[:32])
-    fixed = lambda p: float(np.mean([loss(p, batch, jax.random.PRNGKey(s), False)[0] for s in range(4)]))  # noqa: E731
+    # numpy leaves: the initial and the restored params (placed differently) then share one compiled loss
+    fixed = lambda p: float(np.mean([loss(jax.tree.map(np.asarray, p), batch, jax.random.PRNGKey(s), False)[0]  # noqa: E731
+                                     for s in range(4)]))
     cfg_model = dataclasses.replace(cfg.model, text_dim=32)
     p0 = init_denoiser(cfg_model, jax.random.fold_in(jax.random.PRNGKey(cfg.train.seed), 0), text_len=128)[1]
     train_diffusion(tmp_path / "run", cfg)
@@ -94,17 +96,22 @@ def test_training_lowers_the_loss_and_writes_a_results_row(data, tmp_path):
     assert (tmp_path / "run" / "norm_stats.npz").exists()
 
 
-def test_kill_and_resume_is_exact(data, tmp_path):
-    cfg = tiny_config(data)
-    full = train_diffusion(tmp_path / "a", cfg)
-    train_diffusion(tmp_path / "b", cfg, stop_at=4)  # "killed" after step 4; last checkpoint is step 3
+def test_kill_and_resume_is_exact(tmp_path):
+    # The uninterrupted run: the session's tiny run (tests/diffusion_fixtures.py make_run: 4 steps, a checkpoint
+    # every 2, a metrics row every step), trained on the same corpus bytes; test_generate.py samples from it.
+    data, full = make_run(tmp_path)
+    cfg = tiny_config(data, *RUN_OVERRIDES)
+    train_diffusion(tmp_path / "b", cfg, stop_at=3)  # "killed" after step 3; last checkpoint is step 2
     resumed = train_diffusion(tmp_path / "b", cfg)
-    for a, b in zip(jax.tree_util.tree_leaves(full["params"]), jax.tree_util.tree_leaves(resumed["params"])):
-        np.testing.assert_array_equal(a, b)
-    for a, b in zip(jax.tree_util.tree_leaves(full["ema"]), jax.tree_util.tree_leaves(resumed["ema"])):
-        np.testing.assert_array_equal(a, b)
+    assert int(resumed["step"]) == load_params(full)[1] == 4
+    for ema in (False, True):
+        want = jax.tree_util.tree_leaves(load_params(full, ema=ema)[0])
+        got = jax.tree_util.tree_leaves(resumed["ema" if ema else "params"])
+        assert len(want) == len(got) > 0
+        for a, b in zip(want, got):
+            np.testing.assert_array_equal(a, b)
     steps = [json.loads(x)["step"] for x in (tmp_path / "b" / "metrics.jsonl").read_text().splitlines()]
-    assert steps == [2, 4, 6]
+    assert steps == [1, 2, 3, 4]  # step 3's row, written before the kill, once
     # Resuming with a different configuration is refused.
     with pytest.raises(ValueError, match="different configuration"):
         train_diffusion(tmp_path / "b", tiny_config(data, "train.optim.lr=5e-4"))

@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 
 from handx_jax.families.diffusion import process as D
-from handx_jax.models.dit import NUM_BRANCHES, PRESETS, DiTConfig, forward_flops, init_denoiser, param_count
+from handx_jax.models.dit import (NUM_BRANCHES, PRESETS, DiTConfig, TrebleDenoiser, forward_flops, init_denoiser,
+                                  param_count)
+from tests.diffusion_fixtures import tiny_denoiser
 
 
 def _count_by_hand(L, D, FF, text=768, motion=168):
@@ -23,6 +25,9 @@ def test_param_counts_match_table_c(name, paper_millions, exact):
     cfg = PRESETS[name]
     assert param_count(cfg) == _count_by_hand(cfg.layers, cfg.dim, cfg.ff) == exact
     assert round(exact / 1e6, 2) == paper_millions
+
+
+def test_param_count_of_table_c_fourth_row():
     # Table C's fourth row (16, 768, 3072) is 153,262,248 here, not the paper's 260.97M (reference §3.3)
     big = DiTConfig(layers=16, dim=768, heads=12, ff=3072)
     assert _count_by_hand(16, 768, 3072) == 153_262_248 and param_count(big) == 153_262_248
@@ -58,12 +63,14 @@ def _inputs(cfg, B=2, L=8, seed=0):
     x = jnp.asarray(r.normal(size=(B, cfg.frames, 42, 4)), jnp.float32)
     text = jnp.asarray(r.normal(size=(NUM_BRANCHES, B, L, cfg.text_dim)), jnp.float32)
     mask = jnp.asarray(np.arange(L)[None, None] < np.array([[L], [L - 3], [2]])[:, :, None].repeat(B, 1), bool)
-    return x, jnp.asarray([5, 900][:B]), text, mask
+    return x, jnp.asarray([5, 900, 300][:B]), text, mask
 
 
 def test_analytic_flops_match_xla():
     cfg = DiTConfig(layers=2, dim=128, heads=4, ff=256, text_dim=96)
-    model, params = init_denoiser(cfg, jax.random.PRNGKey(0))
+    # the parameters' shapes are all XLA's cost analysis needs: no initialisation to compile and run
+    model = TrebleDenoiser(cfg)
+    params = jax.eval_shape(lambda r: init_denoiser(cfg, r)[1], jax.random.PRNGKey(0))
     x, t, text, mask = _inputs(cfg, B=1, L=16)
     fwd = lambda p, x, t, te, m: model.apply(p, x, t, te, m, jnp.zeros((1, 3), bool))  # noqa: E731
     cost = jax.jit(fwd).lower(params, x, t, text, mask).compile().cost_analysis()
@@ -74,21 +81,21 @@ def test_analytic_flops_match_xla():
 
 
 def test_branches_share_weights_and_text_matters():
-    cfg = PRESETS["tiny"]
-    model, params = init_denoiser(cfg, jax.random.PRNGKey(0))
+    # the tiny preset (dropout 0) and its compiled forward, shared with tests/test_perf_paths.py (batch 3)
+    cfg, model, params, jit = tiny_denoiser()
     names = set(params["params"])
     assert {"layer0", "layer1", "input_proj", "output_proj", "text_proj", "cls", "null_text"} <= names
     assert not any(n.startswith("layer2") for n in names)  # one stack, not three
-    x, t, text, mask = _inputs(cfg)
-    none = jnp.zeros((2, 3), bool)
-    apply = jax.jit(model.apply)  # one compile for the five calls below (eager dispatch compiles every op)
+    x, t, text, mask = _inputs(cfg, B=3)
+    none = jnp.zeros((3, 3), bool)
+    apply = lambda *a: jit.full(*a, True)  # noqa: E731  (one compile for the five calls below)
     out = apply(params, x, t, text, mask, none)
     assert out.shape == x.shape
     # Changing only the interaction text changes the prediction; dropping all texts gives the
     # unconditional output, which is independent of the texts.
     text2 = text.at[2].set(-text[2])
     assert not np.allclose(apply(params, x, t, text2, mask, none), out)
-    allnull = jnp.ones((2, 3), bool)
+    allnull = jnp.ones((3, 3), bool)
     u1 = apply(params, x, t, text, mask, allnull)
     u2 = apply(params, x, t, text2, mask, allnull)
     np.testing.assert_allclose(u1, u2, atol=1e-6)
@@ -110,7 +117,7 @@ def test_cosine_schedule_matches_reference_formula():
 def test_loss_terms_known_values():
     x0 = jnp.zeros((1, 4, 42, 4))
     pred = x0.at[..., :3].set(1.0)  # constant offset: no velocity or acceleration
-    total, aux = D.diffusion_loss(x0, pred, D.DiffusionConfig())
+    total, aux = jax.jit(D.diffusion_loss, static_argnums=2)(x0, pred, D.DiffusionConfig())  # compiled, as trained
     assert float(aux["l_pos"]) == pytest.approx(1.0) and float(aux["l_repr"]) == pytest.approx(0.75)
     assert float(aux["l_vel"]) == 0.0 and float(aux["l_acc"]) == 0.0
     assert float(total) == pytest.approx(1.0 + 0.5 * 0.75)

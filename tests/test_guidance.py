@@ -1,6 +1,8 @@
 """The contact energy for sampling-time guidance (issue 33 item 2; handx_jax/guidance.py): its distances are
 the metric's, its gradient matches finite differences, and descending it realises a requested contact."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -13,6 +15,10 @@ from handx_jax import metrics as M
 from handx_jax import skeleton as sk
 
 CH = M.CONTACT_CHANNELS
+# compiled once for the tests below (run op by op, each of their many operations is its own compile)
+distances = jax.jit(Gd.channel_distances)
+to_joints = jax.jit(Gd.x0_to_joints)
+energy_of = jax.jit(Gd.contact_energy)
 THUMBS = CH[("finger_tip_contact", "left_thumb_tip, right_thumb_tip")]
 INDEX_PALM = CH[("finger_palm_distance", "left_index_tip, right_palm")]
 
@@ -35,7 +41,7 @@ def _request(T: int, cells) -> np.ndarray:
 def test_distances_are_the_metrics():
     x = _pair().astype(np.float32)
     W = M.palm_barycentric()
-    np.testing.assert_allclose(np.asarray(Gd.channel_distances(jnp.asarray(x), jnp.asarray(W))),
+    np.testing.assert_allclose(np.asarray(distances(jnp.asarray(x), jnp.asarray(W))),
                                np.asarray(M.contact_channel_distances(x, W)), atol=1e-6)
 
 
@@ -78,7 +84,7 @@ def test_descending_the_energy_realises_the_requested_contact():
     for _ in range(60):
         g = grad(x)
         x = x - 0.5 * g / (jnp.linalg.norm(g) + 1e-12) * 0.01  # BimArt's λ_c = 1/‖∇‖, a 5 mm step
-    assert float(Gd.contact_energy(x, req, W)[0]) < 1e-8
+    assert float(energy_of(x, req, W)[0]) < 1e-8
     assert M.contact_feasibility_counts(np.asarray(x), named, W)[0][0] == 1.0
     np.testing.assert_array_equal(np.asarray(x)[:, :4], np.asarray(x0)[:, :4])
 
@@ -100,6 +106,7 @@ SIGMA = 0.05  # the toy's normalisation: xyz / 5 cm, no mean (a z-score with mea
 MEAN, STD = np.zeros((42, 4), np.float32), np.full((42, 4), SIGMA, np.float32)
 
 
+@functools.lru_cache  # the tests below share its compiled programs
 def _toy_sampler(gap: float = 0.12, feedback: float = 0.2):
     """A denoiser that ignores the text: x̂0 = P + feedback·x_t, P the handmade pair (30 frames; thumb tips ~7 cm
     apart at gap 0.12, no contact anywhere). Through x_t, guidance at one step moves the later predictions too."""
@@ -119,7 +126,7 @@ def _toy_sampler(gap: float = 0.12, feedback: float = 0.2):
         if lower:
             return fn.lower(*args).as_text()
         x = np.asarray(fn(*args))
-        return x, Gd.x0_to_joints(jnp.asarray(x), MEAN, STD)
+        return x, to_joints(jnp.asarray(x), MEAN, STD)
 
     return run
 
@@ -133,8 +140,8 @@ def test_a_guided_toy_sample_reaches_the_requested_contact_and_an_unguided_one_d
     # here; strength 5 lets the last steps close the ~7 cm gap.
     x_on, j_on = run(req, strength=5.0)
     thr = float(M.contact_thresholds()[THUMBS])
-    d_off = np.asarray(Gd.channel_distances(j_off, W))[..., THUMBS]
-    d_on = np.asarray(Gd.channel_distances(j_on, W))[..., THUMBS]
+    d_off = np.asarray(distances(j_off, W))[..., THUMBS]
+    d_on = np.asarray(distances(j_on, W))[..., THUMBS]
     assert d_off.min() > 2 * thr  # unguided: the thumbs never meet
     assert d_on[:, 10:20].max() < thr  # guided: in contact on every requested frame, in both samples
     named = M.NamedContacts(np.array([0, 1]), np.array([THUMBS] * 2), np.array([10] * 2), np.array([20] * 2))
@@ -146,7 +153,7 @@ def test_a_guided_toy_sample_reaches_the_requested_contact_and_an_unguided_one_d
     np.testing.assert_array_equal(x_on[:, 20:], x_off[:, 20:])
     np.testing.assert_array_equal(run(np.zeros_like(req), strength=5.0)[0], x_off)
     # A weaker step gets less far (strength is a traced input: the same compiled program).
-    d_weak = np.asarray(Gd.channel_distances(run(req, strength=1.0)[1], W))[..., THUMBS]
+    d_weak = np.asarray(distances(run(req, strength=1.0)[1], W))[..., THUMBS]
     assert d_on[:, 10:20].max() < d_weak[:, 10:20].min() < d_off[:, 10:20].min()
 
 
@@ -166,7 +173,7 @@ def test_one_step_closes_a_single_gap_exactly_or_moves_by_its_length():
     energy = lambda y: Gd.contact_energy(Gd.x0_to_joints(y, MEAN, STD), req, W)  # noqa: E731
 
     def dist(y):
-        return float(Gd.channel_distances(Gd.x0_to_joints(jnp.asarray(y), MEAN, STD), W)[0, 0, THUMBS])
+        return float(distances(to_joints(jnp.asarray(y), MEAN, STD), W)[0, 0, THUMBS])
 
     step = jax.jit(lambda y, ell: Gd.guide_step(y, energy, ell))
     d0 = dist(x)

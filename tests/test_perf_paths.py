@@ -18,8 +18,9 @@ import pytest
 
 from handx_jax.families.diffusion import process as D
 from handx_jax.families.diffusion.sampling import _sample_impl
-from handx_jax.models.dit import NUM_BRANCHES, PRESETS, init_denoiser
+from handx_jax.models.dit import NUM_BRANCHES
 from handx_jax.models.layers import Attention, Dropout, gelu_erf, keep_mask
+from tests.diffusion_fixtures import tiny_denoiser
 
 
 def _text(cfg, B, L, seed=0):
@@ -31,37 +32,36 @@ def _text(cfg, B, L, seed=0):
 
 @pytest.fixture(scope="module")
 def tiny():
-    cfg = PRESETS["tiny"]
-    model, params = init_denoiser(cfg, jax.random.PRNGKey(0), 8)
-    return cfg, model, params
+    # Dropout 0 (tests/diffusion_fixtures.py tiny_denoiser): the training path (deterministic=False) then computes
+    # what the forward-only path computes, so the tests below share one model and its compiled programs, every
+    # array an argument (a captured array would be a constant of its program: each test would compile again).
+    return tiny_denoiser()
 
 
 def test_encode_denoise_equals_full_forward(tiny):
-    cfg, model, params = tiny
+    cfg, model, params, jit = tiny
     B, L = 3, 8
     text, mask = _text(cfg, B, L)
     r = np.random.default_rng(1)
     x = jnp.asarray(r.normal(size=(B, cfg.frames, 42, 4)), jnp.float32)
     t = jnp.asarray([0, 400, 999])
     # each path compiled (as the sampler and the train step run them): eager dispatch costs seconds per call
-    memory = jax.jit(lambda p: model.apply(p, text, mask, method=model.encode))(params)
-    both = jax.jit(lambda p, m: model.apply(p, jnp.concatenate([x, x]), jnp.concatenate([t, t]), m, B,
-                                            method=model.denoise))(params, memory)
-    full = jax.jit(lambda p, drop: model.apply(p, x, t, text, mask, drop))
-    cond, uncond = full(params, jnp.zeros((B, 3), bool)), full(params, jnp.ones((B, 3), bool))
+    memory = jit.encode(params, text, mask)
+    xx, tt = jnp.concatenate([x, x]), jnp.concatenate([t, t])
+    both = jit.denoise(params, xx, tt, memory, B, False)
+    cond = jit.full(params, x, t, text, mask, jnp.zeros((B, 3), bool), True)
+    uncond = jit.full(params, x, t, text, mask, jnp.ones((B, 3), bool), True)
     np.testing.assert_allclose(both[:B], cond, atol=1e-5)
     np.testing.assert_allclose(both[B:], uncond, atol=1e-5)
-    only_null = jax.jit(lambda p: model.apply(p, x, t, method=lambda m, x, t: m.denoise(x, t, None, B)))(params)
+    only_null = jit.denoise(params, x, t, None, B, False)
     np.testing.assert_allclose(only_null, uncond, atol=1e-5)
     assert not np.allclose(cond, uncond)
     # guidance's [x; x] batch: the first layer's self-attention block runs once and is copied
-    shared = jax.jit(lambda p, m: model.apply(p, jnp.concatenate([x, x]), jnp.concatenate([t, t]), m, B, True,
-                                              method=model.denoise))(params, memory)
+    shared = jit.denoise(params, xx, tt, memory, B, True)
     np.testing.assert_allclose(shared[:B], cond, atol=1e-5)
     np.testing.assert_allclose(shared[B:], uncond, atol=1e-5)
     with pytest.raises(ValueError, match="null_repeats needs as many null rows"):
-        model.apply(params, jnp.concatenate([x, x[:1]]), jnp.concatenate([t, t[:1]]), memory, 1, True,
-                    method=model.denoise)
+        jit.denoise(params, jnp.concatenate([x, x[:1]]), jnp.concatenate([t, t[:1]]), memory, 1, True)
 
 
 def test_attention_layouts_equal_a_numpy_reference():
@@ -74,7 +74,7 @@ def test_attention_layouts_equal_a_numpy_reference():
     valid = np.arange(M)[None] < np.array([[7], [3]])  # the second sample sees 3 keys
     mask = jnp.asarray(valid[:, None, None, :])
     attn = Attention(D, H, dropout=0.0)
-    params = attn.init(jax.random.PRNGKey(0), jnp.asarray(x), deterministic=True)
+    params = jax.jit(lambda k, x: attn.init(k, x, deterministic=True))(jax.random.PRNGKey(0), jnp.asarray(x))
     p = jax.tree.map(np.asarray, params["params"])
     proj = lambda a, n: np.einsum("bsd,dhk->bshk", a, p[n]["kernel"]) + p[n]["bias"]  # noqa: E731
     q, k, v = proj(x, "query") / np.sqrt(D // H), proj(mem, "key"), proj(mem, "value")
@@ -83,9 +83,10 @@ def test_attention_layouts_equal_a_numpy_reference():
     w = np.exp(logits - logits.max(-1, keepdims=True))
     w /= w.sum(-1, keepdims=True)
     ref = np.einsum("bhqm,bmhk,hkd->bqd", w, v, p["out"]["kernel"]) + p["out"]["bias"]
+    kv = jax.jit(lambda p, m: attn.apply(p, m, method=attn.kv))(params, jnp.asarray(mem))
+    apply = jax.jit(lambda p, x, kv, mask, det: attn.apply(p, x, kv, mask, deterministic=det), static_argnums=4)
     for deterministic in (True, False):  # rate 0: the two differ only in layout
-        kv = attn.apply(params, jnp.asarray(mem), method=attn.kv)
-        got = attn.apply(params, jnp.asarray(x), kv, mask, deterministic=deterministic)
+        got = apply(params, jnp.asarray(x), kv, mask, deterministic)
         np.testing.assert_allclose(got, ref, atol=1e-5, err_msg=f"deterministic={deterministic}")
 
 
@@ -101,67 +102,76 @@ def test_branch_self_attention_equals_attention_on_each_branch_sequence(class_sc
     full = jnp.concatenate([jnp.broadcast_to(h[None, :, :1], (K, N, 1, D)), jnp.broadcast_to(c[:, None, None], (K, N, 1, D)),
                             jnp.broadcast_to(h[None, :, 1:], (K, N, S - 1, D))], axis=2)
     attn = Attention(D, H, dropout=0.0)
-    params = attn.init(jax.random.PRNGKey(1), full.reshape(K * N, S + 1, D), deterministic=True)
-    want = attn.apply(params, full.reshape(K * N, S + 1, D), deterministic=True).reshape(K, N, S + 1, D)
-    got = attn.apply(params, h, c, method=attn.branch_self_attention)
+    # compiled (one program each, the same for both scales) rather than dispatched op by op
+    params = jax.jit(lambda k, x: attn.init(k, x, deterministic=True))(jax.random.PRNGKey(1),
+                                                                       full.reshape(K * N, S + 1, D))
+    want = jax.jit(lambda p, x: attn.apply(p, x, deterministic=True))(params, full.reshape(K * N, S + 1, D))
+    want = want.reshape(K, N, S + 1, D)
+    got = jax.jit(lambda p, h, c: attn.apply(p, h, c, method=attn.branch_self_attention))(params, h, c)
     assert np.isfinite(np.asarray(got)).all()
     np.testing.assert_allclose(got, want, atol=2e-5 * class_scale, rtol=1e-5)
     assert not np.allclose(got[0], got[1])  # the branch token matters at every position
 
 
-def test_forward_only_denoiser_equals_the_plain_branch_stack():
+def test_forward_only_denoiser_equals_the_plain_branch_stack(tiny):
     """Forward-only calls (sampling, evaluation) run layer 0's self-attention on the shared tokens;
     the training path (deterministic=False, here with dropout 0) builds the three branch sequences
     in full. Same outputs, with and without text dropped, with guidance's repeated rows."""
-    from dataclasses import replace
-
-    cfg = replace(PRESETS["tiny"], dropout=0.0)
-    model, params = init_denoiser(cfg, jax.random.PRNGKey(2), 8)
+    cfg, model, params, jit = tiny  # dropout 0; the programs of the test above, with other inputs
     B, L = 3, 8
     text, mask = _text(cfg, B, L, seed=6)
     r = np.random.default_rng(7)
     x = jnp.asarray(r.normal(size=(B, cfg.frames, 42, 4)), jnp.float32)
     t = jnp.asarray([0, 300, 999])
     drop = jnp.asarray([[False, False, False], [True, False, True], [True, True, True]])
-    run = jax.jit(lambda p, det: model.apply(p, x, t, text, mask, drop, deterministic=det), static_argnums=1)
-    plain, shared = run(params, False), run(params, True)
+    plain, shared = jit.full(params, x, t, text, mask, drop, False), jit.full(params, x, t, text, mask, drop, True)
     np.testing.assert_allclose(shared, plain, atol=1e-5)
-    memory = jax.jit(lambda p: model.apply(p, text, mask, method=model.encode))(params)
-    both = jax.jit(lambda p, m: model.apply(p, jnp.concatenate([x, x]), jnp.concatenate([t, t]), m, B, True,
-                                            method=model.denoise))(params, memory)
+    memory = jit.encode(params, text, mask)
+    both = jit.denoise(params, jnp.concatenate([x, x]), jnp.concatenate([t, t]), memory, B, True)
     for rows, flags in ((slice(0, B), False), (slice(B, 2 * B), True)):
-        ref = jax.jit(lambda p, d: model.apply(p, x, t, text, mask, d, deterministic=False))(
-            params, jnp.full((B, 3), flags))
+        ref = jit.full(params, x, t, text, mask, jnp.full((B, 3), flags), False)
         np.testing.assert_allclose(both[rows], ref, atol=1e-5)
+
+
+def _sampler(model, guidance, **kw):
+    """The sampler as ``compile_sampler`` builds it (DDIM-8, the run's diffusion config), with XLA's default
+    options unless ``kw`` says otherwise; arguments (params, text, mask, rng, target, gamma)."""
+    from functools import partial
+
+    dcfg = D.DiffusionConfig()
+    return partial(_sample_impl, model=model, sched=D.cosine_schedule(dcfg.steps), dcfg=dcfg, sampler="ddim", steps=8,
+                   guidance=guidance, **kw)
 
 
 @pytest.mark.parametrize("guidance", [2.5, 1.0])
 def test_sampler_closure_matches_full_model_closure(tiny, guidance):
-    cfg, model, params = tiny
+    cfg, model, params, _ = tiny
     B, L = 2, 8
     text, mask = _text(cfg, B, L, seed=2)
     sched, dcfg = D.cosine_schedule(1000), D.DiffusionConfig()
 
-    def full(x, t_B, uncond_B):  # the pre-issue-15 closure: text tiled per pass, drop flags per row
-        reps = x.shape[0] // B
-        return model.apply(params, x, t_B, jnp.tile(text, (1, reps, 1, 1)), jnp.tile(mask, (1, reps, 1)),
-                           jnp.broadcast_to(uncond_B[:, None], (x.shape[0], 3)))
+    @jax.jit
+    def ref(params, text, mask, rng):
+        def full(x, t_B, uncond_B):  # the pre-issue-15 closure: text tiled per pass, drop flags per row
+            reps = x.shape[0] // B
+            return model.apply(params, x, t_B, jnp.tile(text, (1, reps, 1, 1)), jnp.tile(mask, (1, reps, 1)),
+                               jnp.broadcast_to(uncond_B[:, None], (x.shape[0], 3)))
 
-    ref = D.sample(full, sched, (B, cfg.frames, 42, 4), jax.random.PRNGKey(3), dcfg, sampler="ddim", steps=8,
-                   guidance=guidance)
-    got = _sample_impl(params, text, mask, jax.random.PRNGKey(3), None, None, model=model, sched=sched, dcfg=dcfg,
-                       sampler="ddim", steps=8, guidance=guidance)
-    np.testing.assert_allclose(got, ref, atol=1e-4)
+        return D.sample(full, sched, (B, cfg.frames, 42, 4), rng, dcfg, sampler="ddim", steps=8, guidance=guidance)
+
+    got = jax.jit(_sampler(model, guidance))(params, text, mask, jax.random.PRNGKey(3), None, None)
+    np.testing.assert_allclose(got, ref(params, text, mask, jax.random.PRNGKey(3)), atol=1e-4)
 
 
 def test_hash_dropout_rate_determinism_and_scale():
-    keep = np.asarray(keep_mask(jnp.uint32(7), (1000, 1000), 0.1))
+    km = jax.jit(keep_mask, static_argnums=(1, 2))  # one program rather than one per hash operation
+    keep = np.asarray(km(jnp.uint32(7), (1000, 1000), 0.1))
     assert abs(keep.mean() - 0.9) < 0.002  # 1e6 draws: 3σ ≈ 0.0009
     # Rows and columns are not correlated (each row keeps ~90%, neighbouring elements independent).
     assert np.abs(keep.mean(1) - 0.9).max() < 0.15
     assert abs(np.mean(keep[:, 1:] & keep[:, :-1]) - 0.81) < 0.003
-    np.testing.assert_array_equal(keep, np.asarray(keep_mask(jnp.uint32(7), (1000, 1000), 0.1)))
-    other = np.asarray(keep_mask(jnp.uint32(8), (1000, 1000), 0.1))
+    np.testing.assert_array_equal(keep, np.asarray(km(jnp.uint32(7), (1000, 1000), 0.1)))
+    other = np.asarray(km(jnp.uint32(8), (1000, 1000), 0.1))
     assert abs(np.mean(keep & other) - 0.81) < 0.003  # another seed: an independent mask
     x = jnp.ones((64, 64))
     y = Dropout(0.25).apply({}, x, deterministic=False, rngs={"dropout": jax.random.PRNGKey(0)})
@@ -181,9 +191,9 @@ def test_gelu_erf_is_exact_gelu_in_value_and_gradient():
 
     x = np.linspace(-12.0, 12.0, 20001)
     want = 0.5 * x * special.erfc(-x / np.sqrt(2.0))
-    got = np.asarray(gelu_erf(jnp.asarray(x, jnp.float32)), np.float64)
+    got = np.asarray(jax.jit(gelu_erf)(jnp.asarray(x, jnp.float32)), np.float64)  # compiled, as the model runs it
     np.testing.assert_allclose(got, want, atol=2e-6, rtol=1e-6)
-    grad = np.asarray(jax.vmap(jax.grad(gelu_erf))(jnp.asarray(x, jnp.float32)), np.float64)
+    grad = np.asarray(jax.jit(jax.vmap(jax.grad(gelu_erf)))(jnp.asarray(x, jnp.float32)), np.float64)
     np.testing.assert_allclose(grad, stats.norm.cdf(x) + x * stats.norm.pdf(x), atol=2e-6)
     # and it is what jax.nn.gelu(approximate=False) computes, to float32 rounding
     np.testing.assert_allclose(got, np.asarray(jax.nn.gelu(jnp.asarray(x, jnp.float32), approximate=False)), atol=2e-6)
@@ -194,8 +204,6 @@ def test_wide_models_sample_without_ynn_fusions_and_the_same(tiny, monkeypatch):
     ``xla_options.inference_options`` (no YNNPACK fusions on CPU: paper-4L samples 1.15× faster); narrower
     ones keep XLA's defaults; the samples equal those of XLA's defaults up to float rounding, and
     ``HANDX_INFERENCE_XLA=default`` turns the options off."""
-    from functools import partial
-
     from handx_jax import xla_options as XO
     from handx_jax.families.diffusion import DiffusionRunConfig
 
@@ -208,12 +216,11 @@ def test_wide_models_sample_without_ynn_fusions_and_the_same(tiny, monkeypatch):
     monkeypatch.delenv(XO.ENV)
     assert not XO._accepted((("xla_cpu_experimental_ynn_fusion_type", "NOT_A_FUSION_TYPE"),))
 
-    cfg, model, params = tiny
+    cfg, model, params, _ = tiny
     B, L = 2, 8
     text, mask = _text(cfg, B, L, seed=5)
-    dcfg = DiffusionRunConfig(preset="tiny", model=cfg).diffusion
-    fn = partial(_sample_impl, model=model, sched=D.cosine_schedule(dcfg.steps), dcfg=dcfg, sampler="ddim", steps=4,
-                 guidance=2.5)
+    assert DiffusionRunConfig(preset="tiny", model=cfg).diffusion == D.DiffusionConfig()  # a run's, as _sampler's
+    fn = _sampler(model, 2.5)  # with XLA's defaults, the program of test_sampler_closure_matches_full_model_closure
     args = (params, text, mask, jax.random.PRNGKey(3), None, None)
     # the options for a wide model, compiled on the tiny one (what they do does not depend on its size)
     ours, default = XO.jit_inference(fn, XO.MIN_WIDTH).lower(*args).compile(), jax.jit(fn).lower(*args).compile()
