@@ -4,6 +4,15 @@ Each notebook runs in a fresh kernel started with this interpreter (``sys.execut
 project's venv), in a temporary working directory, with a per-cell timeout; any cell error fails
 the test. The kernel is described by a kernelspec written into a temporary JUPYTER_PATH, so the test
 does not depend on which kernels happen to be installed on the machine.
+
+quickstart.ipynb trains a diffusion run for a few dozen steps unless HANDX_RUN names one; here it is
+given the session's tiny run (tests/diffusion_fixtures.make_run, trained once per session and shared with
+test_diffusion_train.py and test_generate.py), so the kernel does not compile a second training program.
+What that skips is two calls the suite runs elsewhere as they are: ``text.cache.build_cache(data, encoder)``
+(test_text_cache.py) and ``families.diffusion.train(run_dir, make_config("tiny", overrides, data=...,
+encoder=...))`` (test_diffusion_train.py); the notebook's ``make_config`` call with its overrides still
+runs (unknown keys and bad values fail the cell), and so does everything after it: sampling, the animation
+and the standard evaluator's scores of the test prompts.
 """
 
 import json
@@ -43,8 +52,21 @@ def kernel_env(tmp_path, monkeypatch):
     return work
 
 
+def _session_run(root: Path) -> dict[str, str]:
+    from diffusion_fixtures import make_run
+
+    return {"HANDX_RUN": str(make_run(root)[1])}
+
+
+# Environment a notebook runs with, beyond kernel_env's (see the module docstring).
+NOTEBOOK_ENV = {"quickstart.ipynb": _session_run}
+
+
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
-def test_notebook_executes(path, kernel_env):
+def test_notebook_executes(path, kernel_env, tmp_path, monkeypatch):
+    if path.name in NOTEBOOK_ENV:
+        for k, v in NOTEBOOK_ENV[path.name](tmp_path / "fixtures").items():
+            monkeypatch.setenv(k, v)
     nb = nbformat.read(path, as_version=4)
     nbformat.validate(nb)
     client = nbclient.NotebookClient(nb, timeout=CELL_TIMEOUT_S, kernel_name=KERNEL,
