@@ -19,11 +19,16 @@ def built(tmp_path_factory):
     root = tmp_path_factory.mktemp("ar")
     data = make_dataset(root, joined=True)
     tok, run = root / "tok", root / "lm"
-    assert main(["train", "tokenizer", "--data", str(data), "--set", "model.codebook=256", "--preset", "tiny", "--quiet",
+    # One residual block per stack and a one-layer LM: these tests check the commands' plumbing (records, logs,
+    # caches, layouts, refusals), not model quality, and the programs of the 3-block tokenizer and the 2-layer LM
+    # cost ~10 CPU-s more to trace and compile (test_fsq.py and test_prefix_lm.py check those models).
+    assert main(["train", "tokenizer", "--data", str(data), "--set", "model.codebook=256", "--set", "model.depth=1",
+                 "--preset", "tiny", "--quiet",
                  "--set", "train.steps=4", "--set", "train.eval_every=2", *LOOP, "--out", str(tok)]) == 0
     assert main(["tokenize", "--tokenizer", str(tok), "--data", str(data)]) == 0
     assert main(["train", "ar", "--data", str(data), "--encoder", str(ENCODER), "--tokenizer", str(tok),
-                 "--preset", "tiny", "--quiet", "--set", "train.steps=8", *LOOP, "--out", str(run)]) == 0
+                 "--preset", "tiny", "--quiet", "--set", "train.steps=8", *LOOP, "--set", "train.ckpt_every=8",
+                 "--set", "model.layers=1", "--out", str(run)]) == 0  # one checkpoint: an orbax save costs ~1 CPU-s
     return data, tok, run
 
 
@@ -85,15 +90,17 @@ def test_prediction_keeps_the_observed_start(built, tmp_path):
     from handx_jax.data.dataset import Dataset
     from handx_jax.families import load_run
     from handx_jax.families.ar import GenerateOptions
-    from handx_jax.generation import Prompt
+    from handx_jax.generation import split_prompts
 
     data, _, run_dir = built
     ds = Dataset.open(data)
     run = load_run(run_dir)
-    src = np.asarray(ds.motion[0], np.float32)
-    j = run.generate([Prompt(*ds.captions()[0])], GenerateOptions(observed_frames=20), task="prediction", sources=[src])
-    assert j.shape == (1, 1, 60, 2, 21, 3)
-    np.testing.assert_allclose(j[0, 0, 0, 1, 0], src[0, 1, 0], atol=1e-5)
+    # The clip, sample count and observed frames of test_eval_prediction_scores_an_ar_run below: the same
+    # decoding program (2 rows, 10 prefilled tokens), compiled once for the two tests.
+    _, prompts, (src,) = split_prompts(ds, "test", 1)
+    j = run.generate(prompts, GenerateOptions(observed_frames=20), samples=2, task="prediction", sources=[src])
+    assert j.shape == (1, 2, 60, 2, 21, 3)
+    np.testing.assert_allclose(j[0, :, 0, 1, 0], src[[0, 0], 1, 0], atol=1e-5)
     # The first 10 tokens are the tokenizer's codes of the observed 20 frames (prefilled, not sampled).
     obs = run.tokenizer.encode_clips(src[None, :20])
     assert obs.shape == (1, 10)

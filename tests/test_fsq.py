@@ -1,3 +1,6 @@
+import dataclasses
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -7,21 +10,52 @@ from handx_jax import representation as R
 from handx_jax.models import fsq as Q
 from tests import handmade_hands as hh
 
+# XLA compiles are most of this file's CPU. The quantiser checks run each codebook's maths as one jitted
+# program (eagerly, every op compiles for every shape: ~1 s a case), and the model tests share one
+# 64-wide tokenizer, its initialisation (compiling ``init`` costs ~4 s) and the (8, 20)-frame shapes of
+# the fitted tokenizer below, so its encode and decode programs compile once.
+CFG64 = dataclasses.replace(Q.PRESETS["tiny"], width=64)
+MODEL64 = Q.FSQTokenizer(CFG64)
+APPLY64 = jax.jit(MODEL64.apply, static_argnames="method")
+
+
+@functools.cache
+def _init64():
+    return Q.init_tokenizer(CFG64, jax.random.PRNGKey(0))[1]
+
+
+def _jit(fn):
+    """``fn(x, levels, quantizer)`` compiled, the levels and quantiser static."""
+    return jax.jit(fn, static_argnums=(1, 2))
+
+
+def _grid_points(levels, quantizer):
+    """(max L, d) codes whose column k runs over the Lk codes of dimension k (then repeats its last)."""
+    digits = np.minimum(np.arange(max(levels))[:, None], np.asarray(levels) - 1)
+    return _jit(Q.digits_to_code)(digits, levels, quantizer)
+
+
+def _round_trip(idx, levels, quantizer):
+    code = Q.index_to_code(idx, levels, quantizer)
+    digits = Q.index_to_digits(idx, levels)
+    return code, Q.code_to_index(code, levels, quantizer), digits, Q.digits_to_index(digits, levels)
+
 
 @pytest.mark.parametrize("quantizer", Q.QUANTIZERS)
 @pytest.mark.parametrize("codebook", sorted(Q.LEVELS))
 def test_every_code_lies_on_its_grid(codebook, quantizer):
     levels = Q.levels_for(codebook)
     y = jnp.asarray(np.random.default_rng(0).normal(scale=4.0, size=(4096, len(levels))), jnp.float32)
-    code, digits = Q.quantize(y, levels, quantizer)
+    code, digits = _jit(Q.quantize)(y, levels, quantizer)
     L = np.asarray(levels)
     d = np.asarray(digits)
     assert d.min() >= 0 and np.all(d <= L - 1)
     assert np.all(d.min(0) == 0) and np.all(d.max(0) == L - 1)  # wide inputs reach both ends of each level
-    np.testing.assert_allclose(code, Q.digits_to_code(digits, levels, quantizer), atol=1e-6)
+    np.testing.assert_allclose(code, _jit(Q.digits_to_code)(digits, levels, quantizer), atol=1e-6)
+    grids = _grid_points(levels, quantizer)
     for k, Lk in enumerate(levels):  # every value is one of the Lk grid points of its dimension
-        grid = np.asarray(Q.digits_to_code(np.arange(Lk)[:, None].repeat(len(levels), 1), levels, quantizer))[:, k]
-        assert len(np.unique(grid)) == Lk
+        grid = np.unique(np.asarray(grids)[:, k])
+        assert len(grid) == Lk
         assert np.abs(np.asarray(code)[:, k, None] - grid[None]).min(1).max() < 1e-6
     if quantizer == "fsq":  # §4.2: code = q/⌊L/2⌋ with q ∈ {−⌊L/2⌋..⌈L/2⌉−1}
         assert np.asarray(code).min() >= -1.0 and np.asarray(code).max() <= 1.0
@@ -34,11 +68,10 @@ def test_index_code_round_trip_every_codebook(codebook, real):
     assert Q.real_codebook_size(codebook) == real
     idx = jnp.arange(real)
     for quantizer in Q.QUANTIZERS:
-        code = Q.index_to_code(idx, levels, quantizer)
+        code, back, digits, from_digits = _jit(_round_trip)(idx, levels, quantizer)
         assert len(np.unique(np.asarray(code), axis=0)) == real
-        np.testing.assert_array_equal(Q.code_to_index(code, levels, quantizer), idx)
-    digits = Q.index_to_digits(idx, levels)
-    np.testing.assert_array_equal(Q.digits_to_index(digits, levels), idx)
+        np.testing.assert_array_equal(back, idx)
+    np.testing.assert_array_equal(from_digits, idx)
     # First dimension least significant (§4.2).
     np.testing.assert_array_equal(digits[1], [1] + [0] * (len(levels) - 1))
     np.testing.assert_array_equal(digits[levels[0]], [0, 1] + [0] * (len(levels) - 2))
@@ -48,12 +81,12 @@ def test_index_code_round_trip_every_codebook(codebook, real):
 def test_straight_through_gradient_is_identity_inside_range(quantizer):
     levels = Q.levels_for(4096)
     b = jnp.linspace(0.01, 3.9, 40)
-    np.testing.assert_array_equal(jax.grad(lambda x: Q._round_ste(x).sum())(b), np.ones(40))
+    np.testing.assert_array_equal(jax.jit(jax.grad(lambda x: Q._round_ste(x).sum()))(b), np.ones(40))
     # The quantiser's Jacobian equals that of the same map without rounding.
     y = jnp.asarray(np.random.default_rng(1).normal(size=(8, len(levels))), jnp.float32)
     smooth = lambda y: Q._to_code(Q.bounded(y, levels, quantizer), levels, quantizer)  # noqa: E731
-    g_q = jax.grad(lambda y: (Q.quantize(y, levels, quantizer)[0] * jnp.arange(1.0, 6.0)).sum())(y)
-    g_s = jax.grad(lambda y: (smooth(y) * jnp.arange(1.0, 6.0)).sum())(y)
+    g_q = jax.jit(jax.grad(lambda y: (Q.quantize(y, levels, quantizer)[0] * jnp.arange(1.0, 6.0)).sum()))(y)
+    g_s = jax.jit(jax.grad(lambda y: (smooth(y) * jnp.arange(1.0, 6.0)).sum()))(y)
     np.testing.assert_allclose(g_q, g_s, rtol=1e-6)
     assert np.all(np.asarray(g_q) != 0)
 
@@ -79,17 +112,21 @@ def _clip(T=16):
 
 
 def test_tokenizer_shapes_and_encode_decode_agree():
-    cfg = Q.PRESETS["tiny"]
-    model, params = Q.init_tokenizer(cfg, jax.random.PRNGKey(0))
-    x = jnp.asarray(np.random.default_rng(0).normal(size=(2, 60, 288)), jnp.float32)
-    # compiled, as training and decoding run them (eager dispatch of the conv stacks costs seconds per call)
-    apply = jax.jit(model.apply, static_argnames="method")
-    xhat, digits = apply(params, x)
-    assert xhat.shape == x.shape and digits.shape == (2, 30, 3)  # 60 frames → 30 tokens
-    idx = apply(params, x, method=model.encode)
-    np.testing.assert_array_equal(idx, Q.digits_to_index(digits, cfg.levels))
-    np.testing.assert_allclose(apply(params, idx, method=model.decode), xhat, atol=1e-5)
-    assert apply(params, x[:, :48], method=model.encode).shape == (2, 24)  # 48-frame windows (§4.3)
+    model, params = MODEL64, _init64()
+    # Shapes from tracing alone (the compiled program has the traced shapes; compiling three more costs seconds).
+    x60 = jax.ShapeDtypeStruct((2, 60, 288), jnp.float32)
+    xhat, digits = jax.eval_shape(model.apply, params, x60)
+    assert xhat.shape == x60.shape and digits.shape == (2, 30, 3)  # 60 frames → 30 tokens
+    assert jax.eval_shape(functools.partial(model.apply, method=model.encode), params, x60).shape == (2, 30)
+    x48 = jax.ShapeDtypeStruct((2, 48, 288), jnp.float32)
+    assert jax.eval_shape(functools.partial(model.apply, method=model.encode), params, x48).shape == (2, 24)  # §4.3
+    # Values, compiled as training and decoding run them, at the fitted tokenizer's shapes (8 clips, 20 frames).
+    x = jnp.asarray(np.random.default_rng(0).normal(size=(8, 20, 288)), jnp.float32)
+    xhat, digits = APPLY64(params, x)
+    assert xhat.shape == x.shape and digits.shape == (8, 10, 3)
+    idx = APPLY64(params, x, method=model.encode)
+    np.testing.assert_array_equal(idx, Q.digits_to_index(digits, CFG64.levels))
+    np.testing.assert_allclose(APPLY64(params, idx, method=model.decode), xhat, atol=1e-5)
 
 
 def test_rotation_row_convention_and_losses_known_values():
@@ -142,7 +179,9 @@ def test_codebook_stats_known_values():
 
 def test_analytic_flops_match_xla():
     cfg = Q.FSQConfig(width=64)
-    model, params = Q.init_tokenizer(cfg, jax.random.PRNGKey(0))
+    model = Q.FSQTokenizer(cfg)
+    # the parameters' shapes are all XLA's cost analysis needs (compiling ``init`` would cost more than the test)
+    params = jax.eval_shape(lambda r: Q.init_tokenizer(cfg, r)[1], jax.random.PRNGKey(0))
     x = jnp.zeros((1, 60, 288))
     cost = jax.jit(lambda p, x: model.apply(p, x)[0]).lower(params, x).compile().cost_analysis()
     xla = (cost[0] if isinstance(cost, list) else cost)["flops"]
@@ -159,19 +198,16 @@ def fitted_8(tmp_path_factory):
     each, one batch) with the family's default loss, 200 Adam steps at 3e-3: measured 0.075× the mean
     pose in ~21 CPU-s with the compile (full 60-frame clips: 0.18× in 46 CPU-s; the 32-wide tiny preset
     at 20 frames: 0.21×)."""
-    import dataclasses
-
     import optax
 
     from handx_jax.data.dataset import Dataset
     from handx_jax.families import tokenizer as T
     from tests.diffusion_fixtures import make_dataset
 
-    ds = Dataset.open(make_dataset(tmp_path_factory.mktemp("fsq8")))
+    ds = Dataset.open(make_dataset(tmp_path_factory.mktemp("fsq8"), joined=True))  # the AR tests' corpus
     norm = T._ar_norm(ds)
     x = jnp.asarray(norm.normalize(R.to_ar(np.asarray(ds.motion[:8], np.float64))), jnp.float32)[:, :20]
-    cfg = dataclasses.replace(Q.PRESETS["tiny"], width=64)
-    model, params = Q.init_tokenizer(cfg, jax.random.PRNGKey(0))
+    cfg, model, params = CFG64, MODEL64, _init64()
     loss = T.make_loss(model, norm, T.TokenizerRunConfig().loss)
     tx = optax.chain(optax.clip_by_global_norm(1.0), optax.adam(optax.warmup_cosine_decay_schedule(0, 3e-3, 20, 200)))
 
@@ -207,7 +243,7 @@ def test_decoder_uses_its_codes(fitted_8):
     """Other codes give other motion: each clip decoded from another clip's codes reconstructs far worse
     than from its own, and every clip's codes differ from the others'."""
     model, cfg, norm, x, _, params = fitted_8
-    apply = jax.jit(model.apply, static_argnames="method")
+    apply = APPLY64
     idx = apply(params, x, method=model.encode)
     assert len({tuple(np.asarray(r)) for r in idx}) == 8
     mean, scale = jnp.asarray(norm.mean), jnp.asarray(norm.std + np.float32(norm.eps))

@@ -1,4 +1,5 @@
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -7,8 +8,32 @@ import pytest
 
 from handx_jax.families.ar import decode as AD
 from handx_jax.models import prefix_lm as P
+from tests.random_params import random_params
 
 TINY = dataclasses.replace(P.PRESETS["tiny"], nb_code=37, text_dim=24)
+# XLA compiling the tiny LM's programs is most of this file's CPU (1-5 s per program: a forward, a gradient,
+# a decoding loop), so the tests share one model, one set of parameters (host-drawn: no ``init`` to compile)
+# and the batch shapes (B, L) = (4, 6) or (3, 6): each program compiles once, and in a later session comes
+# from the persistent compilation cache (tests/conftest.py).
+MODEL = P.PrefixLM(TINY)
+APPLY = jax.jit(MODEL.apply)  # the training forward, (4, 6) text slots and 31 motion slots below
+
+
+@functools.cache
+def _params():
+    """Host-drawn weights (tests/random_params.py): what these tests check holds for any weights, and
+    compiling ``init`` would cost ~3 CPU-s."""
+    return random_params(lambda r: P.init_lm(TINY, r)[1], 3, scale=0.3)
+
+
+def _loss(params, text, mask, codes):
+    return P.lm_loss(MODEL, params, text, mask, codes)[0]
+
+
+# loss and gradients w.r.t. (params, text) at (B, L, N) = (3, 6, 30)
+LOSS_AND_GRAD = jax.jit(jax.value_and_grad(_loss, argnums=(0, 1)))
+# categorical draws of one (1, V) row for a batch of keys, the options traced (one program for every setting)
+DRAW = jax.jit(jax.vmap(AD.sample_logits, in_axes=(None, 0, None)))
 
 
 @pytest.mark.parametrize("preset,nb_code,expected", [
@@ -46,61 +71,60 @@ def _batch(B=3, L=6, M=31, seed=0, cfg=TINY):
 
 
 def test_causal_over_motion_and_prefix_fully_visible():
-    model, params = P.init_lm(TINY, jax.random.PRNGKey(0))
+    params = _params()
     text, mask, toks = _batch(B=2)
     Lp = text.shape[1]
 
-    def logit(x_text, x_tok, t, b):
-        m = model.bind(params)
+    def probe(params, x_text, x_tok, t, b, motion):
+        """Row b's logits at motion slot t (``motion``), else row b's state at its FIRST text slot: one
+        program for both gradients (the branch not taken contributes exact zeros)."""
+        m = MODEL.bind(params)
         x = jnp.concatenate([m.embed_text(x_text), x_tok], axis=1)
         S = x.shape[1]
         h, _ = m.hidden(x, P.slot_positions(mask, S), P.attention_mask(mask, jnp.arange(S), S))
-        return m.logits(h[b, Lp + t]).sum()
+        return jnp.where(motion, m.logits(h[b, Lp + t]).sum(), h[b, 0].sum())
 
-    x_tok = model.apply(params, toks, method=lambda m, t: m.embed_tokens(t))
-    grad = jax.jit(jax.grad(logit, argnums=(0, 1)))
+    x_tok = MODEL.apply(params, toks, method=lambda m, t: m.embed_tokens(t))
+    grad = jax.jit(jax.grad(probe, argnums=(1, 2)))
     for b, valid in ((0, 6), (1, 3)):
         for t in (0, 7, 29):
-            g_text, g_tok = grad(text, x_tok, t, b)
+            g_text, g_tok = grad(params, text, x_tok, t, b, True)
             assert np.all(np.asarray(g_tok[b, t + 1:]) == 0.0)  # exactly zero after t
             assert np.all(np.abs(np.asarray(g_tok[b, : t + 1])).sum(-1) > 0)
             assert np.all(np.abs(np.asarray(g_text[b, :valid])).sum(-1) > 0)  # every prefix token
             assert np.all(np.asarray(g_text[b, valid:]) == 0.0)  # padded text slots are never keys
             assert np.all(np.asarray(g_text[1 - b]) == 0.0)  # no leak across the batch
 
-    # Bidirectional prefix: the FIRST text slot's state depends on the last valid text token.
-    def first_state(x_text):
-        m = model.bind(params)
-        x = m.embed_text(x_text)
-        h, _ = m.hidden(x, P.slot_positions(mask, Lp), P.attention_mask(mask, jnp.arange(Lp), Lp))
-        return h[0, 0].sum()
-
-    assert np.abs(np.asarray(jax.jit(jax.grad(first_state))(text)[0, 5])).sum() > 0  # jitted: 0.9 s, eager 5.8 s
+    # Bidirectional prefix: the FIRST text slot's state depends on the last valid text token (and on every
+    # other one), and on no motion slot.
+    g_text, g_tok = grad(params, text, x_tok, 0, 0, False)
+    assert np.abs(np.asarray(g_text[0, 5])).sum() > 0
+    assert np.all(np.abs(np.asarray(g_text[0])).sum(-1) > 0) and np.all(np.asarray(g_tok) == 0.0)
 
 
 def test_padding_matches_the_packed_sequence():
     """A prompt padded to 6 slots gives the logits of the same prompt with no padding (positions run
     ℓ, ℓ+1, … after the prefix, as the reference's packed rows)."""
-    model, params = P.init_lm(TINY, jax.random.PRNGKey(1))
-    text, mask, toks = _batch(B=2)
-    apply = jax.jit(model.apply)  # compiled: eager dispatch of a whole transformer costs seconds per call
-    full = apply(params, text, mask, toks)
-    short = apply(params, text[1:, :3], mask[1:, :3], toks[1:])
+    params = _params()
+    text, mask, toks = _batch(B=4, seed=5)  # row 1: 3 valid text tokens
+    full = APPLY(params, text, mask, toks)
+    short = APPLY(params, text[1:2, :3], mask[1:2, :3], toks[1:2])
     np.testing.assert_allclose(full[1], short[0], atol=2e-5)
 
 
 def test_loss_is_log_vocab_with_zero_head_and_targets_end():
-    model, params = P.init_lm(TINY, jax.random.PRNGKey(0))
-    params = jax.tree_util.tree_map(lambda x: x, params)
+    params = jax.tree_util.tree_map(lambda x: x, _params())
     params["params"]["head"]["kernel"] = jnp.zeros_like(params["params"]["head"]["kernel"])
     text, mask, toks = _batch(M=30)
-    loss, aux = jax.jit(lambda p: P.lm_loss(model, p, text, mask, toks))(params)
+    loss, _ = LOSS_AND_GRAD(params, text, mask, toks)  # the program of the backward-pass test below
     assert float(loss) == pytest.approx(np.log(TINY.nb_code + 1), rel=1e-6)
 
 
 def test_flops_match_xla():
     cfg = dataclasses.replace(TINY, layers=2, dim=128, heads=4, nb_code=300, text_dim=96)
-    model, params = P.init_lm(cfg, jax.random.PRNGKey(0))
+    model = P.PrefixLM(cfg)
+    # the parameters' shapes are all XLA's cost analysis needs (compiling ``init`` would cost more than the test)
+    params = jax.eval_shape(lambda r: P.init_lm(cfg, r)[1], jax.random.PRNGKey(0))
     text, mask, toks = _batch(B=1, L=16, cfg=cfg)
     cost = jax.jit(lambda p, a, b, c: model.apply(p, a, b, c)).lower(params, text, mask, toks).compile().cost_analysis()
     xla = (cost[0] if isinstance(cost, list) else cost)["flops"]
@@ -109,43 +133,45 @@ def test_flops_match_xla():
 
 
 def test_kv_cache_decoding_equals_full_recompute():
-    model, params = P.init_lm(TINY, jax.random.PRNGKey(3))
+    params = _params()
     text, mask, _ = _batch(B=4, seed=5)
     empty = jnp.zeros((4, 0), jnp.int32)
-    a, la = AD.decode(model, params, text, mask, empty, jax.random.PRNGKey(0))
-    b, lb = AD.decode(model, params, text, mask, empty, jax.random.PRNGKey(0), use_cache=False)
+    a, la = AD.decode(MODEL, params, text, mask, empty, jax.random.PRNGKey(0))
+    b, lb = AD.decode(MODEL, params, text, mask, empty, jax.random.PRNGKey(0), use_cache=False)
     np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(la, lb)
     assert len({tuple(r) for r in np.asarray(a).tolist()}) == 4  # the prompts lead to different tokens
-    # Each row is greedy w.r.t. the full forward: the training forward's argmax reproduces it.
-    n = int(la[0])
-    if n:
-        lg = jax.jit(model.apply)(params, text[:1], mask[:1], a[:1, :n])
-        np.testing.assert_array_equal(np.asarray(lg.argmax(-1))[0], np.asarray(a[0, :n]))
-    # Motion prediction: observed tokens are prefilled and kept.
+    # Each row is greedy w.r.t. the full forward: the training forward's argmax reproduces every row's codes
+    # and its END (the PAD slots after END cannot change earlier predictions: causal).
+    lg = APPLY(params, text, mask, jnp.concatenate([a, jnp.full((4, 1), TINY.pad_id, a.dtype)], axis=1))
+    pred = np.asarray(lg.argmax(-1))
+    for r, n in enumerate(np.asarray(la).tolist()):
+        upto = min(n + 1, 30)  # the codes, then END where the row ended before 30 codes
+        np.testing.assert_array_equal(pred[r, :upto], np.asarray(a[r, :upto]))
+        assert n == 30 or int(a[r, n]) == TINY.end_id
+    # Motion prediction: observed tokens are prefilled and kept, and the cached continuation is the
+    # full-recompute sequence b (b's first 5 tokens are these, and greedy decoding continues them as b did).
     obs = a[:, :5]
-    c, lc = AD.decode(model, params, text, mask, obs, jax.random.PRNGKey(0))
-    d, _ = AD.decode(model, params, text, mask, obs, jax.random.PRNGKey(0), use_cache=False)
-    np.testing.assert_array_equal(c, d)
+    c, lc = AD.decode(MODEL, params, text, mask, obs, jax.random.PRNGKey(0))
     np.testing.assert_array_equal(c[:, :5], obs)
-    np.testing.assert_array_equal(c, a)  # greedy continuation of its own prefix is the same sequence
+    np.testing.assert_array_equal(c, b)
+    np.testing.assert_array_equal(lc, lb)
 
 
 def test_sampling_options():
-    model, params = P.init_lm(TINY, jax.random.PRNGKey(3))
+    params = _params()
     text, mask, _ = _batch(B=4, seed=5)  # the shapes of the test above: its compiled loop is reused
     empty = jnp.zeros((4, 0), jnp.int32)
-    greedy, _ = AD.decode(model, params, text, mask, empty, jax.random.PRNGKey(0))
-    k1, _ = AD.decode(model, params, text, mask, empty, jax.random.PRNGKey(9), AD.DecodeOptions(1.0, top_k=1))
+    greedy, _ = AD.decode(MODEL, params, text, mask, empty, jax.random.PRNGKey(0))
+    k1, _ = AD.decode(MODEL, params, text, mask, empty, jax.random.PRNGKey(9), AD.DecodeOptions(1.0, top_k=1))
     np.testing.assert_array_equal(k1, greedy)  # top-1 sampling is greedy
-    p0, _ = AD.decode(model, params, text, mask, empty, jax.random.PRNGKey(9), AD.DecodeOptions(1.0, top_p=1e-6))
+    p0, _ = AD.decode(MODEL, params, text, mask, empty, jax.random.PRNGKey(9), AD.DecodeOptions(1.0, top_p=1e-6))
     np.testing.assert_array_equal(p0, greedy)  # a tiny nucleus keeps only the argmax
-    s1, _ = AD.decode(model, params, text, mask, empty, jax.random.PRNGKey(1), AD.DecodeOptions(1.0))
-    s2, _ = AD.decode(model, params, text, mask, empty, jax.random.PRNGKey(2), AD.DecodeOptions(1.0))
+    s1, _ = AD.decode(MODEL, params, text, mask, empty, jax.random.PRNGKey(1), AD.DecodeOptions(1.0))
+    s2, _ = AD.decode(MODEL, params, text, mask, empty, jax.random.PRNGKey(2), AD.DecodeOptions(1.0))
     assert not np.array_equal(s1, s2)
-    lg = jnp.log(jnp.asarray([[0.5, 0.3, 0.15, 0.05]]))
-    draws = jax.vmap(lambda k: AD.sample_logits(lg, k, AD.DecodeOptions(1.0, top_p=0.7)))(
-        jax.random.split(jax.random.PRNGKey(0), 400))
+    lg = jnp.log(jnp.asarray([[0.5, 0.3, 0.15, 0.05]], jnp.float32))
+    draws = DRAW(lg, jax.random.split(jax.random.PRNGKey(0), 8000), AD.DecodeOptions(1.0, top_p=0.7))
     assert set(np.unique(np.asarray(draws))) == {0, 1}  # 0.5 + 0.3 reaches 0.7
 
 
@@ -164,6 +190,9 @@ def _top_k_top_p_by_sorting(lg, top_k, top_p):
     return out
 
 
+_CUTS = jax.jit(AD._top_k_top_p)  # the options traced, as in the decoding loop: one program for every case
+
+
 @pytest.mark.parametrize("top_k,top_p", [(0, 0.9), (50, 1.0), (7, 0.5), (1, 1.0), (0, 1e-6), (3000, 0.999)])
 def test_top_k_top_p_cuts_equal_the_sorted_definition(top_k, top_p):
     r = np.random.default_rng(top_k + int(1000 * top_p))
@@ -171,7 +200,7 @@ def test_top_k_top_p_cuts_equal_the_sorted_definition(top_k, top_p):
     lg[0, :40] = lg[0, 40]  # ties, at and around the cuts
     lg[1, ::3] = -np.inf  # masked codes
     lg[2] = np.round(lg[2])
-    got = np.asarray(AD._top_k_top_p(jnp.asarray(lg), AD.DecodeOptions(1.0, top_k=top_k, top_p=top_p)))
+    got = np.asarray(_CUTS(jnp.asarray(lg), AD.DecodeOptions(1.0, top_k=top_k, top_p=top_p)))
     want = _top_k_top_p_by_sorting(lg, top_k, top_p)
     kept, kept_ref = np.isfinite(got), np.isfinite(want)
     np.testing.assert_array_equal(got[kept], lg[kept])  # kept logits unchanged
@@ -220,12 +249,12 @@ def test_temperature_sampling_follows_the_tempered_softmax(temperature):
     want = p ** (1 / temperature) / np.sum(p ** (1 / temperature))
     lg = jnp.log(jnp.asarray([p], jnp.float32))
     n = 8000
-    draws = np.asarray(jax.vmap(lambda k: AD.sample_logits(lg, k, AD.DecodeOptions(temperature)))(
-        jax.random.split(jax.random.PRNGKey(4), n)))[:, 0]
+    keys = jax.random.split(jax.random.PRNGKey(4), n)
+    draws = np.asarray(DRAW(lg, keys, AD.DecodeOptions(temperature)))[:, 0]
     freq = np.bincount(draws, minlength=4) / n
     assert np.all(np.abs(freq - want) < 4 * np.sqrt(want * (1 - want) / n) + 1e-3), (freq, want)
-    greedy = AD.sample_logits(lg, jax.random.PRNGKey(0), AD.DecodeOptions(0.0))
-    assert greedy.dtype == jnp.int32 and int(greedy[0]) == 0
+    greedy = DRAW(lg, keys, AD.DecodeOptions(0.0))
+    assert greedy.dtype == jnp.int32 and np.all(np.asarray(greedy) == 0)
 
 
 def test_end_stops_and_rows_fill_for_decoding():
@@ -239,15 +268,14 @@ def test_hand_written_backward_passes_equal_autodiff(monkeypatch):
     the loss is bit-identical and every gradient equals autodiff's up to float32 rounding."""
     import flax.linen as nn
 
-    model, params = P.init_lm(TINY, jax.random.PRNGKey(0))
+    params = _params()
     text, mask, _ = _batch(B=3)
     codes = jnp.asarray(np.random.default_rng(1).integers(0, TINY.nb_code, size=(3, 30)), jnp.int32)
-    loss_and_grad = lambda: jax.jit(jax.value_and_grad(  # noqa: E731
-        lambda p, t: P.lm_loss(model, p, t, mask, codes)[0], argnums=(0, 1)))(params, text)
-    l_new, (g_new, g_text) = loss_and_grad()
+    l_new, (g_new, g_text) = LOSS_AND_GRAD(params, text, mask, codes)
     monkeypatch.setattr(P, "attend", lambda q, k, v, m: P.attend_reference(q, k, v, m)[0])
     monkeypatch.setattr(P, "swiglu", lambda a, b: nn.silu(a) * b)
-    l_ref, g_ref = loss_and_grad()
+    # a new trace (a new function for jit), so the patched formulations are the ones compiled
+    l_ref, g_ref = jax.jit(jax.value_and_grad(_loss, argnums=(0, 1)))(params, text, mask, codes)
     assert float(l_new) == float(l_ref)
     for a, b in zip(jax.tree_util.tree_leaves((g_new, g_text)), jax.tree_util.tree_leaves(g_ref)):
         a, b = np.asarray(a), np.asarray(b)
