@@ -272,10 +272,21 @@ def read_params_msgpack(path: str | os.PathLike, template: Any) -> Any:
     except FileNotFoundError:
         raise DataError(f"missing {p.name}", path=p.parent) from None
     try:
-        return serialization.from_bytes(template, data)
+        params = serialization.from_bytes(template, data)
     except Exception as e:  # msgpack's ExtraData/UnpackValueError/FormatError, flax's ValueError/KeyError, ...
         raise DataError(f"corrupt, truncated or incompatible parameter file ({type(e).__name__}: "
                         f"{str(e).splitlines()[0][:200] if str(e) else 'no detail'})", path=p) from None
+    # flax fills the template's structure but never compares shapes. The template may be abstract
+    # (jax.eval_shape of an init: shapes without compiling or running it), so the shapes are checked here.
+    import jax
+
+    got = jax.tree_util.tree_flatten_with_path(params)[0]
+    want = jax.tree_util.tree_leaves(template)
+    for (where, a), b in zip(got, want):
+        if hasattr(b, "shape") and tuple(np.shape(a)) != tuple(b.shape):
+            raise DataError(f"parameter {jax.tree_util.keystr(where)} has shape {tuple(np.shape(a))}, but this "
+                            f"configuration needs {tuple(b.shape)}: a parameter file of another model size", path=p)
+    return params
 
 
 def _fsync_dir(path: Path) -> None:

@@ -187,3 +187,23 @@ def test_params_msgpack_errors_name_the_file(tmp_path, damage):
             return  # flipped float bytes decode "fine": only the checksum can tell
     with pytest.raises(DataError, match=r"file .*params\.msgpack: corrupt, truncated or incompatible"):
         read_params_msgpack(p, params)
+
+
+def test_params_msgpack_reads_into_an_abstract_template_and_checks_shapes(tmp_path):
+    """load_evaluator reads params.msgpack into jax.eval_shape of the init (no compiled init): the values come
+    back as written, and a file of another model size (same tree, other shapes) is refused naming the leaf,
+    where flax alone fills the tree without comparing shapes."""
+    import jax
+
+    from handx_jax.io import read_params_msgpack, write_params_msgpack
+
+    params = {"dense": {"kernel": np.arange(64, dtype=np.float32).reshape(8, 8), "bias": np.ones(8, np.float32)}}
+    p = write_params_msgpack(tmp_path / "params.msgpack", params)
+    abstract = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), params)
+    back = read_params_msgpack(p, abstract)
+    np.testing.assert_array_equal(back["dense"]["kernel"], params["dense"]["kernel"])
+    np.testing.assert_array_equal(back["dense"]["bias"], params["dense"]["bias"])
+    wider = {"dense": {"kernel": jax.ShapeDtypeStruct((8, 16), np.float32), "bias": jax.ShapeDtypeStruct((16,), np.float32)}}
+    with pytest.raises(DataError, match=r"params\.msgpack: parameter \['dense'\]\['bias'\] has shape \(8,\), but this "
+                                        r"configuration needs \(16,\)"):
+        read_params_msgpack(p, wider)

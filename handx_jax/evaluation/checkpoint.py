@@ -30,7 +30,7 @@ import numpy as np
 
 from handx_jax import representation as rep
 from handx_jax.evaluation.features import TextPolicy
-from handx_jax.evaluation.model import TrainedEvaluator, _init_params
+from handx_jax.evaluation.model import TrainedEvaluator, param_shapes
 from handx_jax.io import (DataError, atomic_write_bytes, atomic_write_json, read_format_meta, read_params_msgpack,
                           sha256_file, write_params_msgpack)
 from handx_jax.models.evaluator import EvaluatorConfig
@@ -110,7 +110,7 @@ def load_evaluator(root: str | os.PathLike, *, encoder=None, batch_size: int = 2
                         f"{enc_path} has {enc.tokenizer.fingerprint}", path=enc_path)
     with np.load(root / STATS_FILE, allow_pickle=False) as z:
         stats = rep.NormStats.from_npz_dict({k: z[k] for k in z.files}, "evaluator")
-    template = _init_params(cfg, policy.max_len)
+    template = param_shapes(cfg, policy.max_len)
     params = read_params_msgpack(root / PARAMS_FILE, template)  # checksum verified; bad files name themselves
     return TrainedEvaluator(cfg=cfg, params=params, stats=stats, encoder=enc, policy=policy, meta=meta, root=root,
                             batch_size=batch_size)

@@ -154,7 +154,7 @@ def import_checkpoint(ckpt: str | os.PathLike, out: str | os.PathLike, *, mean: 
     """Write the evaluator folder ``out`` (format ``handx-jax-evaluator``) from the official checkpoint."""
     from handx_jax.evaluation.checkpoint import FORMAT, FORMAT_VERSION, save_evaluator
     from handx_jax.evaluation.features import TextPolicy
-    from handx_jax.evaluation.model import TrainedEvaluator, _init_params
+    from handx_jax.evaluation.model import TrainedEvaluator, param_shapes
     from handx_jax.io import sha256_file as sha256
     from handx_jax.io import atomic_dir
     from handx_jax.text.hf import as_encoder, save_hf_t5_encoder
@@ -168,7 +168,7 @@ def import_checkpoint(ckpt: str | os.PathLike, out: str | os.PathLike, *, mean: 
     cfg = infer_config(sd, heads=heads, text_dim=enc.cfg.d_model, path=ckpt)
     pe_gap = check_tables(sd, cfg.latent, path=ckpt)
     params = params_from_official(sd, cfg, path=ckpt)
-    expected = jax.tree_util.tree_map(lambda a: a.shape, _init_params(cfg, 8))
+    expected = jax.tree_util.tree_map(lambda a: a.shape, param_shapes(cfg, 8))
     got = jax.tree_util.tree_map(lambda a: a.shape, params)
     if expected != got:
         raise DataError("the mapped parameters do not form the evaluator's tree (internal mapping error)", path=ckpt)
