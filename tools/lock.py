@@ -1,7 +1,7 @@
 """Write ``constraints.txt``: the exact versions installed in this environment of everything
 ``handx-jax[dev]`` needs, directly or not (``make lock``).
 
-``make venv`` / ``make test`` / ``make demo`` install with ``pip install -c constraints.txt -e '.[dev]'``,
+``make venv`` / ``make test`` / ``make demo`` install with ``uv pip install -c constraints.txt -e '.[dev]'`` (pip where uv cannot be had),
 so a fresh clone gets the versions the suite last passed with instead of whatever is newest that day.
 Only the project's requirement closure is written (walked through ``importlib.metadata``, markers
 evaluated for this interpreter), not ``pip freeze``: tools that happen to share the environment
@@ -58,7 +58,7 @@ def closure(root: str = ROOT, extras: tuple[str, ...] = ("dev",)) -> dict[str, s
 def render(pins: dict[str, str]) -> str:
     head = (f"# Versions the test suite last passed with (make lock, tools/lock.py): Python "
             f"{platform.python_version()}, {platform.system()} {platform.machine()}.\n"
-            "# make installs with `pip install -c constraints.txt -e '.[dev]'`; `make test CONSTRAINTS=` ignores it.\n")
+            "# make installs with `uv pip install -c constraints.txt -e '.[dev]'` (pip where uv cannot be had); `make test CONSTRAINTS=` ignores it.\n")
     return head + "".join(f"{n}=={v}\n" for n, v in sorted(pins.items()))
 
 
