@@ -21,14 +21,17 @@ Parameter counts with 768-wide text features reproduce paper Table C (tests/test
 
 from __future__ import annotations
 
+
 from dataclasses import dataclass
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from handx_jax.models.layers import (REFERENCE_LINEAR_INIT, DecoderLayer, Dropout, packed_in_proj_init,
                                      sinusoidal_table, with_branch_token)
+from handx_jax.models.shape_cache import per_config
 
 NUM_BRANCHES = 3  # left, right, interaction
 
@@ -208,12 +211,13 @@ def init_denoiser(cfg: DiTConfig, rng: jax.Array, text_len: int = 8):
     return model, jax.jit(model.init)(rng, x, t, text, mask, drop)
 
 
+@per_config
 def param_count(cfg: DiTConfig) -> int:
-    """Trainable parameters, from shapes only (no memory spent)."""
-    model = TrebleDenoiser(cfg)
+    """Trainable parameters, from shapes only (no memory spent). Cached per config (frozen, hashable):
+    tracing the init costs ~0.5-0.8 CPU-s at paper sizes, and a run's record, its sweep row and ``handx
+    params`` each ask again."""
     shapes = jax.eval_shape(lambda r: init_denoiser(cfg, r)[1], jax.random.PRNGKey(0))
-    del model
-    return int(sum(int(jnp.prod(jnp.asarray(s.shape))) for s in jax.tree_util.tree_leaves(shapes)))
+    return int(sum(int(np.prod(s.shape)) for s in jax.tree_util.tree_leaves(shapes)))
 
 
 def forward_flops(cfg: DiTConfig, text_len: int) -> int:

@@ -21,6 +21,7 @@ e.g. 4375 for the nominal "4096" (7,5,5,5,5).
 
 from __future__ import annotations
 
+
 from dataclasses import dataclass
 
 import flax.linen as nn
@@ -30,6 +31,7 @@ import numpy as np
 
 from handx_jax import skeleton as sk
 from handx_jax.representation import AR_DIM, AR_LAYOUT
+from handx_jax.models.shape_cache import per_config
 
 # Nominal codebook size → FSQ levels (reference §4.2 table).
 LEVELS: dict[int, tuple[int, ...]] = {
@@ -253,7 +255,9 @@ def init_tokenizer(cfg: FSQConfig, rng: jax.Array, frames: int = 60):
     return model, jax.jit(model.init)(rng, jnp.zeros((1, frames, cfg.in_dim)))
 
 
+@per_config
 def param_count(cfg: FSQConfig) -> int:
+    """Trainable parameters, from shapes only; cached per config (frozen, hashable: tracing costs ~0.5 CPU-s)."""
     shapes = jax.eval_shape(lambda r: init_tokenizer(cfg, r)[1], jax.random.PRNGKey(0))
     return int(sum(int(np.prod(s.shape)) for s in jax.tree_util.tree_leaves(shapes)))
 

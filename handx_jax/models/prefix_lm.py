@@ -19,6 +19,7 @@ Parameter counts with 768-wide text features reproduce Table C (tests/test_prefi
 
 from __future__ import annotations
 
+
 import math
 from dataclasses import dataclass
 
@@ -26,6 +27,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from handx_jax.models.shape_cache import per_config
 
 MOTION_TOKENS = 30  # 60 frames at temporal factor 2 (§4.1)
 
@@ -282,10 +285,16 @@ def init_lm(cfg: LMConfig, rng: jax.Array, text_len: int = 8):
 def param_counts(cfg: LMConfig) -> dict:
     """{params, params_non_embedding} from shapes only; non-embedding leaves out the token embedding
     table (the text projection and the head stay in, as nanoGPT-style counts do)."""
+    total, embed = _param_counts(cfg)
+    return {"params": total, "params_non_embedding": total - embed}
+
+
+@per_config
+def _param_counts(cfg: LMConfig) -> tuple[int, int]:
+    """(all, embedding table), cached per config (frozen, hashable): tracing the init costs ~0.5 CPU-s."""
     shapes = jax.eval_shape(lambda r: init_lm(cfg, r)[1], jax.random.PRNGKey(0))["params"]
     n = lambda t: int(sum(int(np.prod(s.shape)) for s in jax.tree_util.tree_leaves(t)))  # noqa: E731
-    total = n(shapes)
-    return {"params": total, "params_non_embedding": total - n(shapes["embed"])}
+    return n(shapes), n(shapes["embed"])
 
 
 def forward_flops(cfg: LMConfig, text_len: int, motion_slots: int = MOTION_TOKENS + 1) -> int:
