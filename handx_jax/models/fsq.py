@@ -21,7 +21,6 @@ e.g. 4375 for the nominal "4096" (7,5,5,5,5).
 
 from __future__ import annotations
 
-
 from dataclasses import dataclass
 
 import flax.linen as nn
@@ -30,8 +29,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from handx_jax import skeleton as sk
-from handx_jax.representation import AR_DIM, AR_LAYOUT
 from handx_jax.models.shape_cache import per_config
+from handx_jax.representation import AR_DIM, AR_LAYOUT
 
 # Nominal codebook size → FSQ levels (reference §4.2 table).
 LEVELS: dict[int, tuple[int, ...]] = {
