@@ -414,21 +414,25 @@ def train(
                 "ema": jax.tree_util.tree_map(jnp.copy, params) if cfg.ema_decay > 0 else {},
                 "step": jnp.zeros((), jnp.int32)}
 
-    # One jitted program for the whole initial state: run eagerly, every initialiser and optimiser-state op
-    # is its own dispatch and compile (seconds on CPU for the tiny presets); the values are the same.
-    state = jax.device_put(jax.jit(initial_state)(jax.random.fold_in(rng, 0)), replicated)
-    sched_v = jax.device_put(jnp.asarray(sched_v), replicated)
-
     mngr = ocp.CheckpointManager(run_dir / "checkpoints", options=ocp.CheckpointManagerOptions(
         max_to_keep=cfg.keep_checkpoints, create=True, enable_async_checkpointing=False))
     start = 0
-    if mngr.latest_step() is not None:
+    if mngr.latest_step() is None:
+        # One jitted program for the whole initial state: run eagerly, every initialiser and optimiser-state
+        # op is its own dispatch and compile (seconds on CPU for the tiny presets); the values are the same.
+        state = jax.device_put(jax.jit(initial_state)(jax.random.fold_in(rng, 0)), replicated)
+    else:
         start = int(mngr.latest_step())
         verify_tree_checksum(run_dir / "checkpoints" / str(start))  # flipped bytes are refused, naming the file
-        abstract = jax.tree_util.tree_map(ocp.utils.to_shape_dtype_struct, state)
+        # A resume needs only the state's shapes: tracing them takes a fraction of a second, where compiling
+        # the initial state costs 2-5 CPU-s (random initialisers of every leaf) for values the restore
+        # overwrites.
+        abstract = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=replicated),
+                                          jax.eval_shape(initial_state, jax.random.fold_in(rng, 0)))
         state = mngr.restore(start, args=ocp.args.StandardRestore(abstract))
         state = jax.device_put(state, replicated)
         print(f"resumed from step {start}")
+    sched_v = jax.device_put(jnp.asarray(sched_v), replicated)
     # Always, also with no checkpoint yet (start 0): rows of a killed attempt beyond the restored step
     # would otherwise be logged twice (10, 20, 30, 10, 20, …).
     logger.truncate_after(start)
