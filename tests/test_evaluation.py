@@ -328,11 +328,27 @@ def test_cli_run_json_keys_and_eval_json(setup, tmp_path, capsys):
         assert json.loads(capsys.readouterr().out) == pytest.approx(want, abs=1e-6)
 
 
-def test_training_lowers_infonce_and_refuses_overwrite(setup):
+def infonce_init_and_trained(ev, batch) -> tuple[float, float]:
+    """InfoNCE on a fixed batch (deterministic forward) of the evaluator's initial parameters (train seed 42,
+    fold_in 0, as train_evaluator draws them) and of its trained ones, in one compiled program: run
+    eagerly, every op of the init and of the two forwards is its own dispatch and compile (~5 CPU-s)."""
     import jax
 
     from handx_jax.evaluation import _init_params
     from handx_jax.models.evaluator import Evaluator, evaluator_loss
+
+    model = Evaluator(ev.cfg)
+
+    @jax.jit
+    def both(key, params, batch):
+        infonce = lambda p: evaluator_loss(model, p, batch, jax.random.PRNGKey(0), False)[1]["infonce"]  # noqa: E731
+        return infonce(_init_params(ev.cfg, 64, key)), infonce(params)
+
+    before, after = both(jax.random.fold_in(jax.random.PRNGKey(42), 0), ev.params, batch)
+    return float(before), float(after)
+
+
+def test_training_lowers_infonce_and_refuses_overwrite(setup):
     from handx_jax.text.cache import open_cache
 
     root, data, E = setup  # trained with TRAINED from the init below (train seed 42, fold_in 0)
@@ -341,10 +357,7 @@ def test_training_lowers_infonce_and_refuses_overwrite(setup):
     cache = open_cache(data, ENCODER, joined=True, max_len=64)
     td = TrainingData(ds, cache, evaluator_stats(ds), ds.split("train"), [0], 0)
     batch = td.batch(np.arange(len(td)), np.zeros(len(td), int))  # a fixed batch, deterministic forward
-    model = Evaluator(ev.cfg)
-    loss = lambda p: float(evaluator_loss(model, p, batch, jax.random.PRNGKey(0), False)[1]["infonce"])  # noqa: E731
-    init = _init_params(ev.cfg, 64, jax.random.fold_in(jax.random.PRNGKey(42), 0))
-    before, after = loss(init), loss(ev.params)
+    before, after = infonce_init_and_trained(ev, batch)
     assert after < before - 0.5, (before, after)
     with pytest.raises(FileExistsError, match="already holds a trained evaluator"):
         train_evaluator(E, tiny_evaluator(data), log=lambda s: None)
@@ -387,11 +400,7 @@ def test_item_levels_are_a_function_of_the_batch(setup):
 
 def test_hand_frames_input_with_patches_trains_saves_and_reloads(setup, tmp_path):
     """The derived-feature input (307 per frame) and 2-frame tokens: own statistics, stored and reused."""
-    import jax
-
     from handx_jax import representation as rep
-    from handx_jax.evaluation import _init_params
-    from handx_jax.models.evaluator import Evaluator, evaluator_loss
     from handx_jax.text.cache import open_cache
 
     root, data, _ = setup
@@ -414,8 +423,8 @@ def test_hand_frames_input_with_patches_trains_saves_and_reloads(setup, tmp_path
     td = TrainingData(ds, cache, ev.stats, ds.split("train"), [0], 0, motion_input="hand_frames")
     batch = td.batch(np.arange(len(td)), np.zeros(len(td), int))
     assert batch["motion"].shape == (len(td), 60, 307)
-    loss = lambda p: float(evaluator_loss(Evaluator(ev.cfg), p, batch, jax.random.PRNGKey(0), False)[1]["infonce"])  # noqa: E731
-    assert loss(ev.params) < loss(_init_params(ev.cfg, 64, jax.random.fold_in(jax.random.PRNGKey(42), 0))) - 0.5
+    before, after = infonce_init_and_trained(ev, batch)
+    assert after < before - 0.5, (before, after)
     res = evaluate_ground_truth(ev, ds, CFG, cache=False)
     assert res.metrics["fid"][0] == pytest.approx(0.0, abs=1e-4)
     assert_beats_chance(evaluate_ground_truth(ev, ds, MetricConfig(replications=4, rprec_block=10), split="train",
