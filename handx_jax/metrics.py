@@ -880,15 +880,22 @@ def replicate_motion_metrics(gen_GxNxTx2x21x3, gt_NxTx2x21x3, cfg: MetricConfig 
     (G > 1) or a bootstrap over clips (G = 1). With G > 1, APD per hand over the first
     ``cfg.apd_samples`` groups (all for 0), its ± a bootstrap over prompts (a between-group quantity)."""
     gen = np.asarray(gen_GxNxTx2x21x3, np.float32)
-    gt = jnp.asarray(gt_NxTx2x21x3, jnp.float32)
     G, N = gen.shape[:2]
+    # The per-clip programs run on N zero-padded to a multiple of MOTION_CHUNK, their padded rows dropped
+    # (``[:N]``): each row is computed on its own, so the values are those of the unpadded call, and one
+    # compiled program of each serves every N up to the next multiple (a test session, or a sweep's
+    # evaluate stages, compile them once, not once per reference size: ~0.5-2 CPU-s each).
+    n_pad = -(-N // MOTION_CHUNK) * MOTION_CHUNK - N
+    pad = lambda a: np.pad(a, [(0, n_pad)] + [(0, 0)] * (a.ndim - 1))  # noqa: E731
+    gt = jnp.asarray(pad(np.asarray(gt_NxTx2x21x3, np.float32)))
     W = jnp.asarray(palm_barycentric(cfg.palm_points, cfg.seed))
-    gt_intra, gt_inter = (np.asarray(a, bool) for a in contact_labels(gt, W, cfg.intra_contact_m,
-                                                                     cfg.inter_contact_m))
+    gt_intra, gt_inter = (np.asarray(a, bool)[:N] for a in contact_labels(gt, W, cfg.intra_contact_m,
+                                                                          cfg.inter_contact_m))
     rows, per_clip = [], []
     for g in range(G):
-        x = jnp.asarray(gen[g])
-        intra, inter = (np.asarray(a, bool) for a in contact_labels(x, W, cfg.intra_contact_m, cfg.inter_contact_m))
+        x = jnp.asarray(pad(gen[g]))
+        intra, inter = (np.asarray(a, bool)[:N] for a in contact_labels(x, W, cfg.intra_contact_m,
+                                                                        cfg.inter_contact_m))
         acc, jit_ = acceleration_jitter(x)
         clip = {"mpjpe": np.asarray(mpjpe_mm(x, gt, cfg.mpjpe_root), np.float64),
                 "acceleration": np.asarray(acc, np.float64), "jitter": np.asarray(jit_, np.float64)}
@@ -898,6 +905,7 @@ def replicate_motion_metrics(gen_GxNxTx2x21x3, gt_NxTx2x21x3, cfg: MetricConfig 
         clip["pen_1cm"], clip["pen_depth"] = penetration_stats(interhand_penetration(x), cfg.pen_threshold_m)
         if named is not None and len(named):
             clip["cf_hit"], clip["cf_named"] = contact_feasibility_counts(x, named, W)
+        clip = {k: v[:N] for k, v in clip.items()}
         # Per-clip TP/FP/FN: contact P/R/F1 are micro-averaged, so a resample sums its clips' counts.
         for scope, p, q in (("intra", intra, gt_intra), ("inter", inter, gt_inter)):
             clip[f"tp_{scope}"] = (p & q).sum(1).astype(np.float64)
@@ -911,7 +919,7 @@ def replicate_motion_metrics(gen_GxNxTx2x21x3, gt_NxTx2x21x3, cfg: MetricConfig 
         K = G if cfg.apd_samples == 0 else cfg.apd_samples
         if not 2 <= K <= G:
             raise ValueError(f"APD over {K} samples per prompt needs 2 <= K <= {G} (the groups given)")
-        apd_Nx2 = apd_mm(gen[:K])
+        apd_Nx2 = apd_mm(np.pad(gen[:K], [(0, 0), (0, n_pad)] + [(0, 0)] * (gen.ndim - 2)))[:N]
         for h, side in enumerate(("left", "right")):
             out[f"apd_{side}"] = (float(apd_Nx2[:, h].mean()), _per_prompt_ci(apd_Nx2[:, h], counts))
         return out
