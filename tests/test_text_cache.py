@@ -86,11 +86,12 @@ def test_chunked_build_writes_every_row_in_place(setup, monkeypatch):
     from handx_jax.text import cache as cache_mod
 
     data, enc_dir, _ = setup
-    whole = TextCache.open(build_cache(data, enc_dir, dtype="float32", batch_size=8, overwrite=True,
+    # test_float16_and_determinism's batch-8 float32 shapes (max_len 32): the programs it compiled serve here
+    whole = TextCache.open(build_cache(data, enc_dir, dtype="float32", max_len=32, batch_size=8, overwrite=True,
                                        log=lambda s: None))
     before_h, before_m = np.array(whole.hidden), np.array(whole.mask)
     monkeypatch.setattr(cache_mod, "CHUNK_BYTES", 1)  # chunk = batch_size rows
-    chunked = TextCache.open(build_cache(data, enc_dir, dtype="float32", batch_size=8, overwrite=True,
+    chunked = TextCache.open(build_cache(data, enc_dir, dtype="float32", max_len=32, batch_size=8, overwrite=True,
                                          log=lambda s: None))
     assert len(before_h) > 3 * 8  # several chunks, the last one partial
     np.testing.assert_array_equal(np.asarray(chunked.mask), before_m)
