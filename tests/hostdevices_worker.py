@@ -1,8 +1,8 @@
 """Run by tests/test_hostdevices.py in a fresh process (the CPU device count is fixed at JAX start-up).
 
 Configures the host's CPU devices as the CLI does (HANDX_CPU_DEVICES from the environment), samples a tiny
-denoiser with the compiled sampler (guided and unguided on a batch the devices divide, guided on one they do
-not) and decodes a tiny prefix LM, and writes the samples to the .npz named by argv[1]. Then it runs the same
+denoiser with the compiled sampler (guided and unguided on a batch the devices divide; on one they do not it
+checks the sampler is the unsplit one) and decodes a tiny prefix LM, and writes the samples to the .npz named by argv[1]. Then it runs the same
 cases again as a one-device host does (``hostdevices.inference_mesh`` answering None: no split) and writes
 those to argv[2]. Both passes in one process: a two-device process's cached compilations do not serve a
 one-device process (the device count is part of XLA's cache key), and the one-device programs are the same
@@ -41,14 +41,18 @@ def samples() -> tuple[dict, dict]:
     params = _random_params(lambda r: init_denoiser(m, r, 8)[1], 0)
     rng = np.random.default_rng(1)
     out, used = {}, {}
-    for B, cases in ((4, (("guided", 2.5), ("unguided", 1.0))), (3, (("guided", 2.5),))):
-        text = rng.normal(size=(3, B, 8, m.text_dim)).astype(np.float32)
-        mask = np.ones((3, B, 8), bool)
-        mask[:, :, 5:] = False
-        for name, g in cases:
-            fn = compile_sampler(make_model(m), D.DiffusionConfig(), sampler="ddim", steps=3, guidance=g, batch=B)
-            used[str(B)] = int(fn.mesh.size) if hasattr(fn, "mesh") else 1
-            out[f"{name}_{B}"] = np.asarray(fn(params, text, mask, jax.random.PRNGKey(3), None, None))
+    B = 4
+    text = rng.normal(size=(3, B, 8, m.text_dim)).astype(np.float32)
+    mask = np.ones((3, B, 8), bool)
+    mask[:, :, 5:] = False
+    for name, g in (("guided", 2.5), ("unguided", 1.0)):
+        fn = compile_sampler(make_model(m), D.DiffusionConfig(), sampler="ddim", steps=3, guidance=g, batch=B)
+        used[str(B)] = int(fn.mesh.size) if hasattr(fn, "mesh") else 1
+        out[f"{name}_{B}"] = np.asarray(fn(params, text, mask, jax.random.PRNGKey(3), None, None))
+    # a batch the devices do not divide: the plain one-device program (no ``mesh``), i.e. the very program the
+    # reference pass runs, so it is built here and not run (running it would compare a program with itself)
+    fn = compile_sampler(make_model(m), D.DiffusionConfig(), sampler="ddim", steps=3, guidance=2.5, batch=3)
+    used["3"] = int(fn.mesh.size) if hasattr(fn, "mesh") else 1
     # AR decoding (families.ar.decode.decode): greedy and sampled, one compiled loop (the options are traced)
     from handx_jax.families.ar import decode as AD
     from handx_jax import hostdevices
