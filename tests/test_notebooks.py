@@ -12,7 +12,10 @@ What that skips is two calls the suite runs elsewhere as they are: ``text.cache.
 (test_text_cache.py) and ``families.diffusion.train(run_dir, make_config("tiny", overrides, data=...,
 encoder=...))`` (test_diffusion_train.py); the notebook's ``make_config`` call with its overrides still
 runs (unknown keys and bad values fail the cell), and so does everything after it: sampling, the animation
-and the standard evaluator's scores of the test prompts.
+and the standard evaluator's scores of the test prompts. data_exploration.ipynb is given the session's
+32-clip corpus (tests/diffusion_fixtures.make_dataset, the one that run trained on) as HANDX_DATA, so its
+kernel does not synthesise a corpus of its own (``build_corpus``, the cell's fallback, is what
+test_build_and_cli.py tests); every cell after it runs on that corpus.
 """
 
 import json
@@ -58,8 +61,14 @@ def _session_run(root: Path) -> dict[str, str]:
     return {"HANDX_RUN": str(make_run(root)[1])}
 
 
+def _session_data(root: Path) -> dict[str, str]:
+    from diffusion_fixtures import make_dataset
+
+    return {"HANDX_DATA": str(make_dataset(root))}
+
+
 # Environment a notebook runs with, beyond kernel_env's (see the module docstring).
-NOTEBOOK_ENV = {"quickstart.ipynb": _session_run}
+NOTEBOOK_ENV = {"quickstart.ipynb": _session_run, "data_exploration.ipynb": _session_data}
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
