@@ -6,7 +6,7 @@ import dataclasses
 import hashlib
 import json
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, lru_cache
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -52,19 +52,11 @@ class TrainedEvaluator:
 
     @cached_property
     def _motion_fn(self) -> Callable:
-        model = self._model
-        return jax.jit(lambda p, x: model.apply(p, x, method=Evaluator.encode_motion)[0])
+        return _motion_program(self.cfg)
 
     @cached_property
     def _text_fn(self) -> Callable:
-        # Training read the cache (cache_dtype, padding zeroed): encode exactly as the cache build does.
-        model, stored = self._model, self.encoder.stored_forward(self.policy.cache_dtype)
-
-        def f(p, enc_params, ids, mask):
-            h = stored(enc_params, ids, mask).astype(jnp.float32)
-            return model.apply(p, h, mask.astype(bool), method=Evaluator.encode_text)[0]
-
-        return jax.jit(f)
+        return _text_program(self.cfg, self.encoder, self.policy.cache_dtype)
 
     @cached_property
     def fingerprint(self) -> str:
@@ -148,6 +140,38 @@ class TrainedEvaluator:
                 [t["interaction"][lv] for t in texts])
 
 
+
+
+# One jitted program per evaluator config (and encoder config, cache dtype) in a process, as the T5 encoder has
+# (text.t5._encoder_forward): every evaluator loaded with it (a reload, a copy, other weights of the same size,
+# each evaluation of a sweep's process) reuses its traced and compiled shapes instead of tracing, lowering and
+# compiling its own (~0.3-0.5 CPU-s per function and batch shape even from the persistent cache).
+@lru_cache(maxsize=16)
+def _motion_program(cfg: EvaluatorConfig) -> Callable:
+    model = Evaluator(cfg)
+    return jax.jit(lambda p, x: model.apply(p, x, method=Evaluator.encode_motion)[0])
+
+
+_TEXT_PROGRAMS: dict = {}
+
+
+def _text_program(cfg: EvaluatorConfig, encoder, cache_dtype) -> Callable:
+    """The jitted caption encoder: the frozen T5 as the text cache stores its output (cache_dtype, padding
+    zeroed; training read that cache), then the evaluator's text branch. Keyed by the configs alone: the
+    encoder's stored forward is a function of its config (FrozenEncoder.stored_forward), its weights an
+    argument."""
+    model, stored = Evaluator(cfg), encoder.stored_forward(cache_dtype)
+
+    def f(p, enc_params, ids, mask):
+        h = stored(enc_params, ids, mask).astype(jnp.float32)
+        return model.apply(p, h, mask.astype(bool), method=Evaluator.encode_text)[0]
+
+    key = (cfg, encoder.cfg, jnp.dtype(cache_dtype).name)
+    if key not in _TEXT_PROGRAMS:
+        if len(_TEXT_PROGRAMS) >= 16:
+            _TEXT_PROGRAMS.pop(next(iter(_TEXT_PROGRAMS)))
+        _TEXT_PROGRAMS[key] = jax.jit(f)
+    return _TEXT_PROGRAMS[key]
 
 
 def _init_params(cfg: EvaluatorConfig, text_len: int, rng: jax.Array | None = None):
