@@ -88,9 +88,13 @@ def test_checkpoint_round_trip_and_versioned_meta(setup):
     cache = open_cache(data, ENCODER, joined=True, max_len=64)
     td = TrainingData(ds, cache, evaluator_stats(ds), clips, [0], 0)
     b = td.batch(np.arange(len(clips)), np.zeros(len(clips), int))
+    import jax
+
     from handx_jax.models.evaluator import Evaluator
 
-    mu_t, _ = Evaluator(ev.cfg).apply(ev.params, b["text"], b["text_mask"], method=Evaluator.encode_text)
+    # jitted: eagerly, each op of the text branch is its own dispatch and compile
+    encode_text = jax.jit(lambda p, h, m: Evaluator(ev.cfg).apply(p, h, m, method=Evaluator.encode_text)[0])
+    mu_t = encode_text(ev.params, b["text"], b["text_mask"])
     np.testing.assert_allclose(np.asarray(mu_t), t1, atol=2e-3)
     assert cache.texts[cache.row(clips[0], JOINED, 0)].startswith("<extra_id_0> ")
 
