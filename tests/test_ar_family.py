@@ -21,9 +21,11 @@ def built(tmp_path_factory):
     tok, run = root / "tok", root / "lm"
     # One residual block per stack and a one-layer LM: these tests check the commands' plumbing (records, logs,
     # caches, layouts, refusals), not model quality, and the programs of the 3-block tokenizer and the 2-layer LM
-    # cost ~10 CPU-s more to trace and compile (test_fsq.py and test_prefix_lm.py check those models).
+    # cost ~10 CPU-s more to trace and compile (test_fsq.py and test_prefix_lm.py check those models). 20-frame
+    # windows: the tokenizer's initial state and train step are then the programs of test_fsq.py's fit (same
+    # model, loss, optimiser and batch shape), compiled once in a session for both files.
     assert main(["train", "tokenizer", "--data", str(data), "--set", "model.codebook=256", "--set", "model.depth=1",
-                 "--preset", "tiny", "--quiet",
+                 "--set", "data.window=20", "--preset", "tiny", "--quiet",
                  "--set", "train.steps=4", "--set", "train.eval_every=2", *LOOP, "--out", str(tok)]) == 0
     assert main(["tokenize", "--tokenizer", str(tok), "--data", str(data)]) == 0
     assert main(["train", "ar", "--data", str(data), "--encoder", str(ENCODER), "--tokenizer", str(tok),

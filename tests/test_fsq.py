@@ -11,17 +11,14 @@ from handx_jax.models import fsq as Q
 from tests import handmade_hands as hh
 
 # XLA compiles are most of this file's CPU. The quantiser checks run each codebook's maths as one jitted
-# program (eagerly, every op compiles for every shape: ~1 s a case), and the model tests share one
-# 64-wide tokenizer, its initialisation (compiling ``init`` costs ~4 s) and the (8, 20)-frame shapes of
-# the fitted tokenizer below, so its encode and decode programs compile once.
-CFG64 = dataclasses.replace(Q.PRESETS["tiny"], width=64)
-MODEL64 = Q.FSQTokenizer(CFG64)
-APPLY64 = jax.jit(MODEL64.apply, static_argnames="method")
-
-
-@functools.cache
-def _init64():
-    return Q.init_tokenizer(CFG64, jax.random.PRNGKey(0))[1]
+# program (eagerly, every op compiles for every shape: ~1 s a case). The model tests share the tokenizer
+# fitted below and its (8, 20)-frame shapes, so its encode and decode programs compile once; and the fit runs
+# the training loop's own programs (initial state, train step) at the shapes and settings of
+# tests/test_ar_family.py's tokenizer run (the tiny preset one block deep, codebook 256, batches of 8
+# 20-frame windows), so in one session they compile once for both files (~10 CPU-s each time).
+CFG = dataclasses.replace(Q.PRESETS["tiny"], codebook=256, depth=1)
+MODEL = Q.FSQTokenizer(CFG)
+APPLY = jax.jit(MODEL.apply, static_argnames="method")
 
 
 def _jit(fn):
@@ -111,8 +108,8 @@ def _clip(T=16):
     return np.stack(frames)
 
 
-def test_tokenizer_shapes_and_encode_decode_agree():
-    model, params = MODEL64, _init64()
+def test_tokenizer_shapes_and_encode_decode_agree(fitted_8):
+    model, params = MODEL, fitted_8[-1]
     # Shapes from tracing alone (the compiled program has the traced shapes; compiling three more costs seconds).
     x60 = jax.ShapeDtypeStruct((2, 60, 288), jnp.float32)
     xhat, digits = jax.eval_shape(model.apply, params, x60)
@@ -122,11 +119,11 @@ def test_tokenizer_shapes_and_encode_decode_agree():
     assert jax.eval_shape(functools.partial(model.apply, method=model.encode), params, x48).shape == (2, 24)  # §4.3
     # Values, compiled as training and decoding run them, at the fitted tokenizer's shapes (8 clips, 20 frames).
     x = jnp.asarray(np.random.default_rng(0).normal(size=(8, 20, 288)), jnp.float32)
-    xhat, digits = APPLY64(params, x)
+    xhat, digits = APPLY(params, x)
     assert xhat.shape == x.shape and digits.shape == (8, 10, 3)
-    idx = APPLY64(params, x, method=model.encode)
-    np.testing.assert_array_equal(idx, Q.digits_to_index(digits, CFG64.levels))
-    np.testing.assert_allclose(APPLY64(params, idx, method=model.decode), xhat, atol=1e-5)
+    idx = APPLY(params, x, method=model.encode)
+    np.testing.assert_array_equal(idx, Q.digits_to_index(digits, CFG.levels))
+    np.testing.assert_allclose(APPLY(params, idx, method=model.decode), xhat, atol=1e-5)
 
 
 def test_rotation_row_convention_and_losses_known_values():
@@ -194,42 +191,39 @@ def test_analytic_flops_match_xla():
 
 @pytest.fixture(scope="module")
 def fitted_8(tmp_path_factory):
-    """A 64-wide tokenizer fitted to 8 clips of the 32-clip test corpus (their first 20 frames, 10 tokens
-    each, one batch) with the family's default loss, 200 Adam steps at 3e-3: measured 0.075× the mean
-    pose in ~21 CPU-s with the compile (full 60-frame clips: 0.18× in 46 CPU-s; the 32-wide tiny preset
-    at 20 frames: 0.21×)."""
-    import optax
-
+    """The tokenizer (tiny preset one block deep, codebook 256) fitted by the family's training loop
+    (``handx_jax.train.train``) to 8 clips of the 32-clip test corpus, their first 20 frames (10 tokens each)
+    in one batch, with the family's default loss and optimiser (AdamW, clipping at 1), 200 steps at 3e-3 peak
+    (20 warm-up, cosine): measured 0.23× the mean pose, the wrist orientation 0.24× (the 64-wide, three-block
+    tokenizer in a scan of plain Adam steps: 0.10× in ~19 CPU-s, 10 of them compiling the scan; full 60-frame
+    clips: 0.18× in 46 CPU-s). The loop evaluates the initial weights (step 0) and the fitted ones on the same
+    8 clips."""
+    from handx_jax import train as loop
     from handx_jax.data.dataset import Dataset
     from handx_jax.families import tokenizer as T
     from tests.diffusion_fixtures import make_dataset
 
-    ds = Dataset.open(make_dataset(tmp_path_factory.mktemp("fsq8"), joined=True))  # the AR tests' corpus
+    root = tmp_path_factory.mktemp("fsq8")
+    ds = Dataset.open(make_dataset(root, joined=True))  # the AR tests' corpus
     norm = T._ar_norm(ds)
-    x = jnp.asarray(norm.normalize(R.to_ar(np.asarray(ds.motion[:8], np.float64))), jnp.float32)[:, :20]
-    cfg, model, params = CFG64, MODEL64, _init64()
-    loss = T.make_loss(model, norm, T.TokenizerRunConfig().loss)
-    tx = optax.chain(optax.clip_by_global_norm(1.0), optax.adam(optax.warmup_cosine_decay_schedule(0, 3e-3, 20, 200)))
-
-    @jax.jit
-    def fit(params):
-        def step(carry, _):
-            p, s = carry
-            g = jax.grad(lambda p: loss(p, {"x": x}, None, True)[0])(p)
-            u, s = tx.update(g, s, p)
-            return (optax.apply_updates(p, u), s), None
-
-        return jax.lax.scan(step, (params, tx.init(params)), None, length=200)[0][0]
-
-    return model, cfg, norm, x, params, jax.block_until_ready(fit(params))
+    x = norm.normalize(R.to_ar(np.asarray(ds.motion[:8], np.float64))).astype(np.float32)[:, :20]
+    rows = []
+    # The family's recipe (tokenizer.CPU_TRAIN) with test_ar_family.py's batch: the learning rate, warm-up and
+    # length are traced arguments of the step (train.schedule_values), so its program is that run's.
+    optim = dataclasses.replace(T.CPU_TRAIN.optim, lr=3e-3, warmup_steps=20)
+    cfg = dataclasses.replace(T.CPU_TRAIN, steps=200, batch_size=8, log_every=200, ckpt_every=200, eval_every=0,
+                              wandb="disabled", prefetch=0, optim=optim)
+    out = loop.train(root / "run", init=lambda rng: Q.init_tokenizer(CFG, rng, x.shape[1])[1],
+                     loss=T.make_loss(MODEL, norm, T.TokenizerRunConfig().loss), get_batch=lambda idx: {"x": x},
+                     num_examples=8, cfg=cfg, config={"family": "tokenizer-test"},
+                     evaluate=T.make_evaluate(MODEL, CFG, x, norm), on_log=rows.append)
+    before, after = (r for r in rows if "eval/mpjpe_mm" in r)
+    assert (before["step"], after["step"]) == (0, 200)
+    return norm, jnp.asarray(x), before, after, out["params"]
 
 
 def test_tokenizer_fits_eight_clips_below_a_third_of_the_mean_pose(fitted_8):
-    from handx_jax.families import tokenizer as T
-
-    model, cfg, norm, x, init, params = fitted_8
-    evaluate = T.make_evaluate(model, cfg, np.asarray(x), norm)
-    before, after = evaluate(init, {}, 0), evaluate(params, {}, 200)
+    _, _, before, after, _ = fitted_8
     assert before["eval/mean_pose_mpjpe_mm"] == after["eval/mean_pose_mpjpe_mm"] > 20  # hands that move and turn
     assert after["eval/mpjpe_vs_mean_pose"] < 0.3, after
     assert after["eval/mpjpe_mm"] < 0.3 * before["eval/mpjpe_mm"]
@@ -242,8 +236,8 @@ def test_tokenizer_fits_eight_clips_below_a_third_of_the_mean_pose(fitted_8):
 def test_decoder_uses_its_codes(fitted_8):
     """Other codes give other motion: each clip decoded from another clip's codes reconstructs far worse
     than from its own, and every clip's codes differ from the others'."""
-    model, cfg, norm, x, _, params = fitted_8
-    apply = APPLY64
+    norm, x, _, _, params = fitted_8
+    model, apply = MODEL, APPLY
     idx = apply(params, x, method=model.encode)
     assert len({tuple(np.asarray(r)) for r in idx}) == 8
     mean, scale = jnp.asarray(norm.mean), jnp.asarray(norm.std + np.float32(norm.eps))
