@@ -13,7 +13,7 @@ from handx_jax.cli import main
 from handx_jax.families.diffusion import (DiffusionRunConfig, apply_overrides, load_train_data, make_loss,
                                           make_model, params_non_embedding)
 from handx_jax.families.diffusion import train as train_diffusion
-from handx_jax.models.dit import PRESETS, forward_flops, init_denoiser, param_count
+from handx_jax.models.dit import PRESETS, forward_flops, param_count
 from handx_jax.train import load_params
 from tests.diffusion_fixtures import ENCODER, RUN_OVERRIDES, make_dataset, make_run, tiny_config
 
@@ -69,7 +69,8 @@ def test_items_are_clip_level_pairs_with_aligned_fields(data):
 def test_training_lowers_the_loss_and_writes_a_results_row(data, tmp_path):
     # tiny_config's batch size: the same compiled step as the other tiny runs of the session (the learning
     # rate and the length are arguments of the step, not constants in it)
-    cfg = tiny_config(data, "train.steps=30", "train.log_every=10", "train.ckpt_every=30", "train.optim.lr=2e-3")
+    # 10 steps: the fixed batch's loss falls to 0.39 of the initial one (measured; 0.21 after 30 steps)
+    cfg = tiny_config(data, "train.steps=10", "train.log_every=5", "train.ckpt_every=10", "train.optim.lr=2e-3")
     tr = load_train_data(cfg)
     model = make_model(cfg.model)
     loss = jax.jit(make_loss(model, cfg.diffusion), static_argnums=3)  # one compile, not one per op (eager)
@@ -78,19 +79,21 @@ def test_training_lowers_the_loss_and_writes_a_results_row(data, tmp_path):
     fixed = lambda p: float(np.mean([loss(jax.tree.map(np.asarray, p), batch, jax.random.PRNGKey(s), False)[0]  # noqa: E731
                                      for s in range(4)]))
     cfg_model = dataclasses.replace(cfg.model, text_dim=32)
-    p0 = init_denoiser(cfg_model, jax.random.fold_in(jax.random.PRNGKey(cfg.train.seed), 0), text_len=128)[1]
+    # the run's own initial params: the loop stopped before its first step returns its initial state (the compiled
+    # initial state of the session's tiny runs, where a separate init_denoiser would compile a program of its own)
+    p0 = train_diffusion(tmp_path / "p0", cfg, stop_at=0)["params"]
     train_diffusion(tmp_path / "run", cfg)
     p1, step = load_params(tmp_path / "run")
-    assert step == 30
-    assert fixed(p1) < 0.8 * fixed(p0)
+    assert step == 10
+    assert fixed(p1) < 0.8 * fixed(p0), (fixed(p1), fixed(p0))
 
     row = row_from_run_dir(tmp_path / "run")
     assert row["family"] == "diffusion" and (row["layers"], row["dim"], row["heads"], row["ff"]) == (2, 64, 4, 128)
     assert row["params"] == param_count(cfg_model) and row["params_non_embedding"] == params_non_embedding(cfg_model)
     doc = json.loads((tmp_path / "run" / "config.json").read_text())
     assert row["flops_per_sample"] == forward_flops(cfg_model, round(doc["text_len_mean"]))
-    assert row["data_fraction"] == 1.0 and row["steps"] == 30 and row["samples_seen"] == 30 * 8
-    assert row["train_flops"] == pytest.approx(3 * row["flops_per_sample"] * 30 * 8)
+    assert row["data_fraction"] == 1.0 and row["steps"] == 10 and row["samples_seen"] == 10 * 8
+    assert row["train_flops"] == pytest.approx(3 * row["flops_per_sample"] * 10 * 8)
     cache_meta = load_train_data(cfg).cache.meta  # three captions through the frozen encoder per sample
     assert row["text_flops_per_sample"] == pytest.approx(3 * cache_meta["encoder_flops_per_caption"]["mean"])
     assert (tmp_path / "run" / "norm_stats.npz").exists()
