@@ -18,6 +18,12 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 #   (the 200-step tokenizer fit of test_fsq.py runs in 9.3 CPU-s at level 1 and at the default). Level 0
 #   compiles faster still but runs 10x slower (that fit: 104 CPU-s). The maths is the same (no fast-math;
 #   float rounding may differ in the last bits). A user's own XLA_FLAGS level is kept.
+# - one CPU device in every process of the session: the tests' own processes have one anyway (JAX's
+#   default), and the `handx` subprocesses (CLI tests, sweep stages, notebook kernels) would otherwise
+#   configure one per core (handx_jax.hostdevices). The compilation cache's key includes the device count
+#   (not the flag), so with one count everywhere a program compiled in a test process serves a sweep stage
+#   and the reverse (the evaluator's metric programs, a tiny tokenizer's or denoiser's training step).
+#   tests/test_hostdevices.py removes the flag and checks the several-device path itself.
 # - shared/: read-only fixtures built once per session and copied by the tests that need them
 #   (tests/diffusion_fixtures.py: the 32-clip corpus with its text cache).
 _SESSION = None
@@ -28,6 +34,9 @@ if "PYTEST_XDIST_WORKER" not in os.environ and "HANDX_TEST_SESSION" not in os.en
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
     if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=1").strip()
+    if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", "") and \
+            "JAX_NUM_CPU_DEVICES" not in os.environ:
+        os.environ["XLA_FLAGS"] += " --xla_force_host_platform_device_count=1"
 
 
 def pytest_unconfigure(config):

@@ -30,7 +30,8 @@ def built(tmp_path_factory):
     assert main(["tokenize", "--tokenizer", str(tok), "--data", str(data)]) == 0
     assert main(["train", "ar", "--data", str(data), "--encoder", str(ENCODER), "--tokenizer", str(tok),
                  "--preset", "tiny", "--quiet", "--set", "train.steps=8", *LOOP, "--set", "train.ckpt_every=8",
-                 "--set", "model.layers=1", "--out", str(run)]) == 0  # one checkpoint: an orbax save costs ~1 CPU-s
+                 "--set", "model.layers=1", "--set", "model.dim=32", "--set", "model.heads=2",  # test_ar_sweep's 1L-32
+                 "--out", str(run)]) == 0  # one checkpoint: an orbax save costs ~1 CPU-s
     return data, tok, run
 
 

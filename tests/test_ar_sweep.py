@@ -19,10 +19,15 @@ def test_real_ar_sweep_every_row_done_and_scored(tmp_path):
     E = make_evaluator(tmp_path / "E")
     # The `cpu` preset (make sweep-ar-cpu) at 6 steps, its two smallest LM sizes: most of this test's CPU is
     # XLA compiling each size's training step and decoding loop, which grows with the depth. The tokenizer
-    # is one block deep and skips its validation hook (data.eval_clips=0): nothing here reads either.
+    # is one block deep and skips its validation hook (data.eval_clips=0): nothing here reads either. Its
+    # model and windows are test_fsq.py's and test_ar_family.py's tokenizer (tiny width 32, 20 frames), and
+    # the 1L-32 LM is test_ar_family.py's: with one CPU device in every process of the session
+    # (conftest.py), whichever runs second loads their initial-state and training-step programs from the
+    # session's compilation cache.
     specs = [s for s in load_sweep("sweeps/ar_size_codebook.py", preset="cpu", steps=6, tokenizer_steps=4,
                                    codebooks=[256], lm_set=[*LOOP, "train.ckpt_every=6"],
-                                   tokenizer_set=[*LOOP, "train.ckpt_every=4", "data.eval_clips=0", "model.depth=1"])
+                                   tokenizer_set=[*LOOP, "train.ckpt_every=4", "data.eval_clips=0", "model.depth=1",
+                                                  "model.width=32", "data.window=20"])
              if s.axes["layers"] <= 2]
     assert [(s.axes["layers"], s.axes["dim"]) for s in specs] == [(2, 64), (1, 32)]
     from diffusion_fixtures import ENCODER
