@@ -96,10 +96,13 @@ sweep-ar-cpu: $(STAMP)
 	$$H analyze factors $$S/results.csv --factors flops_analytic,codebook --y rprec_top3 | tee $$S/factors.txt; \
 	echo "sweep-ar-cpu finished in $$(( $$(date +%s) - start )) s (corpus prefix, text cache, tokenizers, runs, fits)"
 
-# One pytest worker per core, each test file on one worker (its module fixtures are built once):
-# single-process pytest leaves the second core idle most of the run (wall time ~ user CPU time).
+# One pytest worker per core plus one, each test file on one worker (its module fixtures are built once).
+# Single-process pytest leaves the second core idle most of the run (wall time ~ user CPU time). With one
+# worker per core a core still idled ~80 s of the run: a worker waiting on SLURM jobs, subprocesses or a
+# session fixture another worker builds holds its core empty (test_slurm.py alone: 67 s of wall, 14 CPU-s).
+# On 2 cores, 3 workers ran pytest in 391 s where 2 took 452 s (same clean clone, quiet machine).
 # tests/conftest.py runs the longest files first (HEAVY_FIRST).
-TEST_WORKERS ?= auto
+TEST_WORKERS ?= $(shell echo $$(( $$(nproc 2>/dev/null || echo 1) + 1 )))
 test: $(STAMP)
 	JAX_PLATFORMS=cpu $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile tests
 
