@@ -137,11 +137,11 @@ def verdict(sweep: Path, out: Path) -> bool:
     print(f"\n== the demo's curve {'rises' if ok else 'does NOT rise'}: {why}")
     if (STUDY / "fit.txt").exists():
         shutil.copyfile(STUDY / "fit.png", out / "sweep-cpu-fit.png")
-        # Issue 31 item 4: a rising curve within 10 minutes on 2 cores was not reached. The first design (133 s
-        # of sweep) fell (r -0.60); this one rises but takes 632 s plus the install. Say so, and show the study.
+        # Issue 31 item 4. The first design (133 s of sweep) fell (r -0.60); this one rises (575 s from a fresh
+        # clone, install included), but its slope's interval still holds 0. Say so, and show the study.
         print(("" if ok else "This sweep's curve does not show the scaling on this yardstick; ")
-              + "a mini sweep short enough for 10 minutes on 2 cores is too noisy to show the scaling reliably (this "
-              "demo takes about 11 min with its install, measured); the committed `make sweep-cpu` study "
+              + "a mini sweep short enough for 10 minutes on 2 cores is too noisy to pin the slope down (this "
+              "demo takes about 9½ min with its install, measured); the committed `make sweep-cpu` study "
               "(6 configurations x 3 seeds, ~20 min per seed, "
               f"same evaluator; {STUDY.relative_to(STUDY.parents[4])}) gives, beside the demo's:\n"
               + "".join("    " + ln + "\n" for ln in (STUDY / "fit.txt").read_text().splitlines()[:5])
