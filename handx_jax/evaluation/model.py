@@ -18,7 +18,9 @@ from handx_jax import representation as rep
 from handx_jax.evaluation.features import TextPolicy, joined_caption, motion_features
 from handx_jax.io import DataError
 from handx_jax.models.evaluator import Evaluator, EvaluatorConfig
+from handx_jax.models.shape_cache import per_config
 from handx_jax.text.cache import bucket_length
+from handx_jax.text.t5 import stored_forward
 
 
 def _pad_rows(x: np.ndarray, n: int) -> np.ndarray:
@@ -146,32 +148,28 @@ class TrainedEvaluator:
 # (text.t5._encoder_forward): every evaluator loaded with it (a reload, a copy, other weights of the same size,
 # each evaluation of a sweep's process) reuses its traced and compiled shapes instead of tracing, lowering and
 # compiling its own (~0.3-0.5 CPU-s per function and batch shape even from the persistent cache).
-@lru_cache(maxsize=16)
+@per_config
 def _motion_program(cfg: EvaluatorConfig) -> Callable:
     model = Evaluator(cfg)
     return jax.jit(lambda p, x: model.apply(p, x, method=Evaluator.encode_motion)[0])
 
 
-_TEXT_PROGRAMS: dict = {}
-
-
 def _text_program(cfg: EvaluatorConfig, encoder, cache_dtype) -> Callable:
     """The jitted caption encoder: the frozen T5 as the text cache stores its output (cache_dtype, padding
     zeroed; training read that cache), then the evaluator's text branch. Keyed by the configs alone: the
-    encoder's stored forward is a function of its config (FrozenEncoder.stored_forward), its weights an
-    argument."""
-    model, stored = Evaluator(cfg), encoder.stored_forward(cache_dtype)
+    encoder's stored forward is a function of its config (text.t5.stored_forward), its weights an argument."""
+    return _text_program_of(cfg, encoder.cfg, jnp.dtype(cache_dtype).name)
+
+
+@lru_cache(maxsize=16)
+def _text_program_of(cfg: EvaluatorConfig, enc_cfg, cache_dtype: str) -> Callable:
+    model, stored = Evaluator(cfg), stored_forward(enc_cfg, cache_dtype)
 
     def f(p, enc_params, ids, mask):
         h = stored(enc_params, ids, mask).astype(jnp.float32)
         return model.apply(p, h, mask.astype(bool), method=Evaluator.encode_text)[0]
 
-    key = (cfg, encoder.cfg, jnp.dtype(cache_dtype).name)
-    if key not in _TEXT_PROGRAMS:
-        if len(_TEXT_PROGRAMS) >= 16:
-            _TEXT_PROGRAMS.pop(next(iter(_TEXT_PROGRAMS)))
-        _TEXT_PROGRAMS[key] = jax.jit(f)
-    return _TEXT_PROGRAMS[key]
+    return jax.jit(f)
 
 
 def _init_params(cfg: EvaluatorConfig, text_len: int, rng: jax.Array | None = None):

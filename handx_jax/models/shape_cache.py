@@ -1,4 +1,6 @@
-"""A cache for what a model config determines from shapes alone (parameter counts).
+"""A cache for what a model config alone determines (parameter counts, jitted programs).
+
+Programs: a jitted function built for one config serves every model of that config in a process.
 
 Counting parameters traces the model's init under ``jax.eval_shape``: ~0.5-0.8 CPU-s at the paper's sizes
 on CPU, paid by every run's record, every sweep row and every ``handx params``. The answer depends only on

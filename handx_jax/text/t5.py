@@ -330,6 +330,14 @@ def _encoder_forward(cfg: T5Config) -> Callable:
     return jax.jit(lambda p, ids, mask: jax.lax.stop_gradient(model.apply({"params": p}, ids, mask)))
 
 
+def stored_forward(cfg: T5Config, dtype) -> Callable:
+    """``f(params, ids, mask)`` → hidden states as the text cache stores them: padding zeroed, cast to
+    ``dtype``. Not jitted, so callers fuse it into their own jit; the cache build and every consumer that
+    re-encodes text on the fly (the evaluator) use this one function, so both see the same numbers."""
+    forward, store = _encoder_forward(cfg), jnp.dtype(dtype)
+    return lambda params, ids, mask: (forward(params, ids, mask) * mask[..., None]).astype(store)
+
+
 @dataclass
 class FrozenEncoder:
     """A loaded encoder folder: config, frozen parameters, its tokenizer, and a jitted forward."""
@@ -352,12 +360,8 @@ class FrozenEncoder:
         return self._forward(self.params, jnp.asarray(ids_BxL, jnp.int32), jnp.asarray(mask_BxL, jnp.int32))
 
     def stored_forward(self, dtype) -> Callable:
-        """``f(params, ids, mask)`` → hidden states as the text cache stores them: padding zeroed, cast to
-        ``dtype``. Not jitted, so callers fuse it into their own jit; the cache build and every consumer
-        that re-encodes text on the fly (the evaluator) use this one function, so both see the same
-        numbers."""
-        forward, store = self._forward, jnp.dtype(dtype)
-        return lambda params, ids, mask: (forward(params, ids, mask) * mask[..., None]).astype(store)
+        """:func:`stored_forward` of this encoder's config."""
+        return stored_forward(self.cfg, dtype)
 
     def encode(self, texts: Sequence[str], max_len: int | None = None) -> tuple[Encoded, np.ndarray]:
         enc = self.tokenizer.encode(texts, max_len)
