@@ -100,6 +100,8 @@ def test_sweep_files_define_the_grids(tmp_path):
         st = {o.split("=")[0]: o.split("=")[1] for o in s.overrides}
         assert st["train.steps"] == {1: "150", 2: "300", 3: "600"}[s.axes["layers"]]
         assert st["sample.temperature"] == "0.6"
+        # the level-0 recipe (docs/results/ar_text): concise captions, 10% conditioning dropout
+        assert (st["data.levels"], st["data.text_drop"], st["train.batch_size"]) == ("0", "0.1", "64")
     assert all(len(v) == 1 for v in toks.values()) and len({k for v in toks.values() for k in v}) == 3
 
     bad = tmp_path / "bad.py"
