@@ -72,7 +72,8 @@ LABELS: dict[str, str] = {
     "contact_precision_inter": "Inter-hand $C_\\mathrm{prec}$",
     "contact_recall_inter": "Inter-hand $C_\\mathrm{rec}$",
     "contact_f1_inter": "Inter-hand $C_\\mathrm{F1}$",
-    "flops_per_sample": "FLOPs per sample (analytic: 2/MAC, denoiser)",
+    # Either family's count (fits.FLOPS_CONVENTIONS): the denoiser's, or the LM's over its prefix and motion slots.
+    "flops_per_sample": "FLOPs per sample (analytic: 2/MAC, trainable model)",
     "flops_per_sample_paper": "FLOPs per sample (paper convention: MACs + text encoder)",
     "train_flops": "Training compute (FLOPs)",
     "params": "Parameters",
