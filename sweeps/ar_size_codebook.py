@@ -21,14 +21,17 @@ and the LM's run records it from the token cache (``config.json["codebook"]``). 
 full data: 12 runs, 4 tokenizers. ``tiny``: LM {2L-64, 3L-64, 4L-128} × codebook {256, 512}.
 
 ``cpu`` (``make sweep-ar-cpu``, issue 30 item 5; docs/results/ar_cpu_study): the codebook axis end to end on
-2 CPU cores, aimed at under an hour (measured: ~63 min at load average 12–15 on a shared machine; every LM
-scored at chance, top-3 0.089–0.097, the text barely used at this budget: see that README). LM {CPU_LMS} ×
+2 CPU cores in under an hour (measured: 25 min from a fresh clone on 2 quiet cores, install included). Every
+LM uses its text (held-out text gap growing with size), yet all score near chance (top-3 0.084–0.107): these
+tokenizers lose the fingers' motion, which the standard evaluator reads, so the ground-truth clips put
+through them score at chance too (see that README's ceiling table). LM {CPU_LMS} ×
 codebook {CPU_CODEBOOKS}, each tokenizer the rate–distortion study's equal-budget recipe (tiny preset at
 width 64, CPU_TOKENIZER_STEPS × 64 windows: ~100 CPU-s; docs/results/ar_tokenizer). Why the LMs are this
 small: every LM layer runs over the joined text prefix (~110 of 128 slots) as well as the 31 motion slots,
 so even the ``small`` preset (4L-128) took ~15 s per step of 64 on this machine (benchmarks/ar.py) and a
 3L-96 step of 32 ~0.5 CPU-s, and nine LMs must share ~1.5 core-hours. The sizes' steps grow with size
-(CPU_STEPS: more data seen with more capacity, as the diffusion CPU study's ``matched``). Generation samples
+(CPU_STEPS: more data seen with more capacity, as the diffusion CPU study's ``matched``), on the level-0
+captions with conditioning dropout (CPU_LM_DATA). Generation samples
 at temperature 0.6 (CPU_SAMPLE; chosen once from pilots at greedy / 0.6 / 1.0) rather than decoding
 greedily: greedy decoding of a short-trained LM repeats one motion for most prompts (a 3-layer LM's
 diversity was 0), and with ``--eval-samples 4`` the evaluator's ± is then over 4 generation groups.

@@ -4,7 +4,7 @@
 
 For each run: its axes (layers, dim, codebook), steps, the held-out token NLL (nats per motion slot, the LM's
 evaluation hook, ``families/ar.make_evaluate``) at step 0 (the initial weights) and at its last evaluation,
-the tokenizer's val MPJPE (its last evaluation), and top-1/top-3 R-Precision with their ± from ``eval.json``.
+the text gap (the same NLL with another held-out clip's text, minus the own text's), the tokenizer's val MPJPE (its last evaluation), and top-1/top-3 R-Precision with their ± from ``eval.json``.
 """
 
 from __future__ import annotations
@@ -28,6 +28,8 @@ def row(run: Path) -> dict:
             "nb_code": cfg["nb_code"], "params": cfg["params"], "steps": evals[-1]["step"],
             "batch_size": cfg["train"]["batch_size"], "lr": cfg["train"]["optim"]["lr"],
             "nll_step0": evals[0]["eval/nll"], "nll": evals[-1]["eval/nll"], "acc": evals[-1]["eval/acc"],
+            # held-out NLL with another held-out clip's text, and its excess over the own text's (0: text unused)
+            "nll_other_text": evals[-1].get("eval/nll_other_text"), "text_gap": evals[-1].get("eval/text_gap"),
             "tokenizer_mpjpe_mm": tok_ev[-1]["eval/mpjpe_mm"] if tok_ev else None,
             "tokenizer_perplexity": tok_ev[-1].get("eval/perplexity") if tok_ev else None,
             **{k: sc.get(k) for k in ("rprec_top1", "rprec_top1_ci", "rprec_top3", "rprec_top3_ci", "fid", "fid_ci",
@@ -48,7 +50,7 @@ def main(argv=None) -> int:
     for kind, rs in rows.items():
         for r in rs:
             print(f"{kind:9} L{r['layers']} d{r['dim']} K{r['codebook']:<5} steps {r['steps']:>5}  "
-                  f"NLL {r['nll_step0']:.3f} -> {r['nll']:.3f}  top-3 {r['rprec_top3']:.3f} ± "
+                  f"NLL {r['nll_step0']:.3f} -> {r['nll']:.3f} (text gap {r['text_gap'] or 0:+.3f})  top-3 {r['rprec_top3']:.3f} ± "
                   f"{r['rprec_top3_ci']:.3f}  top-1 {r['rprec_top1']:.3f}")
     return 0
 
