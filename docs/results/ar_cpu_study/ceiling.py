@@ -5,6 +5,8 @@ standard evaluator v4 as if generated, whole and part by part: the ground truth'
 part replaced by the reconstruction's (models.fsq.PARTS: fingers = the 240 local joint positions, wrist
 orientation = the 12 wrist-6D features, root = root velocity and left-right offset), and the fingers'
 per-clip static pose (time mean) and dynamics (the rest) swapped between reconstruction and ground truth.
+How finely the evaluator reads the fingers is measured on the ground truth alone: its finger positions with
+Gaussian noise of 1 and 3 mm per coordinate (independent per frame), and with one 3 mm offset per clip.
 Joints are the features' global joints (models.fsq.global_joints) placed at the clip's first right-wrist
 position. No LM is involved: a row's top-3 is the ceiling for any LM over that tokenizer's codes.
 
@@ -72,8 +74,13 @@ def main(data: str, out: str, toks: list[str]) -> None:
 
     lp = gt_u[..., fing]
     static = lambda x: x.mean(axis=1, keepdims=True)  # noqa: E731  per-clip time mean
+    rng = np.random.default_rng(0)
+    noise = lambda sd, shape: rng.normal(0.0, sd, shape).astype(np.float32)  # noqa: E731  metres
     rows = {"gt": {"all": write("gt-all", gt_u),
-                   "no finger motion": write("gt-static-fingers", fingers(gt_u, np.broadcast_to(static(lp), lp.shape)))}}
+                   "no finger motion": write("gt-static-fingers", fingers(gt_u, np.broadcast_to(static(lp), lp.shape))),
+                   "finger noise 1 mm": write("gt-noise1mm", fingers(gt_u, lp + noise(0.001, lp.shape))),
+                   "finger noise 3 mm": write("gt-noise3mm", fingers(gt_u, lp + noise(0.003, lp.shape))),
+                   "finger offset 3 mm per clip": write("gt-offset3mm", fingers(gt_u, lp + noise(0.003, static(lp).shape)))}}
     for tok_dir in toks:
         tok = T.load(tok_dir)
         xh = tok.model.apply(tok.params, jnp.asarray(tok.norm.normalize(gt_u), jnp.float32))[0]
