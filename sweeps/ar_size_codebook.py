@@ -28,8 +28,8 @@ through them score at chance too (see that README's ceiling table). LM {CPU_LMS}
 codebook {CPU_CODEBOOKS}, each tokenizer the rate–distortion study's equal-budget recipe (tiny preset at
 width 64, CPU_TOKENIZER_STEPS × 64 windows: ~100 CPU-s; docs/results/ar_tokenizer). Why the LMs are this
 small: every LM layer runs over the joined text prefix (~110 of 128 slots) as well as the 31 motion slots,
-so even the ``small`` preset (4L-128) took ~15 s per step of 64 on this machine (benchmarks/ar.py) and a
-3L-96 step of 32 ~0.5 CPU-s, and nine LMs must share ~1.5 core-hours. The sizes' steps grow with size
+so even the ``small`` preset (4L-128) took ~1.1 s per step of 64 on 2 quiet cores, a 3L-96 step of 64
+~0.7 s (600 steps in 403 s), and nine LMs must share well under an hour of both cores. The sizes' steps grow with size
 (CPU_STEPS: more data seen with more capacity, as the diffusion CPU study's ``matched``), on the level-0
 captions with conditioning dropout (CPU_LM_DATA). Generation samples
 at temperature 0.6 (CPU_SAMPLE; chosen once from pilots at greedy / 0.6 / 1.0) rather than decoding

@@ -4,7 +4,8 @@
 
 For each run: its axes (layers, dim, codebook), steps, the held-out token NLL (nats per motion slot, the LM's
 evaluation hook, ``families/ar.make_evaluate``) at step 0 (the initial weights) and at its last evaluation,
-the text gap (the same NLL with another held-out clip's text, minus the own text's), the tokenizer's val MPJPE (its last evaluation), and top-1/top-3 R-Precision with their ± from ``eval.json``.
+the text gap (the same NLL with another held-out clip's text, minus the own text's), the tokenizer's val
+MPJPE (its last evaluation), and top-1/top-3 R-Precision with their ± from ``eval.json``.
 """
 
 from __future__ import annotations
@@ -49,8 +50,9 @@ def main(argv=None) -> int:
     (args.out / "lm_rows.json").write_text(json.dumps(rows, indent=2) + "\n")
     for kind, rs in rows.items():
         for r in rs:
+            gap = "" if r["text_gap"] is None else f" (text gap {r['text_gap']:+.3f})"
             print(f"{kind:9} L{r['layers']} d{r['dim']} K{r['codebook']:<5} steps {r['steps']:>5}  "
-                  f"NLL {r['nll_step0']:.3f} -> {r['nll']:.3f} (text gap {r['text_gap'] or 0:+.3f})  top-3 {r['rprec_top3']:.3f} ± "
+                  f"NLL {r['nll_step0']:.3f} -> {r['nll']:.3f}{gap}  top-3 {r['rprec_top3']:.3f} ± "
                   f"{r['rprec_top3_ci']:.3f}  top-1 {r['rprec_top1']:.3f}")
     return 0
 
