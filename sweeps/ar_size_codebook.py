@@ -21,12 +21,12 @@ and the LM's run records it from the token cache (``config.json["codebook"]``). 
 full data: 12 runs, 4 tokenizers. ``tiny``: LM {2L-64, 3L-64, 4L-128} × codebook {256, 512}.
 
 ``cpu`` (``make sweep-ar-cpu``, issue 30 item 5; docs/results/ar_cpu_study): the codebook axis end to end on
-2 CPU cores in under an hour (measured: 25 min from a fresh clone on 2 quiet cores, install included). Every
-LM uses its text (held-out text gap growing with size), yet all score near chance (top-3 0.084–0.107): these
-tokenizers lose the fingers' motion, which the standard evaluator reads, so the ground-truth clips put
-through them score at chance too (see that README's ceiling table). LM {CPU_LMS} ×
-codebook {CPU_CODEBOOKS}, each tokenizer the rate–distortion study's equal-budget recipe (tiny preset at
-width 64, CPU_TOKENIZER_STEPS × 64 windows: ~100 CPU-s; docs/results/ar_tokenizer). Why the LMs are this
+2 CPU cores in under an hour (measured: 44 min for the sweep, about 46 with the corpus prefix and install,
+2 quiet cores). Top-3 rises log-linearly with the LM's FLOPs (slope +0.042 per decade, r 0.95); the codebook
+does not move it. With the earlier 400-step width-64 tokenizers every run sat at chance: they lost the fingers'
+motion the standard evaluator reads (see that README's ceiling table). LM {CPU_LMS} ×
+codebook {CPU_CODEBOOKS}, each tokenizer the ``small`` width at CPU_TOKENIZER_STEPS × 64 windows (~8.5 min of
+both cores each). Why the LMs are this
 small: every LM layer runs over the joined text prefix (~110 of 128 slots) as well as the 31 motion slots,
 so even the ``small`` preset (4L-128) took ~1.1 s per step of 64 on 2 quiet cores, a 3L-96 step of 64
 ~0.7 s (600 steps in 403 s), and nine LMs must share well under an hour of both cores. The sizes' steps grow with size
@@ -53,8 +53,11 @@ CPU_LMS = (("tiny", ("model.layers=1", "model.dim=32", "model.heads=2"), 1, 32),
 CPU_STEPS = (150, 300, 600)
 CPU_BATCH = 64
 CPU_CODEBOOKS = (256, 1024, 4096)
-CPU_TOKENIZER_STEPS = 400
-CPU_TOKENIZER = ("model.width=64", "train.eval_every=400")
+# The `small` tokenizer (width 128) at its full 3,000 steps: the 400-step width-64 recipe lost the fingers'
+# motion the evaluator reads (ground truth through it scored top-3 0.08-0.10, chance); this one keeps enough
+# (0.150 at K1024) for the LMs to show a log-linear trend (docs/results/ar_cpu_study).
+CPU_TOKENIZER_STEPS = 3000
+CPU_TOKENIZER = ("model.width=128", "train.eval_every=1000")
 CPU_SAMPLE = ("sample.temperature=0.6",)
 # The LMs train on the concise (level-0) captions with 10% conditioning dropout: the only recipe under which a
 # CPU-sized LM's held-out NLL depends on its text (docs/results/ar_text: text gap +0.05 against ~0 for all five
