@@ -18,7 +18,6 @@ row, which needs no tokenizer) come first, named "gt".
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 
@@ -28,22 +27,25 @@ import numpy as np
 from handx_jax import representation as rep
 from handx_jax import standard
 from handx_jax.data.dataset import Dataset
+from handx_jax.data.handx_npz import read_handx_npz
+from handx_jax.evaluation import evaluate_generated
 from handx_jax.families import tokenizer as T
 from handx_jax.generation import split_prompts, write_generated
+from handx_jax.metrics import MetricConfig
 from handx_jax.models import fsq as Q
 
 KEYS = ("rprec_top1", "rprec_top3", "rprec_top3_ci", "fid")
 
 
-def score(npz: Path, data: str) -> dict:
-    out = subprocess.run([sys.executable, "-m", "handx_jax", "eval", "run", "--generated", str(npz), "--reference",
-                          data, "--split", "test", "--evaluator", str(standard.evaluator_dir()), "--block", "32",
-                          "--json", "--out", str(npz.with_suffix(""))], check=True, capture_output=True, text=True)
-    return {k: round(json.loads(out.stdout)[k], 4) for k in KEYS}
+def score(npz: Path, ds, ev) -> dict:
+    """``handx eval run --generated NPZ --evaluator standard --block 32``, in this process (one evaluator load)."""
+    res = evaluate_generated(ev, read_handx_npz(npz), ds, MetricConfig(rprec_block=32),
+                             cache=standard.reference_cache_dir())
+    return {k: round(res.flat()[k], 4) for k in KEYS}
 
 
 def main(data: str, out: str, toks: list[str]) -> None:
-    ds, out = Dataset.open(data), Path(out)
+    ds, out, ev = Dataset.open(data), Path(out), standard.load()
     out.mkdir(parents=True, exist_ok=True)
     clips, prompts, motion = split_prompts(ds, "test", None, 0)
     gt = np.stack(motion)
@@ -56,7 +58,7 @@ def main(data: str, out: str, toks: list[str]) -> None:
         path = out / f"{name}.npz"
         write_generated(path, j, [[p] for p in prompts], source_clips=[ds.ids[c] for c in clips],
                         groups=[0] * len(clips))
-        row = {"global_mm": round(float(np.linalg.norm(j - gt, axis=-1).mean() * 1000), 2), **score(path, data)}
+        row = {"global_mm": round(float(np.linalg.norm(j - gt, axis=-1).mean() * 1000), 2), **score(path, ds, ev)}
         print(name, row, flush=True)
         return row
 
