@@ -41,6 +41,21 @@ class BuildConfig:
     synth: SynthConfig = field(default_factory=SynthConfig)
     clip: ClipConfig = field(default_factory=ClipConfig)
     annotation: AnnotationConfig = field(default_factory=AnnotationConfig)
+    # Where the template captioner's word choices come from (data.caption.TemplateCaptioner): "shared"
+    # for every corpus built before issue 40; "per_fact" words each fact independently of the others.
+    wording: str = "shared"
+
+
+# The captioner wording that goes with each annotation reading (events.ANNOTATIONS): a corpus built
+# with the stable reading also words each fact independently (issue 40).
+WORDING = {"reference": "shared", "stable": "per_fact"}
+
+
+def with_reading(cfg: BuildConfig, name: str) -> BuildConfig:
+    """``cfg`` annotated and captioned with the named reading (``handx data synth --annotation``)."""
+    from handx_jax.data.events import annotation_config
+
+    return dataclasses.replace(cfg, annotation=annotation_config(name), wording=WORDING[name])
 
 
 @dataclass
@@ -102,7 +117,7 @@ def process_chunk(cfg: BuildConfig, chunk_index: int) -> ChunkResult:
         splits.extend([split] * len(c))
     clips_a = np.concatenate(clips) if clips else np.zeros((0, sk.CLIP_LEN, 2, sk.NUM_JOINTS, 3), np.float32)
     events = annotate(clips_a, cfg.annotation) if len(clips_a) else []
-    captioner = TemplateCaptioner()
+    captioner = TemplateCaptioner(cfg.wording)
     texts = []
     for cid, rec in zip(ids, events):
         levels = captioner.caption(rec, seed=_caption_seed(cfg.seed, cid))
@@ -189,8 +204,43 @@ def recipe(cfg: BuildConfig) -> dict:
     options = _jsonable(dataclasses.asdict(cfg))
     for k in ("clips", "seed", "workers"):
         options.pop(k)
+    _drop_neutral(options)
     return {"kind": "synth", "generator_version": GENERATOR_VERSION, "seed": cfg.seed, "clips": cfg.clips,
             "options": options}
+
+
+# Options added after corpora were built with this recipe format, with the value that reproduces
+# those corpora (issue 40's stable annotation and per-fact wording). They are recorded only when they
+# change the content, so every earlier corpus (and its prefixes) keeps its identity.
+_NEUTRAL_OPTIONS = {"wording": "shared"}
+_NEUTRAL_ANNOTATION = {"smooth_sigma_frames": 0.0, "contact_hysteresis_m": 0.0, "contact_gap_frames": 0,
+                       "contact_min_frames": 1, "still_delta_per_s": 0.0, "segmentation": "greedy",
+                       "merge_gap_frames": 10, "state_delta": True}
+_NEUTRAL_SPEC = {"hysteresis": 0.0}
+_NEUTRAL_FEATURES = {"thumb_mcp": "reference"}
+
+
+def _drop_neutral(options: dict) -> None:
+    def drop(d: dict, neutral: dict) -> None:
+        for k, v in neutral.items():
+            if k in d and d[k] == v:
+                d.pop(k)
+
+    drop(options, _NEUTRAL_OPTIONS)
+    ann = options.get("annotation")
+    if isinstance(ann, dict):
+        # merge_gap_frames and state_delta only act with the "states" segmentation.
+        if ann.get("segmentation") == "greedy":
+            ann.pop("merge_gap_frames", None)
+            ann.pop("state_delta", None)
+        drop(ann, _NEUTRAL_ANNOTATION)
+        if isinstance(ann.get("features"), dict):
+            drop(ann["features"], _NEUTRAL_FEATURES)
+        for v in ann.values():
+            specs = v if isinstance(v, list) else [v]
+            for sp in specs:
+                if isinstance(sp, dict) and "min_duration" in sp:
+                    drop(sp, _NEUTRAL_SPEC)
 
 
 def _truncate(r: ChunkResult, k: int) -> ChunkResult:

@@ -202,11 +202,18 @@ class _Fact:
 
     def __post_init__(self):
         self._cache: dict[int, str] = {}
+        # Per-fact wording (TemplateCaptioner(wording="per_fact")): the shared stream is re-seeded from
+        # (caption seed, this fact's key, detail) before each render, so what one fact says never
+        # depends on which other facts the record holds.
+        self.stream: tuple[random.Random, str] | None = None
 
     def text(self, d: int) -> str:
         """The clause at detail d, rendered once (a level reuses the wording of lower levels)."""
         t = self._cache.get(d)
         if t is None:
+            if self.stream is not None:
+                rng, key = self.stream
+                rng.seed(f"{key}/{d}")
             t = self._cache[d] = self.render(d)
         return t
 
@@ -1065,6 +1072,9 @@ def _coordination(hl: "_HandFacts", hr: "_HandFacts", tm: _Timing, rng: random.R
     return facts
 
 
+WORDINGS = ("shared", "per_fact")
+
+
 class TemplateCaptioner:
     """Deterministic, seeded template captions: same (record, seed) → same five levels.
 
@@ -1073,7 +1083,19 @@ class TemplateCaptioner:
     hyperextension), level 1 adds speeds and the next facts, level 2 rough timing and distances,
     level 3 start shapes and per-move timing, and level 4 the exact timing (seconds or frames) and
     speed of every event it mentions.
+
+    ``wording`` says where the random word choices come from. ``"shared"`` (every corpus before
+    issue 40): one stream per clip, drawn in rendering order, so one extra event anywhere rewords
+    every clause rendered after it. ``"per_fact"``: each fact draws from a stream seeded by (seed,
+    text field, the kind of fact, its rank among facts of that kind, detail): not by its exact frames,
+    which move with the noise and each text's sentence joins from one
+    seeded by (seed, field, level), so a fact is worded the same whatever else the record holds.
     """
+
+    def __init__(self, wording: str = "shared"):
+        if wording not in WORDINGS:
+            raise ValueError(f"unknown wording {wording!r}; choose one of {', '.join(WORDINGS)}")
+        self.wording = wording
 
     def caption(self, record: dict, *, seed: int) -> list[dict]:
         rng = random.Random(seed)
@@ -1083,12 +1105,25 @@ class TemplateCaptioner:
         left, right = hl.facts, hr.facts
         inter = _InterFacts(record["two_hand_relationships"], tm, rng).facts
         inter = inter + _coordination(hl, hr, tm, rng)
-        by_sal = [sorted(range(len(f)), key=lambda k: -f[k].sal) for f in (left, right, inter)]
+        fields = (("left", left, "the hand holds still"), ("right", right, "the hand holds still"),
+                  ("interaction", inter, "the hands move independently"))
+        per_fact = self.wording == "per_fact"
+        if per_fact:
+            for name, facts, _ in fields:
+                seen: dict[str, int] = {}
+                for f in facts:
+                    key = f"{seed}/{name}/{f.render.__qualname__}"
+                    seen[key] = seen.get(key, -1) + 1
+                    f.stream = (rng, f"{key}/{seen[key]}")
+        by_sal = [sorted(range(len(f)), key=lambda k: -f[k].sal) for _, f, _ in fields]
         out = []
         for lv in range(LEVELS):
-            out.append({"left": _compose(left, lv, rng, "the hand holds still", by_sal[0]),
-                        "right": _compose(right, lv, rng, "the hand holds still", by_sal[1]),
-                        "interaction": _compose(inter, lv, rng, "the hands move independently", by_sal[2])})
+            texts = {}
+            for (name, facts, fallback), order in zip(fields, by_sal):
+                if per_fact:
+                    rng.seed(f"{seed}/{name}/compose/{lv}")
+                texts[name] = _compose(facts, lv, rng, fallback, order)
+            out.append(texts)
         return out
 
 

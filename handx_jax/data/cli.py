@@ -27,6 +27,10 @@ def add_parser(subparsers) -> None:
     s.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
     s.add_argument("--val-fraction", type=float, default=0.05)
     s.add_argument("--test-fraction", type=float, default=0.05)
+    s.add_argument("--annotation", default="reference", choices=("reference", "stable"),
+                   help="annotation reading: 'reference' (§6.1-6.2, no smoothing; the default, and every corpus "
+                        "built before issue 40) or 'stable' (smoothed, hysteretic states, per-fact wording; "
+                        "docs/validity.md)")
     s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_synth)
@@ -84,12 +88,12 @@ def _clip_index(ds, clip: str) -> int:
 
 
 def _synth(a: argparse.Namespace) -> int:
-    from handx_jax.data.build import BuildConfig, build_corpus
+    from handx_jax.data.build import BuildConfig, build_corpus, with_reading
     from handx_jax.data.dataset import Dataset
     from handx_jax.data.stats import dataset_stats, format_stats
 
-    cfg = BuildConfig(clips=a.clips, seed=a.seed, workers=a.workers, val_fraction=a.val_fraction,
-                      test_fraction=a.test_fraction)
+    cfg = with_reading(BuildConfig(clips=a.clips, seed=a.seed, workers=a.workers, val_fraction=a.val_fraction,
+                                   test_fraction=a.test_fraction), a.annotation)
     out = build_corpus(a.out, cfg, overwrite=a.force, progress=not a.quiet)
     ds = Dataset.open(out)
     rep = ds.report

@@ -78,6 +78,12 @@ class FeatureConfig:
     finger_palm_k: int = 5
     # Flexion dead zone: bend magnitudes below this are set to 0 (reference §6.1: 11°).
     flex_dead_zone_deg: float = 11.0
+    # Thumb MCP flexion. "reference" (§6.1): the full 3-D angle between the bones, signed by
+    # −sign((û×v̂)·ẑ); when the bend lies mostly outside the plane normal to ẑ the sign is a coin
+    # flip on a sizeable magnitude, so noise jumps it between ±|angle| (spurious hyperextension).
+    # "projected" (the stable reading): the signed angle of the bend about −ẑ, atan2((u×v)·(−ẑ), u·v),
+    # continuous in the joints, as the other fingers' angle is their bend about the local y axis.
+    thumb_mcp: Literal["reference", "projected"] = "reference"
     # Dataset contact statistic thresholds (reference §5.4): tip–tip across hands, tip–joints 0–15.
     contact_tip_tip_m: float = 0.02
     contact_tip_joint_m: float = 0.025
@@ -91,6 +97,8 @@ class FeatureConfig:
             raise ValueError("palm_pairs must lie in [1, palm_points]")
         if not 1 <= self.finger_palm_k <= self.palm_points:
             raise ValueError("finger_palm_k must lie in [1, palm_points]")
+        if self.thumb_mcp not in ("reference", "projected"):
+            raise ValueError(f"unknown thumb_mcp {self.thumb_mcp!r}")
         if self.palm_relation not in ("closest_pairs", "centroid"):
             raise ValueError(f"unknown palm_relation {self.palm_relation!r}")
 
@@ -175,9 +183,12 @@ def finger_flexion(joints_NxTx2x21x3: np.ndarray, cfg: FeatureConfig = FeatureCo
     ut, vt = u[..., _THUMB_MCP:, :], v[..., _THUMB_MCP:, :]
     c = np.cross(ut, vt)
     mag = np.arctan2(_norm(c), np.sum(ut * vt, -1))  # (..., 2, 2)
-    sgn_mcp = -np.sign(np.sum(c[..., 0, :] * az, -1))
-    sgn_mcp = np.where(sgn_mcp == 0, 1.0, sgn_mcp)
-    ang[..., _THUMB_MCP] = mag[..., 0] * sgn_mcp
+    if cfg.thumb_mcp == "projected":
+        ang[..., _THUMB_MCP] = np.arctan2(-np.sum(c[..., 0, :] * az, -1), np.sum(ut[..., 0, :] * vt[..., 0, :], -1))
+    else:
+        sgn_mcp = -np.sign(np.sum(c[..., 0, :] * az, -1))
+        sgn_mcp = np.where(sgn_mcp == 0, 1.0, sgn_mcp)
+        ang[..., _THUMB_MCP] = mag[..., 0] * sgn_mcp
     ang[..., _THUMB_IP] = mag[..., 1]
     dead = np.deg2rad(cfg.flex_dead_zone_deg)
     return np.where(np.abs(ang) < dead, 0.0, ang).astype(np.float32)

@@ -1,0 +1,232 @@
+"""The validity suite (issue 40): does the yardstick read what the captions say?
+
+``handx standard validity --data D --out DIR`` perturbs the ground-truth test clips of D
+(``perturb.KINDS``: caption-preserving noise, offsets and shifts across amplitudes; time reversal and
+another clip's motion, which change the meaning) and reports, per perturbation and amplitude:
+
+- caption stability (``stability``): the share of descriptor event lists (their labels: states,
+  speeds, directions; and with their frames) and of captions per level left unchanged when the
+  perturbed clips are annotated and captioned again with the corpus's own reading and seeds;
+- the evaluator (``scores``): Top-3 R-Precision and FID of the perturbed clips scored as generated,
+  Top-3 as a ratio to the ground truth's; and the same for each ``--tokenizer``'s reconstruction of
+  the ground truth (with its wrist-relative finger error in mm).
+
+Writes ``DIR/validity.json``, ``DIR/validity.md`` (the tables) and ``DIR/validity.png`` (Top-3 ratio
+and level-0 captions unchanged against the millimetres moved, one curve per kind).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from handx_jax.io import atomic_write_text
+from handx_jax.validity import perturb as P
+from handx_jax.validity import stability as S
+from handx_jax.validity.scores import Scorer
+
+SCHEMA = 1
+
+
+def reading_of(ds) -> tuple[str, str]:
+    """(annotation reading, captioner wording) a dataset was built with, from its recipe: a synthetic
+    corpus records both; anything else (an imported release) is read with the reference reading."""
+    from handx_jax.data.build import _drop_neutral, _jsonable
+    from handx_jax.data.events import ANNOTATIONS
+
+    opts = ((ds.meta.get("recipe") or {}).get("options") or {})
+    ann = opts.get("annotation")
+    wording = opts.get("wording", "shared")
+    if isinstance(ann, dict):
+        for name, cfg in ANNOTATIONS.items():
+            probe = {"annotation": _jsonable(dataclasses.asdict(cfg))}
+            _drop_neutral(probe)
+            if probe["annotation"] == ann:
+                return name, wording
+    return "reference", wording
+
+
+def _caption_seed(ds) -> int:
+    rec = ds.meta.get("recipe") or {}
+    return int(rec.get("seed", (ds.meta.get("source") or {}).get("seed", 0)))
+
+
+def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: Sequence[str] = (),
+        annotation: str | None = None, limit: int | None = None, block: int = 32, seed: int = 0,
+        kinds: Sequence[str] | None = None, log=print) -> dict:
+    from handx_jax.data.caption import TemplateCaptioner
+    from handx_jax.data.dataset import Dataset
+    from handx_jax.data.events import annotation_config
+    from handx_jax.generation import split_prompts
+
+    ds = Dataset.open(data)
+    clips, prompts, motion = split_prompts(ds, "test", limit, 0)
+    if len(clips) < 2:
+        raise ValueError(f"{data}: the test split has {len(clips)} clip(s); the suite needs at least 2")
+    gt = np.stack(motion).astype(np.float32)
+    ids = [ds.ids[c] for c in clips]
+    found_reading, wording = reading_of(ds)
+    reading = annotation or found_reading
+    if reading != found_reading:  # another reading than the corpus's: its own wording goes with it
+        from handx_jax.data.build import WORDING
+
+        wording = WORDING[reading]
+    t0 = time.perf_counter()
+    ann = S.Annotator(gt, ids, _caption_seed(ds), annotation_config(reading), TemplateCaptioner(wording))
+    stored = [tuple(ds.texts[c][f][0] for f in ("left", "right", "interaction")) for c in clips]
+    reproduces = float(np.mean([s == c[0] for s, c in zip(stored, ann.clean_captions)]))
+    report: dict = {
+        "schema": SCHEMA, "data": str(Path(data).resolve()), "test_clips": len(clips), "block": block,
+        "annotation": reading, "wording": wording, "perturbation_seed": seed,
+        "stored_captions_reproduced": reproduces,
+        "clean": S.variety(ann.clean_records, ann.clean_captions),
+        "cases": [],
+    }
+    log(f"{len(clips)} test clips; annotation {reading!r}, wording {wording!r}; the clean re-annotation "
+        f"reproduces {reproduces:.0%} of the stored level-0 captions")
+    scorer = None
+    if evaluator:
+        from handx_jax import standard
+        from handx_jax.evaluation import load_evaluator
+
+        if standard.is_standard(evaluator):
+            ev, cache = standard.load(), standard.reference_cache_dir()
+            report["evaluator"] = {"name": f"standard-v{standard.VERSION}", **standard.evaluator_meta(evaluator)}
+        else:
+            ev, cache = load_evaluator(evaluator), False
+            report["evaluator"] = {"name": str(evaluator)}
+        scorer = Scorer(ev, ds, clips, prompts, block=block, cache=cache)
+        report["ground_truth"] = scorer.score(gt)
+        log(f"ground truth: top-3 {report['ground_truth']['rprec_top3']:.3f}")
+    names = list(kinds) if kinds else list(P.KINDS)
+    for name in names:
+        kind = P.KINDS[name]
+        for amp in kind.amplitudes_m:
+            y = P.apply(name, gt, amp, seed)
+            case = {"kind": name, "label": kind.label, "preserving": kind.preserving, "amplitude_mm": amp * 1000,
+                    "mean_shift_mm": P.mean_shift_mm(gt, y), **S_row(ann, y)}
+            if scorer is not None:
+                case.update(_eval_row(scorer.score(y), report["ground_truth"]))
+            report["cases"].append(case)
+            log(_line(case))
+    report["tokenizers"] = []
+    for tok in tokenizers:
+        from handx_jax.validity.scores import finger_error_mm, tokenizer_reconstruction
+
+        y = tokenizer_reconstruction(tok, gt)
+        case = {"tokenizer": str(tok), "mean_shift_mm": P.mean_shift_mm(gt, y), "finger_error_mm": finger_error_mm(gt, y),
+                **S_row(ann, y)}
+        if scorer is not None:
+            case.update(_eval_row(scorer.score(y), report["ground_truth"]))
+        report["tokenizers"].append(case)
+        log(f"tokenizer {tok}: {_line(case)}")
+    if scorer is not None:
+        scorer.close()
+    report["seconds"] = round(time.perf_counter() - t0, 1)
+    outp = Path(out)
+    outp.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(outp / "validity.json", json.dumps(report, indent=1) + "\n")
+    atomic_write_text(outp / "validity.md", markdown(report))
+    figure(report, outp / "validity.png")
+    return report
+
+
+def S_row(ann: S.Annotator, y: np.ndarray) -> dict:
+    recs, caps = ann.records_and_captions(y)
+    return S.compare(ann.clean_records, recs, ann.clean_captions, caps)
+
+
+def _eval_row(res: dict, gt: dict) -> dict:
+    row = {f"eval_{k}": v for k, v in res.items()}
+    row["top3_ratio"] = res["rprec_top3"] / gt["rprec_top3"] if gt["rprec_top3"] > 0 else float("nan")
+    return row
+
+
+def _line(c: dict) -> str:
+    head = f"{c.get('label', 'reconstruction')}" + (f" {c['amplitude_mm']:g} mm" if c.get("amplitude_mm") else "")
+    txt = (f"{head}: moved {c['mean_shift_mm']:.1f} mm; event lists unchanged {c['events_unchanged']:.3f}, "
+           f"level-0 captions unchanged {c['captions_unchanged'][0]:.3f}")
+    if "eval_rprec_top3" in c:
+        txt += f"; top-3 {c['eval_rprec_top3']:.3f} ({c['top3_ratio']:.2f}x GT), FID {c['eval_fid']:.2f}"
+    return txt
+
+
+def markdown(r: dict) -> str:
+    ev = r.get("evaluator", {}).get("name")
+    lines = [f"# Validity suite: {r['test_clips']} test clips of `{Path(r['data']).name}`", "",
+             f"Annotation `{r['annotation']}`, wording `{r['wording']}`; the clean re-annotation reproduces "
+             f"{r['stored_captions_reproduced']:.0%} of the stored level-0 captions. Clean: "
+             f"{r['clean']['events_per_clip']:.1f} events per clip, distinct level-0 captions "
+             f"{r['clean']['distinct_captions'][0]:.0%}.", ""]
+    if ev:
+        g = r["ground_truth"]
+        lines += [f"Evaluator `{ev}`, block {r['block']}: ground truth top-3 {g['rprec_top3']:.3f}, "
+                  f"top-1 {g['rprec_top1']:.3f}.", ""]
+    hdr = "| perturbation | kind | mean shift (mm) | event lists unchanged (labels / with frames) | captions unchanged L0 / L1 / L4 |"
+    sep = "|---|---|---:|---:|---:|"
+    if ev:
+        hdr += " top-3 | × GT | FID |"
+        sep += "---:|---:|---:|"
+    lines += [hdr, sep]
+    rows = list(r["cases"]) + list(r.get("tokenizers", []))
+    for c in rows:
+        name = c.get("label") or f"tokenizer `{Path(c['tokenizer']).name}` (fingers {c['finger_error_mm']:.1f} mm)"
+        if c.get("amplitude_mm"):
+            name += f", {c['amplitude_mm']:g} mm"
+        kind = "" if "tokenizer" in c else ("keeps meaning" if c["preserving"] else "changes meaning")
+        cu = c["captions_unchanged"]
+        line = (f"| {name} | {kind} | {c['mean_shift_mm']:.1f} | {c['events_unchanged']:.3f} / "
+                f"{c['events_exact_unchanged']:.3f} | {cu[0]:.3f} / {cu[1]:.3f} / {cu[4]:.3f} |")
+        if ev:
+            line += f" {c['eval_rprec_top3']:.3f} | {c['top3_ratio']:.2f} | {c['eval_fid']:.2f} |"
+        lines.append(line)
+    lines += ["", "How to read it: docs/validity.md.", ""]
+    return "\n".join(lines)
+
+
+def figure(r: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    has_ev = "ground_truth" in r
+    fig, axes = plt.subplots(1, 2 if has_ev else 1, figsize=(11 if has_ev else 5.5, 4.2), squeeze=False)
+    panels = [("captions_unchanged", "level-0 captions unchanged")]
+    if has_ev:
+        panels.insert(0, ("top3_ratio", "top-3 / ground truth's top-3"))
+    by_kind: dict[str, list] = {}
+    for c in r["cases"]:
+        by_kind.setdefault(c["kind"], []).append(c)
+    for ax, (key, ylabel) in zip(axes[0], panels):
+        for kind, cs in by_kind.items():
+            xs = [max(c["mean_shift_mm"], 1e-2) for c in cs]
+            ys = [c[key][0] if key == "captions_unchanged" else c[key] for c in cs]
+            style = "-o" if cs[0]["preserving"] else "s"
+            ax.plot(xs, ys, style, label=cs[0]["label"] + ("" if cs[0]["preserving"] else " (changes meaning)"))
+        for c in r.get("tokenizers", []):
+            y = c[key][0] if key == "captions_unchanged" else c[key]
+            ax.plot([c["mean_shift_mm"]], [y], "k*", ms=11, label=f"tokenizer {Path(c['tokenizer']).name}")
+        if key == "top3_ratio":
+            ax.axhline(1.0, color="0.6", lw=0.8)
+            chance = min(3, r["block"]) / r["block"] / r["ground_truth"]["rprec_top3"]
+            ax.axhline(chance, color="0.6", lw=0.8, ls="--")
+            ax.text(0.01, chance, " chance", va="bottom", fontsize=8, color="0.4", transform=ax.get_yaxis_transform())
+        ax.set_xscale("log")
+        ax.set_xlabel("mean joint shift (mm)")
+        ax.set_ylabel(ylabel)
+        ax.set_ylim(-0.02, 1.08)
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7, loc="lower left")
+    ev = r.get("evaluator", {}).get("name", "no evaluator")
+    fig.suptitle(f"validity: {ev}, annotation {r['annotation']} ({r['test_clips']} test clips)", fontsize=10)
+    fig.tight_layout()
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    tmp.replace(path)
