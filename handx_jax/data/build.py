@@ -217,7 +217,7 @@ _NEUTRAL_ANNOTATION = {"smooth_sigma_frames": 0.0, "contact_hysteresis_m": 0.0, 
                        "contact_min_frames": 1, "still_delta_per_s": 0.0, "segmentation": "greedy",
                        "merge_gap_frames": 10, "state_delta": True}
 _NEUTRAL_SPEC = {"hysteresis": 0.0}
-_NEUTRAL_FEATURES = {"thumb_mcp": "reference"}
+_NEUTRAL_FEATURES = {"thumb_mcp": "reference", "dip_coupling": 0.0}
 
 
 def _drop_neutral(options: dict) -> None:

@@ -203,19 +203,22 @@ def _labels(x: np.ndarray, edges: Sequence[float]) -> np.ndarray:
 
 
 def _hysteresis_labels(x_SxT: np.ndarray, edges: Sequence[float], h: float) -> np.ndarray:
-    """State labels with a Schmitt trigger of margin ``h`` on every edge: frame 0 takes its plain
-    label; later a label k is kept while the value stays within [edge_{k-1} − h, edge_k + h), and
-    otherwise becomes the plain label of the value shifted back by h toward k (the state it has
-    clearly entered). h = 0 gives the plain look-up."""
+    """State labels with a Schmitt trigger of margin ``h`` on every edge. A label k is kept while the
+    value stays within [edge_{k-1} − h, edge_k + h); otherwise it becomes the state the value has
+    clearly entered. A series STARTS in its first clearly-entered state (the first frame not within h
+    of an edge): a clip that opens at an edge has no history to say which side it came from, and the
+    plain label there would turn noise into a transition at frame 0. h = 0 gives the plain look-up."""
     e = np.asarray(edges, dtype=np.float64)
     if h <= 0 or not len(e):
         return _labels(x_SxT, edges)
     lo = np.searchsorted(e + h, x_SxT, side="right").astype(np.int8)  # lowest label the value allows
     hi = np.searchsorted(e - h, x_SxT, side="right").astype(np.int8)  # highest
+    clear = lo == hi
+    first = np.argmax(clear, axis=1)
+    rows = np.arange(x_SxT.shape[0])
+    cur = np.where(clear.any(1), lo[rows, first], _labels(x_SxT.mean(1), edges)).astype(np.int8)
     out = np.empty_like(lo)
-    cur = _labels(x_SxT[:, 0], edges)
-    out[:, 0] = cur
-    for t in range(1, x_SxT.shape[1]):
+    for t in range(x_SxT.shape[1]):
         cur = np.clip(cur, lo[:, t], hi[:, t])
         out[:, t] = cur
     return out
@@ -428,8 +431,7 @@ def segment_states(x_SxT: np.ndarray, spec: SegmentSpec, *, fps: int = sk.FPS, m
         prev_end = np.r_[0, j_[:-1]]
         same_s = np.r_[False, es[1:] == es[:-1]]
         i_ = np.where(same_s, np.maximum(i_, np.minimum(prev_end, j_ - 1)), i_)
-    mean_v = np.abs(dx.astype(np.float64)) / np.maximum(j_ - i_ - 1, 1) * fps
-    speed = _labels(mean_v, spec.speed_edges)
+    speed = _labels(_core_speed(x, es, i_, j_, dx, fps), spec.speed_edges)
     has_ev = np.zeros(S, bool)
     has_ev[es] = True
     cstate_s = np.flatnonzero(~has_ev)
@@ -444,6 +446,35 @@ def segment_states(x_SxT: np.ndarray, spec: SegmentSpec, *, fps: int = sk.FPS, m
         constant=np.concatenate([np.zeros(len(es), bool), np.ones(len(cstate_s), bool)])[order],
         const_state=np.concatenate([np.zeros(len(es), np.int8), cstate.astype(np.int8)])[order],
     )
+
+
+def _core_speed(x_SxT: np.ndarray, es: np.ndarray, i_: np.ndarray, j_: np.ndarray, dx: np.ndarray,
+                fps: int) -> np.ndarray:
+    """|mean velocity| of each event's core: 60 % of its change over the time between the (sub-frame,
+    linearly interpolated) first crossings of 20 % and 80 % of the change. A linear ramp gives its own
+    velocity, as the reference's |Δx| / duration does, but the span's ends, which move by a frame
+    under noise, no longer enter; a 10-frame event measured over 10 ± 1 frames moves its speed by
+    10 %, enough to flip a speed label at an edge."""
+    if not len(es):
+        return np.zeros(0)
+    T = x_SxT.shape[1]
+    xs = x_SxT[es].astype(np.float64)  # (E, T)
+    t = np.arange(T)[None, :]
+    inside = (t >= i_[:, None]) & (t < j_[:, None])
+    d = np.where(np.abs(dx) > 1e-12, dx, 1e-12).astype(np.float64)
+    q = (xs - xs[np.arange(len(es)), i_][:, None]) / d[:, None]
+    rows = np.arange(len(es))
+
+    def cross(level: float) -> np.ndarray:
+        hit = inside & (q >= level)
+        c = np.where(hit.any(1), np.argmax(hit, 1), j_ - 1)
+        prev = np.maximum(c - 1, i_)
+        q0, q1 = q[rows, prev], q[rows, c]
+        frac = np.where((c > i_) & (q1 > q0), (level - q0) / np.where(q1 > q0, q1 - q0, 1.0), 0.0)
+        return prev + np.clip(frac, 0.0, 1.0) * (c - prev)
+
+    dur = np.maximum(cross(0.8) - cross(0.2), 0.5)
+    return 0.6 * np.abs(dx.astype(np.float64)) / dur * fps
 
 
 def contact_runs(dist_SxT: np.ndarray, threshold: float, *, hysteresis: float = 0.0, gap: int = 0,
@@ -643,7 +674,7 @@ def _stable() -> AnnotationConfig:
     deg = math.pi / 180.0
     h_ang, h_m = 8 * deg, 0.003
     return AnnotationConfig(
-        features=ft.FeatureConfig(flex_dead_zone_deg=0.0, thumb_mcp="projected"),
+        features=ft.FeatureConfig(flex_dead_zone_deg=0.0, thumb_mcp="projected", dip_coupling=2.0 / 3.0),
         flexing=dataclasses.replace(FLEXING, hysteresis=h_ang),
         spacing=dataclasses.replace(SPACING, hysteresis=h_ang),
         wrist=WRIST,

@@ -84,6 +84,13 @@ class FeatureConfig:
     # "projected" (the stable reading): the signed angle of the bend about −ẑ, atan2((u×v)·(−ẑ), u·v),
     # continuous in the joints, as the other fingers' angle is their bend about the local y axis.
     thumb_mcp: Literal["reference", "projected"] = "reference"
+    # DIP–PIP coupling of the non-thumb fingers' flexion (0 = off, the reference: every joint's angle
+    # from its own two bones). r > 0 (the stable reading): each finger's MCP, PIP and DIP angles are
+    # fitted jointly under DIP = r·PIP, the flexor coupling of real fingers (r ≈ 2/3; the procedural
+    # hands are built with exactly 2/3, data/synth_hand.DIP_PER_PIP). The fit weighs each bone's
+    # observed direction by its squared length, as the direction of a short bone is the noisiest: the
+    # distal phalanx (~2 cm) turns 3 mm of joint noise into ~9° of DIP angle, the fit into ~3°.
+    dip_coupling: float = 0.0
     # Dataset contact statistic thresholds (reference §5.4): tip–tip across hands, tip–joints 0–15.
     contact_tip_tip_m: float = 0.02
     contact_tip_joint_m: float = 0.025
@@ -97,6 +104,8 @@ class FeatureConfig:
             raise ValueError("palm_pairs must lie in [1, palm_points]")
         if not 1 <= self.finger_palm_k <= self.palm_points:
             raise ValueError("finger_palm_k must lie in [1, palm_points]")
+        if not 0.0 <= self.dip_coupling <= 2.0:
+            raise ValueError("dip_coupling must lie in [0, 2]")
         if self.thumb_mcp not in ("reference", "projected"):
             raise ValueError(f"unknown thumb_mcp {self.thumb_mcp!r}")
         if self.palm_relation not in ("closest_pairs", "centroid"):
@@ -190,8 +199,43 @@ def finger_flexion(joints_NxTx2x21x3: np.ndarray, cfg: FeatureConfig = FeatureCo
         sgn_mcp = np.where(sgn_mcp == 0, 1.0, sgn_mcp)
         ang[..., _THUMB_MCP] = mag[..., 0] * sgn_mcp
     ang[..., _THUMB_IP] = mag[..., 1]
+    if cfg.dip_coupling > 0:
+        ang[..., :_THUMB_MCP] = _coupled_fit(ang[..., :_THUMB_MCP], u[..., :_THUMB_MCP, :], v[..., :_THUMB_MCP, :],
+                                             np.broadcast_to(ax_, u.shape)[..., :_THUMB_MCP, :],
+                                             np.broadcast_to(az_, u.shape)[..., :_THUMB_MCP, :], cfg.dip_coupling)
     dead = np.deg2rad(cfg.flex_dead_zone_deg)
     return np.where(np.abs(ang) < dead, 0.0, ang).astype(np.float32)
+
+
+def _coupled_fit(ang_x12: np.ndarray, u_x12x3: np.ndarray, v_x12x3: np.ndarray, ax_: np.ndarray, az_: np.ndarray,
+                 r: float) -> np.ndarray:
+    """The four fingers' (MCP, PIP, DIP) planar angles fitted under DIP = r·PIP (FeatureConfig.dip_coupling).
+
+    In the local x–z plane the proximal, middle and distal phalanges point at φ1, φ2 = φ1 + p and
+    φ3 = φ1 + (1 + r)·p. With the observed angles M, P, D (so the observed directions are φ0 + M,
+    + P, + D) and a = the correction of φ1, minimise Σ_k w_k (model_k − observed_k)² with w_k the
+    squared in-plane length of bone k (angular noise of a direction ∝ 1/length): a 2×2 linear system
+    in (a, p) per finger and frame. MCP' = M + a, PIP' = p, DIP' = r·p. Exact when the observations
+    obey the coupling.
+    """
+    shp = ang_x12.shape
+    A = ang_x12.reshape(*shp[:-1], 4, 3)
+    M, P, D = A[..., 0], A[..., 1], A[..., 2]
+    # In-plane lengths: bone MCP→PIP is v of the MCP triple, PIP→DIP is v of PIP, DIP→tip is v of DIP.
+    v = v_x12x3.reshape(*shp[:-1], 4, 3, 3)
+    axr = ax_.reshape(*shp[:-1], 4, 3, 3)
+    azr = az_.reshape(*shp[:-1], 4, 3, 3)
+    l2 = np.sum(v * axr, -1) ** 2 + np.sum(v * azr, -1) ** 2  # (..., 4, 3)
+    w1, w2, w3 = (np.maximum(l2[..., k], 1e-8) for k in range(3))
+    c = 1.0 + r
+    Q = P + D
+    a11, a12, a22 = w1 + w2 + w3, w2 + c * w3, w2 + c * c * w3
+    b1, b2 = w2 * P + w3 * Q, w2 * P + c * w3 * Q
+    det = a11 * a22 - a12 * a12
+    a = (b1 * a22 - a12 * b2) / det
+    p = (a11 * b2 - a12 * b1) / det
+    out = np.stack([M + a, p, r * p], -1)
+    return out.reshape(shp)
 
 
 def finger_spacing(joints_NxTx2x21x3: np.ndarray) -> np.ndarray:
