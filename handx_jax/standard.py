@@ -53,6 +53,7 @@ from handx_jax.io import DataError, atomic_write_json, atomic_write_text, sha256
     write_checksum
 
 VERSION = 4  # of the packaged assets; bumped whenever the recipe or any weight changes
+STANDARD_ANNOTATION = "reference"  # the standard corpus's annotation reading (Recipe.annotation)
 ASSETS = Path(__file__).resolve().parent / "assets" / "standard"
 CARD_JSON, CARD_MD, MANIFEST = "card.json", "CARD.md", "test_manifest.npz"
 CARD_SHA = CARD_JSON + ".sha256"  # io.write_checksum's sidecar: the card's own checksum
@@ -67,8 +68,8 @@ from handx_jax.data.dataset import MOTION_ATOL  # noqa: E402
 
 @dataclasses.dataclass(frozen=True)
 class Recipe:
-    """The standard corpus: ``handx standard corpus`` = ``handx data synth --clips CLIPS --seed SEED``
-    with the default build options, from generator version ``generator``."""
+    """The standard corpus: ``handx standard corpus`` = ``handx data synth --clips CLIPS --seed SEED
+    --annotation ANNOTATION`` with the default build options, from generator version ``generator``."""
 
     # v4: 120k clips (v1-v3: 20k). On 17.9k train clips the small evaluator overfits below GT top-1 0.73 at
     # block 32 (v3); on 108k it does not (docs/results/evaluator_120k_gt_rows.json, and v4's card). The first
@@ -77,11 +78,16 @@ class Recipe:
     clips: int = 120_000
     seed: int = 0
     generator: str = ""  # filled by :func:`code_recipe` from the data package
+    # The annotation reading (data.events.ANNOTATIONS, with its captioner wording, data.build.WORDING).
+    # v1-v4: "reference" (the default here, so their cards, which predate the field, read back unchanged);
+    # v5 (corpus v2): "stable", issue 40.
+    annotation: str = "reference"
 
     def build_config(self, clips: int | None = None, workers: int = 0):
-        from handx_jax.data.build import BuildConfig
+        from handx_jax.data.build import BuildConfig, with_reading
 
-        return BuildConfig(clips=self.clips if clips is None else int(clips), seed=self.seed, workers=workers)
+        return with_reading(BuildConfig(clips=self.clips if clips is None else int(clips), seed=self.seed,
+                                        workers=workers), self.annotation)
 
 
 def generator_version() -> str:
@@ -92,8 +98,9 @@ def generator_version() -> str:
 
 
 def code_recipe() -> Recipe:
-    """The recipe this code builds as the standard corpus."""
-    return Recipe(generator=generator_version())
+    """The recipe this code builds as the standard corpus (standard corpus v2 since evaluator v5: the
+    stable annotation reading, issue 40)."""
+    return Recipe(generator=generator_version(), annotation=STANDARD_ANNOTATION)
 
 
 def build_options(recipe: Recipe) -> dict:
@@ -257,12 +264,14 @@ def verify_assets(assets: Path | None = None) -> dict:
     return card
 
 
-def reference_cache_dir() -> Path:
-    """Where the standard evaluator caches reference embeddings: the package folder may be read-only
-    (and an editable install should not collect cache files), so a user cache folder."""
+def reference_cache_dir(assets: Path | None = None) -> Path:
+    """Where a standard evaluator (the current one, or the archived one of ``assets``) caches reference
+    embeddings: the package folder may be read-only (and an editable install should not collect cache
+    files), so a user cache folder, one per version."""
     base = os.environ.get("HANDX_CACHE_DIR") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "handx-jax")
-    return Path(base) / f"standard-v{VERSION}" / "reference_cache"
+    version = VERSION if assets is None or Path(assets) == ASSETS else read_card(assets)["version"]
+    return Path(base) / f"standard-v{version}" / "reference_cache"
 
 
 def load(assets: Path | None = None, *, batch_size: int = 256):
@@ -283,16 +292,49 @@ def evaluator_dir(assets: Path | None = None) -> Path:
     return Path(assets or ASSETS) / EVALUATOR_DIR
 
 
+def archived(version: int) -> Path:
+    """The assets folder of an earlier standard evaluator, kept so that old numbers can be re-scored and
+    compared: ``handx_jax/assets/standard-v{version}/`` (``--evaluator standard-v{version}``)."""
+    return ASSETS.with_name(f"{ASSETS.name}-v{int(version)}")
+
+
+def versions() -> list[int]:
+    """Every standard evaluator this package ships: the current one and the archived ones."""
+    old = [int(p.name.rsplit("-v", 1)[1]) for p in ASSETS.parent.glob(f"{ASSETS.name}-v*")
+           if p.name.rsplit("-v", 1)[1].isdigit() and (p / CARD_JSON).exists()]
+    return sorted(set(old) | {VERSION})
+
+
+def assets_for(evaluator: str | os.PathLike | None) -> Path | None:
+    """The assets folder an ``--evaluator`` value names, or None for any other evaluator: omitted,
+    ``standard`` or ``standard-v{VERSION}`` is the current one; ``standard-vN`` an archived one (an
+    unknown N is a one-line error listing the versions); an evaluator folder of either is itself."""
+    if evaluator is None or str(evaluator) in (NAME, f"{NAME}-v{VERSION}"):
+        return ASSETS
+    e = str(evaluator)
+    if e.startswith(f"{NAME}-v") and e[len(NAME) + 2:].isdigit():
+        folder = archived(int(e[len(NAME) + 2:]))
+        if not (folder / CARD_JSON).exists():
+            raise DataError(f"--evaluator {e}: no such standard evaluator; this package has "
+                            f"{', '.join(f'{NAME}-v{v}' for v in versions())}")
+        return folder
+    p = Path(evaluator).resolve()
+    for v in versions():
+        folder = ASSETS if v == VERSION else archived(v)
+        if p == (folder / EVALUATOR_DIR).resolve():
+            return folder
+    return None
+
+
 def is_standard(evaluator: str | os.PathLike | None) -> bool:
-    """``--evaluator`` omitted, ``standard``, or the packaged evaluator folder itself."""
-    if evaluator is None or str(evaluator) == NAME:
-        return True
-    return Path(evaluator).resolve() == evaluator_dir().resolve()
+    """``--evaluator`` omitted, ``standard``, ``standard-vN``, or a packaged evaluator folder itself."""
+    return assets_for(evaluator) is not None
 
 
 def evaluator_meta(evaluator: str | os.PathLike | None) -> dict:
-    """``evaluator.json`` of an evaluator folder, or of the standard evaluator (see :func:`is_standard`)."""
-    folder = evaluator_dir() if is_standard(evaluator) else Path(evaluator)
+    """``evaluator.json`` of an evaluator folder, or of a standard evaluator (see :func:`is_standard`)."""
+    assets = assets_for(evaluator)
+    folder = evaluator_dir(assets) if assets is not None else Path(evaluator)
     return json.loads((folder / "evaluator.json").read_text())
 
 
@@ -360,7 +402,7 @@ def _copy_folder(src: Path, dst: Path, names: Sequence[str]) -> None:
 def package(data: str | os.PathLike, encoder: str | os.PathLike, evaluator: str | os.PathLike,
             out: str | os.PathLike | None = None, *, training: Mapping[str, Any] | None = None,
             replications: int = 20, blocks: Sequence[int] = (32, 16), recipe: Recipe | None = None,
-            log=print) -> Path:
+            validity: Mapping[str, Any] | None = None, log=print) -> Path:
     """Copy the encoder and evaluator trained on the standard corpus ``data`` into ``out``, score the
     Ground Truth rows (blocks 32 and 16) on the full test split, and write the manifest and the card."""
     from handx_jax.data.dataset import Dataset
@@ -402,6 +444,7 @@ def package(data: str | os.PathLike, encoder: str | os.PathLike, evaluator: str 
                           "encoder_fingerprint": meta["encoder"]["fingerprint"],
                           "tokenizer_fingerprint": meta["encoder"]["tokenizer_fingerprint"]},
             "training_run": dict(training or {}),
+            "validity": validity_summary(validity) if validity else None,
             "packaged": {"machine": f"{platform.machine()}, {os.cpu_count()} CPU cores, "
                                     f"{_accelerator() or 'no accelerator'}",
                          "python": sys.version.split()[0], "numpy": np.__version__, "jax": _jax_version(),
@@ -471,6 +514,24 @@ def _ci_note(gt: Mapping[str, Any]) -> str:
     return f"± is a 95% interval (`ci_method` `{r.get('ci_method')}`, `handx_jax/metrics.py`)."
 
 
+def validity_summary(report: Mapping[str, Any]) -> dict:
+    """What the card keeps of a validity report (``handx standard validity``): per case, the top-3
+    ratio to the ground truth's, FID and the level-0 captions left unchanged."""
+    rows = []
+    for c in list(report.get("cases", [])) + list(report.get("tokenizers", [])):
+        name = c.get("label") or f"tokenizer {Path(str(c.get('tokenizer'))).name} reconstruction"
+        if c.get("amplitude_mm"):
+            name += f", {c['amplitude_mm']:g} mm"
+        rows.append({"case": name, "mean_shift_mm": round(c["mean_shift_mm"], 2),
+                     "top3_ratio": round(c["top3_ratio"], 3) if "top3_ratio" in c else None,
+                     "fid": round(c["eval_fid"], 3) if "eval_fid" in c else None,
+                     "level0_unchanged": round(c["captions_unchanged"][0], 3),
+                     "events_unchanged": round(c["events_unchanged"], 3)})
+    gt = report.get("ground_truth") or {}
+    return {"test_clips": report.get("test_clips"), "block": report.get("block"), "annotation": report.get("annotation"),
+            "ground_truth_top3": gt.get("rprec_top3"), "rows": rows}
+
+
 def card_markdown(card: Mapping[str, Any]) -> str:
     """CARD.md from card.json (one source of truth)."""
     rec, c, e, tr = card["recipe"], card["corpus"], card["evaluator"], card.get("training_run", {})
@@ -517,6 +578,18 @@ def card_markdown(card: Mapping[str, Any]) -> str:
         lines.append(f"| {b} | {_row(r)} |")
     lines += ["", f"{c['test_clips']:,} test prompts. Reproduce: `handx eval run --ground-truth --reference DIR "
               f"[--block 16]` on the standard corpus.", ""]
+    v = card.get("validity")
+    if v:
+        lines += ["## Validity (`handx standard validity`, docs/validity.md)", "",
+                  f"{v['test_clips']} test clips of a prefix, block {v['block']}, annotation `{v['annotation']}`; ground "
+                  f"truth top-3 {v['ground_truth_top3']:.3f}.", "",
+                  "| ground truth, perturbed | mean shift (mm) | top-3 × GT | FID | level-0 captions unchanged |",
+                  "| --- | ---: | ---: | ---: | ---: |"]
+        for r in v["rows"]:
+            ratio = "–" if r["top3_ratio"] is None else f"{r['top3_ratio']:.2f}"
+            fid = "–" if r["fid"] is None else f"{r['fid']:.2f}"
+            lines.append(f"| {r['case']} | {r['mean_shift_mm']:.1f} | {ratio} | {fid} | {r['level0_unchanged']:.2f} |")
+        lines.append("")
     return "\n".join(lines)
 
 
@@ -577,8 +650,14 @@ def _package(a: argparse.Namespace) -> int:
         if a.recipe_clips < 1:
             return _usage_error(f"--recipe-clips must be 1 or more, got {a.recipe_clips}")
         recipe = dataclasses.replace(code_recipe(), clips=int(a.recipe_clips))
+    validity = None
+    if a.validity:
+        try:
+            validity = json.loads(Path(a.validity).read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            return _usage_error(f"--validity {a.validity}: {e}")
     out = package(a.data, a.encoder, a.evaluator, a.out, training=training, replications=a.replications,
-                  recipe=recipe)
+                  recipe=recipe, validity=validity)
     print(f"wrote {out}")
     return 0
 
@@ -616,4 +695,6 @@ def add_parser(subparsers) -> None:
     g.add_argument("--recipe-clips", type=int, metavar="N",
                    help="(dry runs of the pipeline) package against the first N clips of the recipe instead of the "
                         "whole standard corpus; needs --out")
+    g.add_argument("--validity", metavar="FILE", help="a validity.json of this evaluator (handx standard validity): "
+                                                      "its figures go on the card")
     g.set_defaults(func=_package)

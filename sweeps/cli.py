@@ -140,7 +140,7 @@ def _rescore(a: argparse.Namespace) -> int:
     from handx_jax import standard
     from sweeps.launcher import rescore
 
-    ev = standard.evaluator_dir() if standard.is_standard(a.evaluator) else a.evaluator
+    ev = standard.evaluator_dir(standard.assets_for(a.evaluator)) if standard.is_standard(a.evaluator) else a.evaluator
     return _launched("rescore", lambda: rescore(a.out, ev, data=a.data, executor=a.executor,
                                                 max_parallel=a.max_parallel, rprec_block=a.rprec_block))
 

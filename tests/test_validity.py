@@ -201,3 +201,39 @@ def test_validity_command_on_a_standard_prefix(tmp_path, capsys):
     # A bad flag is one line and exit 2.
     assert handx(["standard", "validity", "--data", str(data), "--out", str(out), "--kinds", "wobble"]) == 2
     assert "unknown; choose from white" in capsys.readouterr().err
+
+
+def test_infonce_masks_identical_captions_and_takes_the_reversal_as_a_negative():
+    import jax.numpy as jnp
+
+    from handx_jax.models.evaluator import infonce
+
+    m = jnp.array([[1.0, 0.0], [1.0, 0.0]])
+    t = jnp.array([[1.0, 0.0], [1.0, 0.0]])
+    # Two clips with one caption: as negatives of each other every logit ties, loss = ln 2 both ways.
+    assert float(infonce(m, t, 1.0)) == pytest.approx(math.log(2), rel=1e-5)
+    same = jnp.array([[True, True], [True, True]])
+    assert float(infonce(m, t, 1.0, same_text_BxB=same)) == pytest.approx(0.0, abs=1e-5)
+    # One pair; its reversal embeds exactly like the clip: the text cannot tell them apart (ln 2 on the
+    # text → motion side, halved by the symmetric mean); a reversal that embeds apart costs less.
+    m1, t1 = jnp.array([[1.0, 0.0]]), jnp.array([[1.0, 0.0]])
+    assert float(infonce(m1, t1, 1.0)) == pytest.approx(0.0, abs=1e-6)
+    assert float(infonce(m1, t1, 1.0, mu_m_rev=m1)) == pytest.approx(0.5 * math.log(2), rel=1e-5)
+    far = float(infonce(m1, t1, 0.1, mu_m_rev=jnp.array([[0.0, 1.0]])))
+    assert 0 < far < 0.5 * math.log(2) * 0.01
+
+
+def test_training_augmentation_is_finger_only_bounded_and_resumable():
+    from handx_jax.evaluation.features import TrainingData
+
+    x = _clips(6)
+    td = TrainingData.__new__(TrainingData)
+    td.seed, td.augment_white_m, td.augment_lowfreq_m = 3, 0.0015, 0.003
+    idx = np.arange(6)
+    a, b = td._augment(x, idx), td._augment(x, idx)
+    assert np.array_equal(a, b)  # a pure function of (seed, batch indices): exact resume
+    assert not np.array_equal(a, td._augment(x, idx + 1))
+    assert np.array_equal(a[..., 0, :], x[..., 0, :])  # wrists untouched
+    rms = np.sqrt(np.mean((a - x)[..., 1:, :] ** 2, axis=(1, 2, 3, 4)))
+    # Per clip: white σ ≤ 1.5 mm and low-frequency RMS ≤ 3 mm, independent: RMS ≤ √(1.5² + 3²) mm.
+    assert np.all(rms <= math.hypot(1.5, 3.0) * 1e-3 * 1.05) and np.all(rms > 0)

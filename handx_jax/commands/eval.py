@@ -88,7 +88,8 @@ def _run(args: argparse.Namespace) -> int:
     if standard.is_standard(args.evaluator):  # the packaged standard evaluator (handx_jax/standard.py)
         if args.encoder:
             raise SystemExit("handx: error: --encoder applies to --evaluator E; the standard evaluator carries its own")
-        ev, cache = standard.load(), (standard.reference_cache_dir() if cache else False)
+        assets = standard.assets_for(args.evaluator)
+        ev, cache = standard.load(assets), (standard.reference_cache_dir(assets) if cache else False)
     else:
         ev = load_evaluator(args.evaluator, encoder=args.encoder)
     if args.level is not None:

@@ -89,8 +89,11 @@ class TrainingData:
     """(clip, level) items of one split: motion from the dataset memmap, text from the joined cache."""
 
     def __init__(self, ds, cache, stats: rep.NormStats, clips: np.ndarray, levels: Sequence[int], seed: int,
-                 text_bucket: int = 16, motion_input: str = "positions"):
+                 text_bucket: int = 16, motion_input: str = "positions", *, augment_white_m: float = 0.0,
+                 augment_lowfreq_m: float = 0.0, reversed_copy: bool = False, text_ids: bool = False):
         self.ds, self.cache, self.stats = ds, cache, stats
+        self.augment_white_m, self.augment_lowfreq_m = float(augment_white_m), float(augment_lowfreq_m)
+        self.reversed_copy, self.text_ids = bool(reversed_copy), bool(text_ids)
         self.motion_input = motion_input
         self.clips = np.asarray(clips, np.int64)
         self.levels = np.asarray(levels, np.int64)
@@ -117,5 +120,32 @@ class TrainingData:
         # Masking makes the loss independent of the padding; on an accelerator, where each new shape
         # is a compile of the whole step, pass a bucket ≥ Lmax (one shape).
         Lb = bucket_length(int(m.sum(1).max()), max(self.text_bucket, 1), m.shape[1])
-        return {"motion": motion_features(joints, self.stats, self.motion_input), "text": np.asarray(h[:, :Lb], np.float32),
-                "text_mask": np.asarray(m[:, :Lb], bool)}
+        if self.augment_white_m > 0 or self.augment_lowfreq_m > 0:
+            joints = self._augment(joints, idx)
+        out = {"motion": motion_features(joints, self.stats, self.motion_input), "text": np.asarray(h[:, :Lb], np.float32),
+               "text_mask": np.asarray(m[:, :Lb], bool)}
+        if self.reversed_copy:
+            out["motion_rev"] = motion_features(np.ascontiguousarray(joints[:, ::-1]), self.stats, self.motion_input)
+        if self.text_ids:  # equal ids ⟺ identical captions (the cache stores each distinct caption once)
+            out["text_id"] = np.asarray(self.cache.row(clips, JOINED, levels), np.int64)
+        return out
+
+    def _augment(self, joints: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """Caption-preserving noise on the finger joints (validity.perturb), per-clip amplitudes, drawn
+        from a stream that is a pure function of (seed, the batch's indices): exact resume."""
+        from scipy.ndimage import gaussian_filter1d
+
+        rng = np.random.default_rng([self.seed, 0xA06, *np.asarray(idx, np.int64).tolist()])
+        N = len(joints)
+        y = joints.copy()
+        fingers = y[..., 1:, :]
+        if self.augment_white_m > 0:
+            a = rng.uniform(0, self.augment_white_m, N).astype(np.float32)[:, None, None, None, None]
+            fingers += a * rng.standard_normal(fingers.shape).astype(np.float32)
+        if self.augment_lowfreq_m > 0:
+            n = gaussian_filter1d(rng.standard_normal(fingers.shape), 4.0, axis=1, mode="reflect")
+            n /= np.sqrt(np.mean(n * n, axis=(1, 2, 3, 4), keepdims=True)) + 1e-12
+            a = rng.uniform(0, self.augment_lowfreq_m, N)[:, None, None, None, None]
+            fingers += (a * n).astype(np.float32)
+        y[..., 1:, :] = fingers
+        return y

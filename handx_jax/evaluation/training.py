@@ -38,6 +38,12 @@ class EvaluatorDataConfig:
     encoder: str = ""  # frozen T5 encoder folder
     # Text of a batch trimmed to its longest caption rounded up to this many tokens (see TrainingData.batch).
     text_bucket: int = 16
+    # Caption-preserving augmentation of the training motion (issue 40; 0 = off, v4): each clip gets
+    # white noise on its finger joints with a per-clip σ uniform in [0, augment_white_mm] mm, and
+    # low-frequency noise (Gaussian-filtered over time, σ 4 frames) with RMS uniform in
+    # [0, augment_lowfreq_mm] mm (validity.perturb's kinds, at amplitudes the validity suite measures).
+    augment_white_mm: float = 0.0
+    augment_lowfreq_mm: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -61,6 +67,8 @@ class EvaluatorRunConfig:
             raise ConfigError(f"train.optim.schedule must be 'constant' or 'cosine', got {self.train.optim.schedule!r}")
         if self.text.max_len < 2:
             raise ConfigError(f"text.max_len must be >= 2, got {self.text.max_len}")
+        if self.data.augment_white_mm < 0 or self.data.augment_lowfreq_mm < 0:
+            raise ConfigError("data.augment_white_mm and data.augment_lowfreq_mm must be >= 0 (mm)")
 
 
 def make_evaluator_config(preset: str = "small", overrides: Sequence[str] = (), *, data: str = "",
@@ -127,7 +135,9 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
     tcfg = dataclasses.replace(tcfg, optim=dataclasses.replace(
         tcfg.optim, warmup_steps=min(tcfg.optim.warmup_steps, tcfg.steps // 5)))
     stats = evaluator_stats(ds, mcfg.motion_input, clips)
-    tdata = TrainingData(ds, cache, stats, clips, train_levels, tcfg.seed, cfg.data.text_bucket, mcfg.motion_input)
+    tdata = TrainingData(ds, cache, stats, clips, train_levels, tcfg.seed, cfg.data.text_bucket, mcfg.motion_input,
+                         augment_white_m=cfg.data.augment_white_mm / 1000, augment_lowfreq_m=cfg.data.augment_lowfreq_mm / 1000,
+                         reversed_copy=mcfg.reverse_negative, text_ids=mcfg.mask_same_text)
     model = Evaluator(mcfg)
     Lmax = int(cache.meta["Lmax"])
     init = lambda rng: _init_params(mcfg, Lmax, rng)  # noqa: E731

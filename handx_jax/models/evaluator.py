@@ -62,6 +62,14 @@ class EvaluatorConfig:
     w_kl: float = 0.05
     w_latent: float = 0.05
     recon: bool = True  # the TEMOS decoder (training only); off = contrastive + KL + latent terms
+    # Issue 40 (the v5 recipe; both off reproduce v4). ``mask_same_text``: a pair whose captions are
+    # identical is no negative of the other (TMR's filtering: in a corpus where many clips share a
+    # caption, treating them as negatives punishes the right answer). ``reverse_negative``: each text
+    # also sees its own clip played backwards as a negative, with this weight on the logit's presence
+    # (0 = off): the order of events is part of what a caption says, and nothing else in a batch asks
+    # the motion encoder to read it.
+    mask_same_text: bool = False
+    reverse_negative: bool = False
 
     def __post_init__(self):
         from handx_jax.representation import EVALUATOR_INPUTS
@@ -166,14 +174,27 @@ def _kl(mu_p, lv_p, mu_q, lv_q):
     return jnp.mean(0.5 * (lv_q - lv_p + (jnp.exp(lv_p) + (mu_p - mu_q) ** 2) / jnp.exp(lv_q) - 1.0))
 
 
-def infonce(mu_m, mu_t, temperature: float):
-    """Symmetric InfoNCE on L2-normalised embeddings with cosine logits / τ (reference §5.2)."""
-    m = mu_m / (jnp.linalg.norm(mu_m, axis=-1, keepdims=True) + 1e-8)
-    t = mu_t / (jnp.linalg.norm(mu_t, axis=-1, keepdims=True) + 1e-8)
+def _unit(x):
+    return x / (jnp.linalg.norm(x, axis=-1, keepdims=True) + 1e-8)
+
+
+def infonce(mu_m, mu_t, temperature: float, *, same_text_BxB=None, mu_m_rev=None):
+    """Symmetric InfoNCE on L2-normalised embeddings with cosine logits / τ (reference §5.2).
+
+    ``same_text_BxB``: pairs (i, j ≠ i) with identical captions are dropped from each other's negatives.
+    ``mu_m_rev``: each clip played backwards, one extra negative column for its own text (text → motion)."""
+    m, t = _unit(mu_m), _unit(mu_t)
     logits = m @ t.T / temperature
-    labels = jnp.arange(m.shape[0])
+    B = m.shape[0]
+    labels = jnp.arange(B)
+    if same_text_BxB is not None:
+        logits = jnp.where(same_text_BxB & ~jnp.eye(B, dtype=bool), -1e9, logits)
+    t2m = logits.T
+    if mu_m_rev is not None:
+        rev = jnp.sum(t * _unit(mu_m_rev), axis=-1) / temperature
+        t2m = jnp.concatenate([t2m, rev[:, None]], axis=1)
     return 0.5 * (optax.softmax_cross_entropy_with_integer_labels(logits, labels).mean()
-                  + optax.softmax_cross_entropy_with_integer_labels(logits.T, labels).mean())
+                  + optax.softmax_cross_entropy_with_integer_labels(t2m, labels).mean())
 
 
 def evaluator_loss(model: Evaluator, params, batch, rng, train: bool):
@@ -186,7 +207,14 @@ def evaluator_loss(model: Evaluator, params, batch, rng, train: bool):
     lv_m, lv_t = jnp.clip(lv_m, -10, 10), jnp.clip(lv_t, -10, 10)
     z_m = mu_m + jnp.exp(0.5 * lv_m) * jax.random.normal(r_m, mu_m.shape)
     z_t = mu_t + jnp.exp(0.5 * lv_t) * jax.random.normal(r_t, mu_t.shape)
-    l_nce = infonce(mu_m, mu_t, c.temperature)
+    same = None
+    if c.mask_same_text and "text_id" in batch:
+        same = batch["text_id"][:, None] == batch["text_id"][None, :]
+    mu_rev = None
+    if c.reverse_negative and "motion_rev" in batch:
+        mu_rev, _ = model.apply(params, batch["motion_rev"], deterministic=not train, method=Evaluator.encode_motion,
+                                rngs={"dropout": jax.random.fold_in(r_drop, 4)})
+    l_nce = infonce(mu_m, mu_t, c.temperature, same_text_BxB=same, mu_m_rev=mu_rev)
     l_kl = _kl(mu_t, lv_t, mu_m, lv_m) + _kl(mu_m, lv_m, mu_t, lv_t)
     l_lat = optax.huber_loss(z_t, z_m, delta=1.0).mean()
     total = c.w_infonce * l_nce + c.w_kl * l_kl + c.w_latent * l_lat

@@ -94,9 +94,10 @@ def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: 
         from handx_jax import standard
         from handx_jax.evaluation import load_evaluator
 
-        if standard.is_standard(evaluator):
-            ev, cache = standard.load(), standard.reference_cache_dir()
-            report["evaluator"] = {"name": f"standard-v{standard.VERSION}", **standard.evaluator_meta(evaluator)}
+        assets = standard.assets_for(evaluator)
+        if assets is not None:
+            ev, cache = standard.load(assets), standard.reference_cache_dir(assets)
+            report["evaluator"] = {"name": f"standard-v{ev.card['version']}", "id": str(evaluator)}
         else:
             ev, cache = load_evaluator(evaluator), False
             report["evaluator"] = {"name": str(evaluator)}
