@@ -122,7 +122,7 @@ def test_the_real_tokenizer_counts_what_the_encoder_would_cut():
 def test_out_naming_an_existing_directory_is_one_line(tmp_path, capsys):
     d = tmp_path / "table.md"
     d.mkdir()
-    assert main(["analyze", "table", "paper:B", "--out", str(d)]) == 1
+    assert main(["analyze", "table", "paper:B", "--out", str(d)]) == 2
     err = capsys.readouterr().err.strip()
     assert err == f"handx: error: cannot write --out {d}: is a directory (choose another --out)"
     assert list(d.iterdir()) == [] and sorted(p.name for p in tmp_path.iterdir()) == ["table.md"]  # no temp file
@@ -136,7 +136,7 @@ def test_out_on_a_read_only_file_system_is_one_line(tmp_path, capsys, monkeypatc
 
     monkeypatch.setattr(tempfile, "mkstemp", read_only)
     out = tmp_path / "t.md"
-    assert main(["analyze", "table", "paper:B", "--out", str(out)]) == 1
+    assert main(["analyze", "table", "paper:B", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
     assert err == f"handx: error: cannot write --out {out}: read-only file system (choose another --out)"
     assert not out.exists()
@@ -146,7 +146,7 @@ def test_out_under_a_file_is_one_line(tmp_path, capsys):
     f = tmp_path / "a_file"
     f.write_text("x")
     out = f / "sub" / "t.md"
-    assert main(["analyze", "table", "paper:B", "--out", str(out)]) == 1
+    assert main(["analyze", "table", "paper:B", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
     assert err == f"handx: error: cannot write --out {out}: not a directory (choose another --out)"
     assert f.read_text() == "x" and sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
