@@ -172,3 +172,54 @@ def test_each_family_checks_typed_prompts_against_its_own_window(family):
             check(run, [three_halves])
     with pytest.raises(ValueError, match="^--interaction is 101 tokens"):
         check(run, [Prompt("a", "b", "c " * 100)])
+
+
+# Contact guidance (issue 43): a spec's frames are checked in one place (guidance.parse_contacts, against
+# the clip's frames), and --contact caption refuses a prompt whose record names no contact instead of
+# saying it guides while doing nothing. A diffusion run imported from the official fixture (no training).
+
+
+@pytest.fixture(scope="module")
+def diffusion_run(tmp_path_factory):
+    from pathlib import Path
+
+    import numpy as np
+
+    from handx_jax.interop import official_diffusion as od
+
+    fix = Path(__file__).parent / "fixtures" / "official_diffusion"
+    root = tmp_path_factory.mktemp("contact")
+    np.savez(root / "stats.npz", mean=np.zeros((42, 4), np.float32), std=np.ones((42, 4), np.float32))
+    od.import_checkpoint(fix / "model.pt", root / "run", encoder=fix / "t5", heads=4, stats=root / "stats.npz")
+    return root / "run"
+
+
+@pytest.mark.parametrize("frames, says", [
+    ("50:70", "frames '50:70' run past the clip's 60 frames (START:END within 0:60, END excluded)"),
+    ("0:100000000000000000000000", "frames '0:100000000000000000000000' run past the clip's 60 frames (START:END "
+                                   "within 0:60, END excluded)"),
+    ("60:70", "frames '60:70' run past the clip's 60 frames (START:END within 0:60, END excluded)"),
+    ("0:1e23", "frame '1e23' is not a non-negative integer"),
+])
+def test_contact_frames_past_the_clip_are_refused_not_cut(diffusion_run, tmp_path, capsys, frames, says):
+    out = tmp_path / "gen.npz"
+    spec = f"L.thumb-R.thumb@{frames}"
+    rc = main(["generate", "--run", str(diffusion_run), *PROMPT, "--contact", spec, "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err == f"handx generate: error: sample.contact: contact {spec!r}: {says}", err
+    assert not out.exists()
+
+
+def test_contact_caption_on_a_record_without_contacts_says_so(diffusion_run, tmp_path, capsys):
+    from diffusion_fixtures import make_dataset
+
+    ds = make_dataset(tmp_path)
+    out = tmp_path / "gen.npz"
+    rc = main(["generate", "--run", str(diffusion_run), "--source", str(ds), "--clip", "synth-3-0000000-0060",
+               "--contact", "caption", "--set", "sample.steps=2", "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err == (
+        "handx generate: error: --contact caption: the prompt's record names no contact (no fingertip touch among the "
+        "events its captions were written from), so there is nothing to guide toward; give a written spec such as "
+        "L.thumb-R.thumb@20:40, or leave --contact off"), err
+    assert not out.exists()
