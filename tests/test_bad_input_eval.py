@@ -234,3 +234,19 @@ def test_the_reference_cache_holds_only_finite_values_and_a_nan_one_is_recompute
     with pytest.raises(DataError, match="the evaluator's embeddings of the reference ground-truth motion are not"):
         R.reference_embeddings(ev, prompts, gt, cache=tmp_path / "other")
     assert not (tmp_path / "other").exists()
+
+
+def test_a_second_writer_of_one_evaluator_folder_is_refused(tmp_path, capsys):
+    """``handx eval train-evaluator --out EV`` holds EV's output lock (runlock.RunLock.for_output): here
+    held by a live process (pid 1), so a second trainer is refused at once, naming the holder."""
+    import json
+    import socket
+    import time
+
+    (tmp_path / ".EV.lock").write_text(json.dumps({"pid": 1, "host": socket.gethostname(), "started": time.time() - 5,
+                                                   "cmd": "handx eval train-evaluator --out EV"}))
+    rc = main(["eval", "train-evaluator", "--data", str(tmp_path / "data"), "--encoder",
+               str(Path(__file__).parent / "fixtures" / "t5_tiny_gated"), "--out", str(tmp_path / "EV")])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and err.startswith(f"handx: error: {tmp_path / 'EV'} is in use by pid 1 on ")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".EV.lock"]  # nothing written, the holder's lock kept

@@ -50,7 +50,10 @@ def _train(args: argparse.Namespace) -> int:
     if args.print_config:
         print_config(cfg)
         return 0
-    train_evaluator(args.out, cfg, force=args.force)
+    from handx_jax.runlock import RunLock
+
+    with RunLock.for_output(args.out):  # one writer per evaluator folder: a second is refused (issue 43)
+        train_evaluator(args.out, cfg, force=args.force)
     return 0
 
 
