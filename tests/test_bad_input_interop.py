@@ -373,3 +373,16 @@ def test_import_onto_a_full_disk_is_one_line_without_library_tracebacks(tmp_path
             assert os.listdir(disk) == []
     finally:
         subprocess.run(["umount", "-l", str(disk)], check=False)
+
+
+def test_a_record_that_inflates_far_beyond_the_file_is_refused_before_it_is_read(tmp_path):
+    import zipfile
+
+    path = tmp_path / "bomb.pt"
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("archive/data.pkl", b"\x80\x02}.")  # an empty dict
+        zf.writestr("archive/data/0", b"\0" * (64 << 20))  # 64 MiB of zeros: ~64 KB deflated
+    with pytest.raises(Exception) as e:
+        tp.load(path)
+    assert str(e.value).startswith(f"file {path}: its records inflate to 64 MiB (archive/data/0: 64 MiB) from a file "
+                                   f"of {path.stat().st_size:,} bytes, past 4x its size + 16 MiB; refused")

@@ -259,6 +259,15 @@ def load(path: str | os.PathLike) -> Any:
         raise DataError("checkpoint file does not exist", path=path)
     zf, prefix = _open(path)
     with zf:
+        # PyTorch stores its records uncompressed; a compressed member that inflates far beyond the file (a
+        # zip bomb) is refused before it is read, as an expanded tensor is (bounded reads, issue 43).
+        limit = BUDGET_FACTOR * path.stat().st_size + EXPAND_LIMIT
+        big = max(zf.infolist(), key=lambda i: i.file_size, default=None)
+        if big is not None and sum(i.file_size for i in zf.infolist()) > limit:
+            raise DataError(f"its records inflate to {sum(i.file_size for i in zf.infolist()) / 2**20:,.0f} MiB ("
+                            f"{big.filename}: {big.file_size / 2**20:,.0f} MiB) from a file of "
+                            f"{path.stat().st_size:,} bytes, past {BUDGET_FACTOR}x its size + {EXPAND_LIMIT >> 20} "
+                            "MiB; refused (a crafted or corrupt file?)", path=path)
         try:
             order = zf.read(prefix + "byteorder").decode().strip() if prefix + "byteorder" in zf.namelist() \
                 else "little"
