@@ -195,7 +195,14 @@ def request_from_spec(spec: str, n: int, T: int) -> np.ndarray:
 
 def check_named(named: M.NamedContacts, n: int, what: str = "prompt") -> None:
     """``--contact caption`` guides toward the contacts the records name: refuse when none of the ``n``
-    records names one (nothing would be guided, yet the run would say it guides)."""
+    records names one (nothing would be guided, yet the run would say it guides); when only some do, say how
+    many are guided."""
+    guided = len(set(np.asarray(named.clip_E).tolist()))
+    if 0 < guided < n:  # a batch (--reference): the others are sampled unguided, and the user is told
+        import sys
+
+        print(f"handx: --contact caption guides {guided} of the {n} prompts; the records of the other {n - guided} "
+              "name no contact", file=sys.stderr)
     if len(named) == 0:
         from handx_jax.io import DataError
 

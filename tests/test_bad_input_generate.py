@@ -9,6 +9,8 @@ trained run are in tests/test_ar_family.py (its module fixture)."""
 import errno
 import math
 
+import numpy as np
+
 import pytest
 
 from handx_jax.cli import main
@@ -223,3 +225,16 @@ def test_contact_caption_on_a_record_without_contacts_says_so(diffusion_run, tmp
         "events its captions were written from), so there is nothing to guide toward; give a written spec such as "
         "L.thumb-R.thumb@20:40, or leave --contact off"), err
     assert not out.exists()
+
+
+def test_contact_caption_says_how_many_prompts_of_a_batch_it_guides(capsys):
+    from handx_jax import guidance as Gd
+    from handx_jax import metrics as M
+
+    named = M.NamedContacts(*(np.asarray(v, np.int64) for v in ([0, 0, 2], [1, 2, 3], [0, 5, 9], [10, 20, 30])))
+    Gd.check_named(named, 4)
+    assert capsys.readouterr().err == ("handx: --contact caption guides 2 of the 4 prompts; the records of the other 2 "
+                                       "name no contact\n")
+    Gd.check_named(M.NamedContacts(*(v[:2] for v in (named.clip_E, named.channel_E, named.start_E, named.end_E))), 1)
+    # every prompt guided (one prompt, two contacts): nothing to say
+    assert capsys.readouterr().err == ""
