@@ -10,7 +10,6 @@ import errno
 import math
 
 import numpy as np
-
 import pytest
 
 from handx_jax.cli import main
