@@ -260,10 +260,32 @@ def _cmd_factors(args: argparse.Namespace) -> int:
     return 0
 
 
+def _same_row(row, dropped) -> bool:
+    """Whether ``dropped`` (fits.Dropped) names ``row``: the same file and line, or the same run id."""
+    if getattr(row, "file", None) is not None and dropped.file is not None:
+        return row.file == dropped.file and getattr(row, "line", None) == dropped.row
+    return dropped.run is not None and row.get("run_id") == dropped.run
+
+
 def _cmd_table(args: argparse.Namespace) -> int:
     from analysis.tables import render_table
 
+    from analysis.fits import unusable_values
+    from analysis.schema import METRICS
+
     rows = load_inputs(args.results, args.family)
+    # A NaN (or text, inf) metric or interval is not an unscored cell: shown as "–" it would pass for one. It
+    # stops the table, naming the first such cell, unless the analyst drops those rows (and is told which).
+    bad = unusable_values(rows, [c for m in METRICS for c in (m, f"{m}_ci")])
+    if bad and not args.drop_bad_rows:
+        more = f" ({len(bad)} such cells in all)" if len(bad) > 1 else ""
+        raise DataError(f"{bad[0]}: a value that is there but unusable, not an unscored one{more}; fix it, or pass "
+                        "--drop-bad-rows to leave such rows out")
+    if bad:
+        for d in bad:
+            print(f"handx analyze table: left out {d}", file=sys.stderr)
+        gone = {id(rows[i]) for i, r in enumerate(rows) for d in bad if _same_row(r, d)}
+        rows = [r for r in rows if id(r) not in gone]
     text = render_table(rows, fmt=args.format, layout=args.layout, digits=args.digits, caption=args.caption)
     if args.out:
         from handx_jax.io import atomic_write_text

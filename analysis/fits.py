@@ -156,6 +156,19 @@ def _dropped(row: Mapping[str, Any], index: int, kind: DropKind, column: str, va
                    run=row.get("run_id") if named else None, source=source)
 
 
+def unusable_values(rows: Sequence[Mapping[str, Any]], columns: Sequence[str]) -> list[Dropped]:
+    """A :class:`Dropped` for every cell of ``columns`` (ground-truth rows too) that holds a value which is
+    there but unusable (NaN, text, ±inf); a missing or empty cell is an unscored one and is not listed. For
+    ``handx analyze table``, where such a cell would otherwise print as the "–" of an unscored row."""
+    out = []
+    for i, r in enumerate(rows):
+        for c in columns:
+            why = _why_missing(r, c)
+            if why is not None and why[0] not in UNSCORED:
+                out.append(_dropped(r, i, why[0], c, why[1]))
+    return out
+
+
 def select_rows(rows: Sequence[Mapping[str, Any]], columns: Sequence[str], *, log_axis: Sequence[str] = ()
                 ) -> tuple[list[Mapping[str, Any]], list[Dropped]]:
     """The rows with a finite number in every column of ``columns`` (and > 0 in those of ``log_axis``),

@@ -238,6 +238,12 @@ def _unknown_column(name: str, *, path: Any, row: Any) -> DataError:
                   column=name)
 
 
+def _is_nan(v: Any) -> bool:
+    if isinstance(v, str):
+        return v.strip().lower() == "nan"
+    return isinstance(v, (float, np.floating)) and v != v
+
+
 def validate_row(raw: Mapping[str, Any], *, path: Any = None, row: Any = None) -> dict[str, Any]:
     """Check one raw row and return it as a full row (every column, None where missing)."""
     if not isinstance(raw, Mapping):
@@ -256,7 +262,9 @@ def validate_row(raw: Mapping[str, Any], *, path: Any = None, row: Any = None) -
         raise _error(f"must be in (0, 1], got {out['data_fraction']}", path=path, row=row,
                      column="data_fraction")
     for m in METRICS:
-        if out[f"{m}_ci"] is not None and out[m] is None:
+        # A NaN value is not a missing one: it is there but unusable, which the analysis that reads the row
+        # reports or drops (fits.unusable_values, fits.select_rows), naming the cell.
+        if out[f"{m}_ci"] is not None and out[m] is None and not _is_nan(raw.get(m)):
             raise _error(f"{m}_ci is given but {m} is not", path=path, row=row, column=f"{m}_ci")
     return out
 
@@ -569,4 +577,4 @@ def row_from_run_dir(run_dir: str | os.PathLike) -> dict[str, Any]:
             values["evaluator_id"] = meta["evaluator_id"]
             values["evaluator"] = meta.get("evaluator_name") or meta["evaluator_id"]
     return Row(validate_row(values, path=run_dir, row=values["run_id"]), source=f"run folder {run_dir}",
-               file=os.fspath(run_dir))
+               cells=values, file=os.fspath(run_dir))

@@ -63,6 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     from handx_jax.io import DataError, disk_full_message
+    from handx_jax.runlock import RunLocked
 
     parser = build_parser()
     # Commands whose options depend on a model family (train, generate, params) take the options
@@ -81,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rc = args.func(args)
         sys.stdout.flush()  # here, not at exit, so that a closed pipe is caught below
-    except (DataError, FileExistsError, FileNotFoundError) as e:
+    except (DataError, FileExistsError, FileNotFoundError, RunLocked) as e:
         print(f"handx: error: {_unwritable_message(e, args) or e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -91,12 +92,12 @@ def main(argv: list[str] | None = None) -> int:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())  # so the interpreter's final flush does not raise again
         return 141
-    except Exception as e:  # a full disk, whichever library hit it, is one clear line (issue 14.8)
+    except Exception as e:  # a full disk, whichever library hit it, is one clear line (issues 14.8, 43)
         msg = disk_full_message(e) or _unwritable_message(e, args)
         if msg is None:
             raise
         print(f"handx: error: {msg}", file=sys.stderr)
-        return 1
+        return 2
     return int(rc or 0)
 
 

@@ -149,14 +149,18 @@ def _channels(a: tuple[str, tuple[str, ...]], b: tuple[str, tuple[str, ...]], co
 def _frame(tok: str, contact: str) -> int | None:
     if not tok.strip():
         return None
-    if not tok.strip().isdigit():
+    if not (tok.strip().isascii() and tok.strip().isdigit()):
         raise ValueError(f"contact {contact!r}: frame {tok!r} is not a non-negative integer")
     return int(tok)
 
 
-def parse_contacts(spec: str) -> list[tuple[int, int | None, int | None]]:
+CLIP_FRAMES = 60  # HandX clips (the default clip length every model here generates)
+
+
+def parse_contacts(spec: str, frames: int = CLIP_FRAMES) -> list[tuple[int, int | None, int | None]]:
     """(channel, start, end) per requested contact of a written spec (module docstring); frames are
-    half-open, None = the clip's start / end. Raises ValueError naming the bad token."""
+    half-open, None = the clip's start / end. The one check of a spec's frames: 0 <= START < END <=
+    ``frames`` (a range past the clip is refused, not cut to it). Raises ValueError naming the bad token."""
     out = []
     for contact in spec.split(","):
         c = contact.strip()
@@ -174,6 +178,9 @@ def parse_contacts(spec: str) -> list[tuple[int, int | None, int | None]]:
             start, end = _frame(a, c), _frame(b, c)
             if start is not None and end is not None and end <= start:
                 raise ValueError(f"contact {c!r}: frames {rng!r} are empty (END must exceed START)")
+            if (start is not None and start >= frames) or (end is not None and end > frames):
+                raise ValueError(f"contact {c!r}: frames {rng!r} run past the clip's {frames} frames (START:END "
+                                 f"within 0:{frames}, END excluded)")
         out += [(ch, start, end) for ch in _channels(_side(sides[0], c), _side(sides[1], c), c)]
     return out
 
@@ -181,12 +188,28 @@ def parse_contacts(spec: str) -> list[tuple[int, int | None, int | None]]:
 def request_from_spec(spec: str, n: int, T: int) -> np.ndarray:
     """(n, T, 43) float32 request of a written spec, the same for all n samples."""
     out = np.zeros((n, T, M.N_CONTACT_CHANNELS), np.float32)
-    for ch, s, e in parse_contacts(spec):
-        s, e = 0 if s is None else s, T if e is None else min(e, T)
-        if s >= T:
-            raise ValueError(f"contact frames start at {s}, past the clip's {T} frames")
-        out[:, s:e, ch] = 1.0
+    for ch, s, e in parse_contacts(spec, T):
+        out[:, 0 if s is None else s:T if e is None else e, ch] = 1.0
     return out
+
+
+def check_named(named: M.NamedContacts, n: int, what: str = "prompt") -> None:
+    """``--contact caption`` guides toward the contacts the records name: refuse when none of the ``n``
+    records names one (nothing would be guided, yet the run would say it guides); when only some do, say how
+    many are guided."""
+    guided = len(set(np.asarray(named.clip_E).tolist()))
+    if 0 < guided < n:  # a batch (--reference): the others are sampled unguided, and the user is told
+        import sys
+
+        print(f"handx: --contact caption guides {guided} of the {n} prompts; the records of the other {n - guided} "
+              "name no contact", file=sys.stderr)
+    if len(named) == 0:
+        from handx_jax.io import DataError
+
+        whose = "the prompt's record names no" if n == 1 else f"none of the {n} prompts' records names a"
+        raise DataError(f"--contact caption: {whose} contact (no fingertip touch among the events its captions "
+                        "were written from), so there is nothing to guide toward; give a written spec such as "
+                        "L.thumb-R.thumb@20:40, or leave --contact off")
 
 
 # ------------------------------------------------------------------------------------------------

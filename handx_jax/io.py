@@ -14,7 +14,10 @@ import hashlib
 import io
 import json
 import os
+import logging
+import re
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 from typing import Any, Iterable, Iterator
@@ -113,6 +116,56 @@ def disk_full_as_error(path: str | os.PathLike, needed: int | None = None) -> It
         if not is_disk_full(e):
             raise
         raise DiskFullError(path, needed, free_bytes(path)) from None
+
+
+@contextlib.contextmanager
+def library_output_held() -> Iterator[None]:
+    """Hold what a storage library prints while it writes (orbax's absl ``ERROR`` records with their
+    tracebacks, tensorstore's "Event loop is closed" tracebacks from its write threads): released to stderr
+    if the block succeeds, dropped if it fails, when the error itself becomes one line (``handx_jax.cli``).
+    A full disk under ``orbax`` printed ~110 lines of them before that line (issue 43)."""
+    held = io.StringIO()
+    loggers = [logging.getLogger(n) for n in ("absl", "asyncio")]
+    levels = [lg.level for lg in loggers]
+    old = sys.stderr
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL)
+    sys.stderr = held
+    ok = False
+    try:
+        yield
+        ok = True
+    finally:
+        # After a failure the library's tasks keep reporting as they are collected (asyncio's "Task exception
+        # was never retrieved", at exit): its loggers stay quiet and stderr passes only the project's lines.
+        sys.stderr = old if ok else _Quiet(old)
+        if ok:
+            for lg, lv in zip(loggers, levels):
+                lg.setLevel(lv)
+            if held.getvalue():
+                old.write(held.getvalue())
+
+
+class _Quiet:
+    """stderr after a failed library write: the library's threads may still print tracebacks of callbacks on
+    their closed event loop while the error unwinds; only the project's own lines (``handx…``) pass."""
+
+    def __init__(self, stream):
+        self._stream, self._line = stream, ""
+
+    def write(self, text: str) -> int:
+        self._line += text
+        *lines, self._line = self._line.split("\n")
+        for ln in lines:
+            if ln.startswith("handx"):
+                self._stream.write(ln + "\n")
+        return len(text)
+
+    def flush(self) -> None:
+        self._stream.flush()
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
 
 
 class NpyWriter:
@@ -286,7 +339,23 @@ def read_params_msgpack(path: str | os.PathLike, template: Any) -> Any:
         if hasattr(b, "shape") and tuple(np.shape(a)) != tuple(b.shape):
             raise DataError(f"parameter {jax.tree_util.keystr(where)} has shape {tuple(np.shape(a))}, but this "
                             f"configuration needs {tuple(b.shape)}: a parameter file of another model size", path=p)
+    check_finite_params(params, path=p)
     return params
+
+
+def check_finite_params(params: Any, *, path: str | os.PathLike | None = None) -> None:
+    """Refuse parameters holding a NaN or inf, naming the first such parameter: weights like that (a diverged
+    run, a damaged or crafted import) make every output NaN, which surfaced far from the cause (a NaN
+    generated file, numpy's LinAlgError in FID, a NaN reference cache written into the evaluator)."""
+    import jax
+
+    for where, a in jax.tree_util.tree_flatten_with_path(params)[0]:
+        a = np.asarray(a)
+        if a.dtype.kind in "fc" and a.size and not np.isfinite(a).all():
+            bad = a.size - int(np.isfinite(a).sum())
+            raise DataError(f"parameter {jax.tree_util.keystr(where)} holds {bad} non-finite value(s) (NaN or inf) "
+                            f"of {a.size}: the weights are broken (a diverged run?) and every output would be NaN",
+                            path=path)
 
 
 def _fsync_dir(path: Path) -> None:
@@ -397,17 +466,86 @@ def read_jsonl(path: str | os.PathLike, *, strict: bool = True) -> list[Any]:
     return rows
 
 
+def refuse_existing(path: str | os.PathLike, *, overwrite: bool = False, flag: str | None = None) -> None:
+    """The one refusal of an output that exists (every command that writes; ``--force`` replaces it)."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        name = f"{flag} {path}" if flag else str(path)
+        raise FileExistsError(f"{name} already exists; pass --force (overwrite=True) to replace it")
+
+
+def _tmp_pattern(name: str) -> re.Pattern:
+    # What tempfile.mkstemp/mkdtemp make for ``prefix=f".{name}."``, ``suffix=".tmp"`` (8 random characters),
+    # and atomic_dir's ``.NAME.old-PID``: nothing an output of another name could have.
+    return re.compile(rf"\.{re.escape(name)}\.(?:[a-z0-9_]{{8}}\.tmp|old-(\d+))")
+
+
+def remove_stale_temporaries(path: str | os.PathLike) -> list[str]:
+    """Remove what killed writers of ``path`` left beside it (``.NAME.XXXXXXXX.tmp``, ``.NAME.old-PID``), and
+    say so in one line on stderr. Call only while holding ``path``'s output lock (:func:`exclusive_output`):
+    then no live writer owns them."""
+    from handx_jax.runlock import pid_alive
+
+    path = Path(path)
+    pat, removed = _tmp_pattern(path.name), []
+    try:
+        entries = list(path.parent.iterdir())
+    except OSError:
+        return []
+    for p in entries:
+        m = pat.fullmatch(p.name)
+        if m is None or (m.group(1) and pid_alive(int(m.group(1)))):
+            continue
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            with contextlib.suppress(OSError):
+                p.unlink()
+        if not p.exists():
+            removed.append(p.name)
+    if removed:
+        print(f"handx: removed {', '.join(removed)} in {path.parent}: left by a writer of {path.name} that was "
+              "killed", file=sys.stderr)
+    return removed
+
+
 @contextlib.contextmanager
-def atomic_dir(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator[Path]:
+def exclusive_output(path: str | os.PathLike, *, overwrite: bool = False, flag: str | None = None
+                     ) -> Iterator[Path]:
+    """Hold ``path``'s output lock (``runlock.RunLock.for_output``: a second writer of the same output is
+    refused, naming the first), refuse an existing ``path`` without ``overwrite`` and remove the temporaries
+    of killed writers. The writes themselves go through the atomic writers inside the block."""
+    from handx_jax.runlock import RunLock
+
+    path = Path(path)
+    refuse_existing(path, overwrite=overwrite, flag=flag)  # before the lock: nothing is created to refuse
+    with RunLock.for_output(path):
+        refuse_existing(path, overwrite=overwrite, flag=flag)  # written by another writer meanwhile
+        remove_stale_temporaries(path)
+        yield path
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | os.PathLike, *, overwrite: bool = False, exclusive: bool = True) -> Iterator[Path]:
     """Yield a temporary directory that becomes ``path`` only if the block finishes.
 
     If ``path`` exists and ``overwrite`` is False, refuse before doing any work, so nothing already
     written is lost. With ``overwrite`` the old directory is replaced only after the new one is
-    complete.
+    complete. ``exclusive``: hold the output's lock meanwhile (:func:`exclusive_output`: a second writer of
+    the same folder is refused, temporaries of killed writers are removed).
     """
     path = Path(path)
-    if path.exists() and not overwrite:
-        raise FileExistsError(f"{path} already exists; pass --force (overwrite=True) to replace it")
+    with contextlib.ExitStack() as stack:
+        if exclusive:
+            stack.enter_context(exclusive_output(path, overwrite=overwrite))
+        else:
+            refuse_existing(path, overwrite=overwrite)
+        with _atomic_dir(path) as tmp:
+            yield tmp
+
+
+@contextlib.contextmanager
+def _atomic_dir(path: Path) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes it owner-only; a dataset should read like any folder
@@ -420,8 +558,10 @@ def atomic_dir(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator[
         except ValueError:
             raise e from None
         raise DiskFullError(where, e.needed, e.free) from None
-    except BaseException:
+    except BaseException as e:
         shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(e, Exception) and disk_full_message(e) is not None:  # a library's own full-disk error
+            raise DiskFullError(path, None, free_bytes(path)) from None  # (orbax: a ValueError naming the tmp)
         raise
     if path.exists():
         old = path.with_name(f".{path.name}.old-{os.getpid()}")

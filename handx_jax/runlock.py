@@ -34,10 +34,10 @@ LOCK_NAME = ".lock"
 class RunLocked(RuntimeError):
     """Another live process holds the run folder's lock."""
 
-    def __init__(self, run_dir: Path, holder: dict):
+    def __init__(self, run_dir: Path, holder: dict, what: str | None = None):
         self.run_dir, self.holder = run_dir, holder
         since = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(holder.get("started", 0)))
-        super().__init__(f"{run_dir} is in use by pid {holder.get('pid')} on {holder.get('host')} "
+        super().__init__(f"{what or run_dir} is in use by pid {holder.get('pid')} on {holder.get('host')} "
                          f"(since {since}: {holder.get('cmd', '?')}); wait for it, or end that process "
                          f"(a lock from a dead process is recovered automatically)")
 
@@ -76,9 +76,9 @@ def pid_alive(pid: int, started: float | None = None) -> bool:
     return True
 
 
-def read_holder(run_dir: str | os.PathLike) -> dict | None:
+def read_holder(run_dir: str | os.PathLike, lock_file: str | os.PathLike | None = None) -> dict | None:
     """The lock's content, or None if the folder is not locked (a torn file reads as {})."""
-    p = Path(run_dir) / LOCK_NAME
+    p = Path(lock_file) if lock_file is not None else Path(run_dir) / LOCK_NAME
     try:
         return json.loads(p.read_text() or "{}")
     except FileNotFoundError:
@@ -122,13 +122,25 @@ def _held() -> dict[str, int]:
 class RunLock:
     """Context manager (or ``acquire()``/``release()``) for exclusive use of a run folder."""
 
-    def __init__(self, run_dir: str | os.PathLike, *, stale_after: float | None = None):
+    def __init__(self, run_dir: str | os.PathLike, *, stale_after: float | None = None,
+                 lock_file: str | os.PathLike | None = None, what: str | None = None):
         self.run_dir = Path(run_dir)
-        self.path = self.run_dir / LOCK_NAME
+        self.path = Path(lock_file) if lock_file is not None else self.run_dir / LOCK_NAME
+        self.what = what  # how a refusal names what is locked (default: the folder)
         self.stale_after = stale_after
         self._owned = False
         self._made = False
         self.inherited = False
+
+    @classmethod
+    def for_output(cls, out: str | os.PathLike) -> "RunLock":
+        """The lock of an output that does not exist yet (a folder written by ``io.atomic_dir``, a file):
+        ``.NAME.lock`` beside it, so two writers of one ``--out`` cannot both write it (issue 43)."""
+        out = Path(out)
+        return cls(out.parent, lock_file=out.parent / f".{out.name}.lock", what=str(out))
+
+    def _holder(self) -> dict | None:
+        return read_holder(self.run_dir, self.path)
 
     def acquire(self) -> "RunLock":
         """Take the lock; raise :class:`RunLocked` naming the holder if a live process has it.
@@ -149,13 +161,13 @@ class RunLock:
             try:
                 fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
             except FileExistsError:
-                holder = read_holder(self.run_dir)
+                holder = self._holder()
                 if holder is None:
                     continue  # released between our open and read: try again
                 if holder == {}:
                     # Written by a holder that died between open and write, or being written now.
                     time.sleep(0.2)
-                    holder = read_holder(self.run_dir)
+                    holder = self._holder()
                     if holder is None:
                         continue  # released meanwhile: try again
                     if holder == {}:
@@ -164,14 +176,14 @@ class RunLock:
                         except FileNotFoundError:
                             continue  # released between the read and the stat (a sweep's parallel runs did)
                         if time.time() - made_at < 5:
-                            raise RunLocked(self.run_dir, {"pid": "?", "host": "?", "started": made_at})
+                            raise RunLocked(self.run_dir, {"pid": "?", "host": "?", "started": made_at}, self.what)
                 if (holder and holder.get("pid") == os.getppid() and holder.get("host") == socket.gethostname()
                         and pid_alive(os.getppid())):
                     self.inherited = True  # our parent holds it and started us to work in the folder
                     return self
                 if holder and holder_alive(holder, self.stale_after):
-                    raise RunLocked(self.run_dir, holder)
-                print(f"handx: recovering a stale lock on {self.run_dir} (pid {holder.get('pid')} on "
+                    raise RunLocked(self.run_dir, holder, self.what)
+                print(f"handx: recovering a stale lock on {self.what or self.run_dir} (pid {holder.get('pid')} on "
                       f"{holder.get('host')} is gone)", file=sys.stderr)
                 try:
                     self.path.unlink()
@@ -185,7 +197,7 @@ class RunLock:
             held[key] = 1
             self._owned = True
             return self
-        raise RunLocked(self.run_dir, read_holder(self.run_dir) or {})
+        raise RunLocked(self.run_dir, self._holder() or {}, self.what)
 
     def release(self) -> None:
         if not self._owned:
@@ -196,7 +208,7 @@ class RunLock:
         held[key] -= 1
         if held[key] == 0:
             del held[key]
-            holder = read_holder(self.run_dir)
+            holder = self._holder()
             if holder and holder.get("pid") == os.getpid() and holder.get("host") == socket.gethostname():
                 self.path.unlink(missing_ok=True)
 

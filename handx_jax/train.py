@@ -45,8 +45,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from handx_jax.io import (TREE_CHECKSUMS, DataError, append_jsonl, atomic_write_json, read_jsonl, verify_tree_checksum,
-                          write_tree_checksum)
+from handx_jax.io import (TREE_CHECKSUMS, DataError, append_jsonl, atomic_write_json, check_finite_params, read_jsonl,
+                          verify_tree_checksum, write_tree_checksum)
 
 
 @dataclass(frozen=True)
@@ -590,6 +590,7 @@ def load_params(run_dir: str | os.PathLike, *, ema: bool = False, step: int | No
     state = mngr.restore(step, args=ocp.args.StandardRestore())
     mngr.close()
     params = state["ema"] if ema and state["ema"] else state["params"]
+    check_finite_params(params, path=folder)  # NaN weights are refused here, naming the parameter (issue 43)
     if key is not None:
         _RESTORED[key] = jax.tree_util.tree_map(lambda a: a, params)  # a caller editing its dicts can't reach it
         while len(_RESTORED) > _RESTORED_MAX:

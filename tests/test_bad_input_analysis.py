@@ -181,3 +181,53 @@ def test_dropped_rows_say_their_kind_without_parsing_the_message():
     assert [d.reason for d in dropped] == ["0 is not > 0, which log10 needs", "not finite (inf)",
                                            "not a number ('x')", "no value"]
     assert str(dropped[0]) == "run 'a' (row 1 of the input), column 'flops_per_sample': 0 is not > 0, which log10 needs"
+
+
+# ``handx analyze table`` (issue 43): a NaN metric is not an unscored one. It stopped nothing and printed
+# "–" (as for a run not scored yet), a NaN ``_ci`` silently dropped the ±, and a NaN value with its ``_ci``
+# was called "``_ci`` given but value is not" in .csv, .jsonl and run folders alike. Now each stops the
+# table in one line naming file, row and column, unless --drop-bad-rows, which leaves the row out and says so.
+
+ROWS = [{"run_id": "a", "family": "diffusion", "rprec_top1": 0.30, "rprec_top1_ci": 0.01},
+        {"run_id": "b", "family": "diffusion", "rprec_top1": 0.40, "rprec_top1_ci": 0.02},
+        {"run_id": "c", "family": "diffusion"}]  # not scored yet: "–", as before
+
+
+def _table_file(tmp_path, kind, row_b):
+    rows = [ROWS[0], {**ROWS[1], **row_b}, ROWS[2]]
+    if kind == "csv":
+        cols = ["run_id", "family", "rprec_top1", "rprec_top1_ci"]
+        p = tmp_path / "r.csv"
+        p.write_text("\n".join([",".join(cols)] + [",".join(str(r.get(c, "")) for c in cols) for r in rows]) + "\n")
+        return p, f"file {p}, row 2 (run 'b')"
+    if kind == "jsonl":
+        p = tmp_path / "r.jsonl"
+        p.write_text("".join(json.dumps(r) + "\n" for r in rows))  # json writes NaN as NaN
+        return p, f"file {p}, row 2 (run 'b')"
+    sweep = tmp_path / "sweep"  # run folders: eval.json holds the NaN
+    for r in rows:
+        d = sweep / r["run_id"]
+        d.mkdir(parents=True)
+        (d / "config.json").write_text(json.dumps({"family": "diffusion"}))
+        (d / "metrics.jsonl").write_text('{"step": 1, "loss": 1.0}\n')
+        ev = {k: v for k, v in r.items() if k.startswith("rprec")}
+        if ev:
+            (d / "eval.json").write_text(json.dumps(ev))
+    return sweep, f"run folder {sweep / 'b'} (run 'b')"
+
+
+@pytest.mark.parametrize("kind", ["csv", "jsonl", "run folders"])
+@pytest.mark.parametrize("row_b, column", [({"rprec_top1": float("nan"), "rprec_top1_ci": ""}, "rprec_top1"),
+                                           ({"rprec_top1_ci": float("nan")}, "rprec_top1_ci"),
+                                           ({"rprec_top1": float("nan")}, "rprec_top1")])
+def test_a_nan_metric_stops_the_table_unless_its_rows_are_dropped(tmp_path, capsys, kind, row_b, column):
+    row_b = {k: v for k, v in row_b.items() if v != ""}
+    path, where = _table_file(tmp_path, kind, row_b)
+    msg = _fail(["analyze", "table", str(path)], capsys)
+    assert msg == (f"handx analyze table: error: {where}, column {column!r}: NaN: a value that is there but unusable, "
+                   "not an unscored one; fix it, or pass --drop-bad-rows to leave such rows out")
+    assert main(["analyze", "table", str(path), "--drop-bad-rows"]) == 0
+    out, err = capsys.readouterr()
+    assert err == f"handx analyze table: left out {where}, column {column!r}: NaN\n"
+    body = [ln for ln in out.splitlines() if ln.startswith("| ")][1:]
+    assert len(body) == 2 and "0.300 ± 0.010" in body[0] and body[1].endswith("| – |")  # c: unscored, shown as –

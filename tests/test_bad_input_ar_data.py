@@ -64,3 +64,19 @@ def test_a_cache_of_the_wrong_shape_or_dtype_is_refused(tmp_path, codes, words):
     root = _cache(tmp_path, codes, tokens_per_clip=30)
     with pytest.raises(DataError, match=words.replace("(", r"\(").replace(")", r"\)")):
         TokenCache.open(root)
+
+
+def test_a_missing_joined_text_cache_asks_for_joined(tmp_path):
+    """``handx train ar`` with only the plain (per-field) text cache built: the hint names --joined, the cache
+    the AR family reads (it suggested the command that had already been run)."""
+    from diffusion_fixtures import ENCODER, make_dataset
+
+    from handx_jax.text.cache import open_cache
+
+    ds = make_dataset(tmp_path)  # with its per-field cache
+    open_cache(ds, ENCODER)  # the plain cache is there
+    with pytest.raises(DataError) as e:
+        open_cache(ds, ENCODER, joined=True)
+    msg = str(e.value)
+    assert "(max_len 128, float16, joined)" in msg and "\n" not in msg
+    assert msg.endswith(f"run `handx text cache --data {ds} --encoder {ENCODER} --joined`"), msg

@@ -122,3 +122,132 @@ def test_eval_run_refuses_a_changed_standard_evaluator_in_one_line(assets_copy, 
     assert rc == 2 and err == (f"handx: error: file {assets_copy / 'evaluator' / 'params.msgpack'}: standard evaluator "
                                "file corrupt: sha256 differs from card.json (reinstall the package)")
     assert not (tmp_path / "run").exists()
+
+
+# Honest metrics (issue 43 item 5). R-Precision on fewer prompts than the block is computed on one block of
+# all of them and says so (eval.json's rprec_block is the block used, with the requested one, the chance
+# level and a warning; the printed header says that block). An evaluator with a NaN weight is refused on
+# load, naming the parameter, before a reference cache could be written; the reference cache is written
+# from finite values only, and a cache holding NaN is recomputed.
+
+
+def test_r_precision_on_fewer_prompts_than_the_block_is_labelled_with_the_block_used(tmp_path):
+    import json
+
+    from handx_jax.evaluation import format_table, write_eval_json
+    from handx_jax.evaluation.scoring import evaluate_embeddings_and_motion
+    from handx_jax.metrics import MetricConfig
+
+    rng = np.random.default_rng(0)
+    text = rng.normal(size=(20, 8)).astype(np.float32)
+    ev = SimpleNamespace(root=None, policy=SimpleNamespace(eval_level=0))
+    gt = np.stack([_motion(i) for i in range(20)])
+    cfg = MetricConfig(rprec_block=32, replications=2, bootstrap=20, diversity_pairs=10)
+    res = evaluate_embeddings_and_motion(ev, text, gt[None], gt, cfg, gt_NxD=text, gen_GxNxD=text[None] + 0.01)
+    m = res.meta
+    assert (m["rprec_block"], m["rprec_block_requested"], m["rprec_chance"]) == (20, 32, [0.05, 0.1, 0.15])
+    assert m["warnings"] == [
+        "20 prompts, fewer than the R-Precision block of 32: R-Precision is computed on one block of 20 (top-1/2/3 "
+        "chance 0.050/0.100/0.150, not 0.031/0.062/0.094), so it does not compare with block-32 scores; score at "
+        "least 32 prompts, or pass --block 20 to ask for this block"]
+    assert "R-Precision (block 20)" in format_table([("gen", res)], block=m["rprec_block"]).splitlines()[0]
+    doc = json.loads(write_eval_json(tmp_path / "eval.json", res).read_text())
+    assert doc["_meta"]["rprec_block"] == 20 and doc["_meta"]["rprec_block_requested"] == 32
+    full = evaluate_embeddings_and_motion(ev, text, gt[None], gt, MetricConfig(rprec_block=16, replications=2,
+                                                                               bootstrap=20, diversity_pairs=10),
+                                          gt_NxD=text, gen_GxNxD=text[None])
+    assert full.meta["rprec_block"] == 16 and "warnings" not in full.meta and "rprec_block_requested" not in full.meta
+
+
+def test_the_eval_help_documents_the_block_policy(capsys):
+    with pytest.raises(SystemExit):
+        main(["eval", "run", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "With fewer prompts than the block, R-Precision is computed on one block of all of them" in out
+
+
+@pytest.fixture(scope="module")
+def nan_evaluator(tmp_path_factory):
+    """The official evaluator imported, then one weight set to NaN in its params.msgpack (checksum rewritten,
+    as a folder written by code that did not check would be)."""
+    from flax import serialization
+
+    from handx_jax.interop import official_evaluator as oe
+    from handx_jax.io import write_checksum
+
+    fix = Path(__file__).parent / "fixtures" / "official_evaluator"
+    ev = tmp_path_factory.mktemp("nan_ev") / "ev"
+    oe.import_checkpoint(fix / "epoch=269.ckpt", ev, mean=fix / "mean_can_pos.npy", std=fix / "std_can_pos.npy",
+                         encoder=fix / "t5")
+    tree = serialization.msgpack_restore((ev / "params.msgpack").read_bytes())
+    k = tree["params"]["motion_in"]["kernel"]
+    k = np.array(k)
+    k[2, 3] = np.nan
+    tree["params"]["motion_in"]["kernel"] = k
+    (ev / "params.msgpack").write_bytes(serialization.msgpack_serialize(tree))
+    write_checksum(ev / "params.msgpack")
+    return ev
+
+
+def test_eval_run_with_a_nan_evaluator_is_refused_naming_the_parameter(nan_evaluator, tmp_path, capsys):
+    g = write_handx_npz(tmp_path / "gen.npz", _clips(-1, 1.0))
+    rc = main(["eval", "run", "--evaluator", str(nan_evaluator), "--generated", str(g), "--reference",
+               str(tmp_path / "ds"), "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err == (f"handx: error: file {nan_evaluator / 'params.msgpack'}: parameter ['params']"
+                               "['motion_in']['kernel'] holds 1 non-finite value(s) (NaN or inf) of 8064: the weights "
+                               "are broken (a diverged run?) and every output would be NaN"), err
+    assert not (nan_evaluator / "reference_cache").exists() and not (tmp_path / "run").exists()
+
+
+def test_the_reference_cache_holds_only_finite_values_and_a_nan_one_is_recomputed(tmp_path, capsys):
+    from handx_jax.evaluation import reference as R
+
+    calls = []
+
+    def embed(*a):
+        calls.append(1)
+        return np.ones((3, 4), np.float32)
+
+    tok = SimpleNamespace(fingerprint="tok")
+    ev = SimpleNamespace(root=tmp_path, fingerprint="ev", encoder=SimpleNamespace(fingerprint="enc", tokenizer=tok),
+                         policy=SimpleNamespace(max_len=16, cache_dtype="float32", caption="sentinels"), batch_size=8,
+                         cfg=SimpleNamespace(latent=4), embed_text=embed, embed_motion=lambda gt: embed())
+    prompts = (["l"] * 3, ["r"] * 3, ["i"] * 3)
+    gt = np.zeros((3, 60, 2, 21, 3), np.float32)
+    first = R.reference_embeddings(ev, prompts, gt)
+    assert first.status == "miss" and len(calls) == 2 and first.path.exists()
+    assert R.reference_embeddings(ev, prompts, gt).status == "hit" and len(calls) == 2
+    key = R.reference_key(ev, ["x"], gt)  # any key: a NaN file is never written
+    assert not R.write_reference_cache(tmp_path / "nan.npz", key, np.full((3, 4), np.nan), np.ones((3, 4)))
+    assert not (tmp_path / "nan.npz").exists()
+    with np.load(first.path) as z:  # a cache file written with NaN (by older code, or damaged): recomputed
+        d = dict(z)
+    d["motion_NxD"][1, 2] = np.nan
+    np.savez(first.path, **d)
+    capsys.readouterr()
+    again = R.reference_embeddings(ev, prompts, gt)
+    assert again.status == "miss" and len(calls) == 4
+    assert capsys.readouterr().err == f"handx: reference cache {first.path} holds non-finite values; recomputing it\n"
+    assert R.reference_embeddings(ev, prompts, gt).status == "hit"
+    ev.embed_motion = lambda gt: np.full((3, 4), np.nan, np.float32)  # an evaluator yielding NaN: refused, not cached
+    with pytest.raises(DataError, match="the evaluator's embeddings of the reference ground-truth motion are not"):
+        R.reference_embeddings(ev, prompts, gt, cache=tmp_path / "other")
+    assert not (tmp_path / "other").exists()
+
+
+def test_a_second_writer_of_one_evaluator_folder_is_refused(tmp_path, capsys):
+    """``handx eval train-evaluator --out EV`` holds EV's output lock (runlock.RunLock.for_output): here
+    held by a live process (pid 1), so a second trainer is refused at once, naming the holder."""
+    import json
+    import socket
+    import time
+
+    (tmp_path / ".EV.lock").write_text(json.dumps({"pid": 1, "host": socket.gethostname(), "started": time.time() - 5,
+                                                   "cmd": "handx eval train-evaluator --out EV"}))
+    rc = main(["eval", "train-evaluator", "--data", str(tmp_path / "data"), "--encoder",
+               str(Path(__file__).parent / "fixtures" / "t5_tiny_gated"), "--out", str(tmp_path / "EV")])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1
+    assert err.startswith(f"handx: error: {tmp_path / 'EV'} is in use by pid 1 on ")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".EV.lock"]  # nothing written, the holder's lock kept

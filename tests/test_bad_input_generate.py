@@ -9,6 +9,7 @@ trained run are in tests/test_ar_family.py (its module fixture)."""
 import errno
 import math
 
+import numpy as np
 import pytest
 
 from handx_jax.cli import main
@@ -122,7 +123,7 @@ def test_the_real_tokenizer_counts_what_the_encoder_would_cut():
 def test_out_naming_an_existing_directory_is_one_line(tmp_path, capsys):
     d = tmp_path / "table.md"
     d.mkdir()
-    assert main(["analyze", "table", "paper:B", "--out", str(d)]) == 1
+    assert main(["analyze", "table", "paper:B", "--out", str(d)]) == 2
     err = capsys.readouterr().err.strip()
     assert err == f"handx: error: cannot write --out {d}: is a directory (choose another --out)"
     assert list(d.iterdir()) == [] and sorted(p.name for p in tmp_path.iterdir()) == ["table.md"]  # no temp file
@@ -136,7 +137,7 @@ def test_out_on_a_read_only_file_system_is_one_line(tmp_path, capsys, monkeypatc
 
     monkeypatch.setattr(tempfile, "mkstemp", read_only)
     out = tmp_path / "t.md"
-    assert main(["analyze", "table", "paper:B", "--out", str(out)]) == 1
+    assert main(["analyze", "table", "paper:B", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
     assert err == f"handx: error: cannot write --out {out}: read-only file system (choose another --out)"
     assert not out.exists()
@@ -146,7 +147,7 @@ def test_out_under_a_file_is_one_line(tmp_path, capsys):
     f = tmp_path / "a_file"
     f.write_text("x")
     out = f / "sub" / "t.md"
-    assert main(["analyze", "table", "paper:B", "--out", str(out)]) == 1
+    assert main(["analyze", "table", "paper:B", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
     assert err == f"handx: error: cannot write --out {out}: not a directory (choose another --out)"
     assert f.read_text() == "x" and sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
@@ -172,3 +173,67 @@ def test_each_family_checks_typed_prompts_against_its_own_window(family):
             check(run, [three_halves])
     with pytest.raises(ValueError, match="^--interaction is 101 tokens"):
         check(run, [Prompt("a", "b", "c " * 100)])
+
+
+# Contact guidance (issue 43): a spec's frames are checked in one place (guidance.parse_contacts, against
+# the clip's frames), and --contact caption refuses a prompt whose record names no contact instead of
+# saying it guides while doing nothing. A diffusion run imported from the official fixture (no training).
+
+
+@pytest.fixture(scope="module")
+def diffusion_run(tmp_path_factory):
+    from pathlib import Path
+
+    import numpy as np
+
+    from handx_jax.interop import official_diffusion as od
+
+    fix = Path(__file__).parent / "fixtures" / "official_diffusion"
+    root = tmp_path_factory.mktemp("contact")
+    np.savez(root / "stats.npz", mean=np.zeros((42, 4), np.float32), std=np.ones((42, 4), np.float32))
+    od.import_checkpoint(fix / "model.pt", root / "run", encoder=fix / "t5", heads=4, stats=root / "stats.npz")
+    return root / "run"
+
+
+@pytest.mark.parametrize("frames, says", [
+    ("50:70", "frames '50:70' run past the clip's 60 frames (START:END within 0:60, END excluded)"),
+    ("0:100000000000000000000000", "frames '0:100000000000000000000000' run past the clip's 60 frames (START:END "
+                                   "within 0:60, END excluded)"),
+    ("60:70", "frames '60:70' run past the clip's 60 frames (START:END within 0:60, END excluded)"),
+    ("0:1e23", "frame '1e23' is not a non-negative integer"),
+])
+def test_contact_frames_past_the_clip_are_refused_not_cut(diffusion_run, tmp_path, capsys, frames, says):
+    out = tmp_path / "gen.npz"
+    spec = f"L.thumb-R.thumb@{frames}"
+    rc = main(["generate", "--run", str(diffusion_run), *PROMPT, "--contact", spec, "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err == f"handx generate: error: sample.contact: contact {spec!r}: {says}", err
+    assert not out.exists()
+
+
+def test_contact_caption_on_a_record_without_contacts_says_so(diffusion_run, tmp_path, capsys):
+    from diffusion_fixtures import make_dataset
+
+    ds = make_dataset(tmp_path)
+    out = tmp_path / "gen.npz"
+    rc = main(["generate", "--run", str(diffusion_run), "--source", str(ds), "--clip", "synth-3-0000000-0060",
+               "--contact", "caption", "--set", "sample.steps=2", "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err == (
+        "handx generate: error: --contact caption: the prompt's record names no contact (no fingertip touch among the "
+        "events its captions were written from), so there is nothing to guide toward; give a written spec such as "
+        "L.thumb-R.thumb@20:40, or leave --contact off"), err
+    assert not out.exists()
+
+
+def test_contact_caption_says_how_many_prompts_of_a_batch_it_guides(capsys):
+    from handx_jax import guidance as Gd
+    from handx_jax import metrics as M
+
+    named = M.NamedContacts(*(np.asarray(v, np.int64) for v in ([0, 0, 2], [1, 2, 3], [0, 5, 9], [10, 20, 30])))
+    Gd.check_named(named, 4)
+    assert capsys.readouterr().err == ("handx: --contact caption guides 2 of the 4 prompts; the records of the other 2 "
+                                       "name no contact\n")
+    Gd.check_named(M.NamedContacts(*(v[:2] for v in (named.clip_E, named.channel_E, named.start_E, named.end_E))), 1)
+    # every prompt guided (one prompt, two contacts): nothing to say
+    assert capsys.readouterr().err == ""

@@ -64,7 +64,7 @@ def test_import_on_a_full_disk_is_a_clean_error(small_disk, tmp_path):
         with contextlib.redirect_stderr(buf):
             rc = handx(cmd)
         err = buf.getvalue()
-    assert rc == 1, err
+    assert rc == 2, err
     assert err.count("\n") == 1 and "Traceback" not in err
     assert f"no space left on device writing {disk / 'ds'}; it needs 2.9 MB, 2.0 MB free" in err
     assert os.listdir(disk) == []  # no hidden temporary folder left
@@ -81,21 +81,21 @@ def test_write_that_hits_enospc_removes_its_folder(small_disk, tmp_path, monkeyp
                 _enospc()
         monkeypatch.setattr(hio.NpyWriter, "append", append)
     npz = _npz(tmp_path / "train_x.npz", 100)
-    assert handx(["data", "import-handx", str(npz), "--no-events", "--out", str(disk / "ds")]) == 1
+    assert handx(["data", "import-handx", str(npz), "--no-events", "--out", str(disk / "ds")]) == 2
     err = capsys.readouterr().err
     assert f"no space left on device writing {disk / 'ds' / 'motion.npy'}; it needs 2.9 MB" in err
     assert os.listdir(disk) == []
 
 
 def test_every_command_reports_enospc_in_one_line(monkeypatch, capsys, tmp_path):
-    """A bare OSError 28 from anywhere (a library's own write) becomes one line, exit 1."""
+    """A bare OSError 28 from anywhere (a library's own write) becomes one line, exit 2."""
     from handx_jax.data import cli as data_cli
 
     def full(a):
         raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "x.bin"))
 
     monkeypatch.setattr(data_cli, "_export", full)
-    assert handx(["data", "export-handx", str(tmp_path), "--out", str(tmp_path / "o.npz")]) == 1
+    assert handx(["data", "export-handx", str(tmp_path), "--out", str(tmp_path / "o.npz")]) == 2
     assert capsys.readouterr().err == f"handx: error: no space left on device writing {tmp_path / 'x.bin'} " \
                                       "(free some space or write elsewhere)\n"
 
@@ -106,7 +106,7 @@ def test_every_command_reports_enospc_in_one_line(monkeypatch, capsys, tmp_path)
             raise RuntimeError("write failed") from e
 
     monkeypatch.setattr(data_cli, "_export", wrapped)
-    assert handx(["data", "export-handx", str(tmp_path), "--out", str(tmp_path / "o.npz")]) == 1
+    assert handx(["data", "export-handx", str(tmp_path), "--out", str(tmp_path / "o.npz")]) == 2
     assert capsys.readouterr().err.startswith("handx: error: no space left on device")
 
 

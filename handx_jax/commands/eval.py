@@ -50,7 +50,10 @@ def _train(args: argparse.Namespace) -> int:
     if args.print_config:
         print_config(cfg)
         return 0
-    train_evaluator(args.out, cfg, force=args.force)
+    from handx_jax.runlock import RunLock
+
+    with RunLock.for_output(args.out):  # one writer per evaluator folder: a second is refused (issue 43)
+        train_evaluator(args.out, cfg, force=args.force)
     return 0
 
 
@@ -104,6 +107,8 @@ def _run(args: argparse.Namespace) -> int:
             raise e if e.path is not None else DataError(str(e), path=args.generated) from None
         res.meta["generated"] = str(Path(args.generated).absolute())
         name = args.label or Path(args.generated).stem
+    for w in res.meta.get("warnings", ()):  # e.g. fewer prompts than the R-Precision block (issue 43)
+        print(f"handx eval run: warning: {w}", file=sys.stderr)
     if args.out:
         Path(args.out).mkdir(parents=True, exist_ok=True)
         write_eval_json(Path(args.out) / "eval.json", res)
@@ -111,7 +116,7 @@ def _run(args: argparse.Namespace) -> int:
         json.dump(res.flat(), sys.stdout)
         sys.stdout.write("\n")
     else:
-        print(format_table([(name, res)], block=args.block))
+        print(format_table([(name, res)], block=res.meta["rprec_block"]))
         s = res.meta["seconds"]
         print(f"{res.meta['prompts']} prompts × {res.meta['groups']} group(s), {args.replications} replications; "
               f"embedding {s['text_embedding'] + s['motion_embedding']:.2f} s, metrics {s['metrics']:.2f} s")
@@ -252,7 +257,11 @@ def add_parser(subparsers) -> None:
     r.add_argument("--no-reference-cache", action="store_true",
                    help="neither read nor write E/reference_cache/ (the reference captions' and GT embeddings)")
     r.add_argument("--replications", type=int, default=20)
-    r.add_argument("--block", type=int, default=32, help="R-Precision block size (32: Table 2; 16: Fig. 4)")
+    r.add_argument("--block", type=int, default=32,
+                   help="R-Precision block size (32: Table 2; 16: Fig. 4). With fewer prompts than the block, "
+                        "R-Precision is computed on one block of all of them: eval.json and the header then say "
+                        "that block (rprec_block, with rprec_block_requested and rprec_chance), and a warning "
+                        "gives its chance level")
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--mpjpe-root", default="none", choices=["none", "left_wrist", "per_hand_wrist"])
     r.add_argument("--samples", type=int, metavar="K",

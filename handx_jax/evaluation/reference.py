@@ -6,6 +6,7 @@ import hashlib
 import io
 import json
 import os
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,7 +17,7 @@ import numpy as np
 
 from handx_jax.evaluation.features import joined_caption
 from handx_jax.evaluation.model import TrainedEvaluator
-from handx_jax.io import atomic_write_bytes
+from handx_jax.io import DataError, atomic_write_bytes
 
 # Every evaluation of a sweep scores against the same reference: the captions of the reference clips at
 # the evaluation level and their GT motion. Embedding them (the captions through the frozen T5 on the
@@ -95,11 +96,17 @@ def read_reference_cache(path: Path, key: Mapping, latent: int) -> tuple[np.ndar
     want = (int(key["n"]), latent)
     if text.shape != want or motion.shape != want or text.dtype != np.float32 or motion.dtype != np.float32:
         return None
+    if not (np.isfinite(text).all() and np.isfinite(motion).all()):  # corrupt (or written by older code from a
+        print(f"handx: reference cache {path} holds non-finite values; recomputing it", file=sys.stderr)  # NaN run)
+        return None
     return text, motion
 
 
 def write_reference_cache(path: Path, key: Mapping, text_NxD: np.ndarray, motion_NxD: np.ndarray) -> bool:
-    """Atomically write the cache file (concurrent evaluations race harmlessly); False if it cannot be."""
+    """Atomically write the cache file (concurrent evaluations race harmlessly); False if it cannot be. Only
+    finite embeddings are written (a cache is read back as the truth by every later evaluation)."""
+    if not (np.isfinite(text_NxD).all() and np.isfinite(motion_NxD).all()):
+        return False
     buf = io.BytesIO()
     np.savez(buf, key=np.asarray(_key_json(key)), text_NxD=np.asarray(text_NxD, np.float32),
              motion_NxD=np.asarray(motion_NxD, np.float32))
@@ -141,6 +148,10 @@ def reference_embeddings(ev: TrainedEvaluator, prompts: tuple[Sequence[str], Seq
     t1 = time.perf_counter()
     motion = ev.embed_motion(gt)
     t2 = time.perf_counter()
+    for what, emb in (("captions", text), ("ground-truth motion", motion)):
+        if not np.isfinite(emb).all():
+            raise DataError(f"the evaluator's embeddings of the reference {what} are not finite (NaN or inf): its "
+                            "weights or statistics are broken; nothing was cached", path=ev.root)
     status = "off"
     if path is not None:
         status = "miss" if write_reference_cache(path, key, text, motion) else "unwritable"

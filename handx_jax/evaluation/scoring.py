@@ -75,7 +75,11 @@ def evaluate_embeddings_and_motion(ev: TrainedEvaluator, text_NxD: np.ndarray, g
              "mpjpe_pa_left", "mpjpe_pa_right", "apd_left", "apd_right", "pen_1cm", "pen_depth", "contact_feasibility")
     allm = {**emb, **mot}
     metrics = {k: allm[k] for k in order if k in allm}
-    m = {"prompts": int(N), "groups": int(G), "replications": cfg.replications, "rprec_block": cfg.rprec_block,
+    block = rprec_block_used(cfg.rprec_block, N)
+    m = {"prompts": int(N), "groups": int(G), "replications": cfg.replications, "rprec_block": block,
+         "rprec_chance": [round(k / block, 6) for k in range(1, cfg.top_k + 1)],
+         **({"rprec_block_requested": cfg.rprec_block, "warnings": [rprec_block_warning(cfg.rprec_block, N, cfg.top_k)]}
+            if block != cfg.rprec_block else {}),
          "seed": cfg.seed, "mpjpe_root": cfg.mpjpe_root, "evaluator": str(ev.root) if ev.root else None,
          **_evaluator_identity(ev),
          "eval_level": ev.policy.eval_level, "seconds": {"motion_embedding": t1 - t0, "metrics": t2 - t1,
@@ -85,6 +89,22 @@ def evaluate_embeddings_and_motion(ev: TrainedEvaluator, text_NxD: np.ndarray, g
          "contact_feasibility_named": None if named is None else len(named),
          **(meta or {})}
     return EvalResult(metrics, m)
+
+
+def rprec_block_used(block: int, prompts: int) -> int:
+    """The R-Precision block the metric really uses: ``block``, or one block of all the prompts when there
+    are fewer (metrics.r_precision). ``eval.json``'s ``rprec_block`` and the printed header are this one."""
+    return block if prompts >= block else prompts
+
+
+def rprec_block_warning(block: int, prompts: int, top_k: int = 3) -> str:
+    """What a score on fewer prompts than the block says about itself (issue 43: it was labelled block 32)."""
+    used = rprec_block_used(block, prompts)
+    chance = "/".join(f"{k / used:.3f}" for k in range(1, top_k + 1))
+    return (f"{prompts} prompts, fewer than the R-Precision block of {block}: R-Precision is computed on one block "
+            f"of {used} (top-1/2/3 chance {chance}, not {'/'.join(f'{k / block:.3f}' for k in range(1, top_k + 1))}),"
+            f" so it does not compare with block-{block} scores; score at least {block} prompts, or pass --block "
+            f"{used} to ask for this block")
 
 
 def _evaluator_identity(ev: TrainedEvaluator) -> dict:

@@ -4,7 +4,7 @@
                                  (--data DATA | --stats FILE) --out RUN
     handx import handx-evaluator EPOCH.ckpt --mean mean_can_pos.npy --std std_can_pos.npy --encoder T5_DIR
                                  [--heads 4] --out EV
-    handx export handx-diffusion RUN --out MODEL.pt [--config config.yaml] [--stats DIR] [--raw]
+    handx export handx-diffusion RUN --out MODEL.pt [--config config.yaml] [--stats DIR] [--raw] [--force]
 """
 
 from __future__ import annotations
@@ -42,7 +42,8 @@ def _import_evaluator(args: argparse.Namespace) -> int:
 def _export_diffusion(args: argparse.Namespace) -> int:
     from handx_jax.interop import official_diffusion as od
 
-    s = od.export_run(args.run, args.out, config=args.config, stats=args.stats, ema=not args.raw)
+    s = od.export_run(args.run, args.out, config=args.config, stats=args.stats, ema=not args.raw,
+                      overwrite=args.force)
     print(f"wrote {s['out']}: {s['tensors']} tensors in the official layout ({'EMA' if s['ema'] else 'raw'} weights "
           f"at step {s['step']})" + (f"; {args.config}" if args.config else ""))
     print("not in the official checkpoint format:")
@@ -97,5 +98,6 @@ def add_parser(subparsers) -> None:
     x.add_argument("--config", help="also write the official config.yaml (model: section) here")
     x.add_argument("--stats", help="also write the normalisation statistics as DIR/mean.npy, DIR/std.npy")
     x.add_argument("--raw", action="store_true", help="export the raw weights instead of the EMA ones")
+    x.add_argument("--force", action="store_true", help="replace existing --out, --config and --stats files")
     x.add_argument("--json", action="store_true", help="also print the summary as JSON")
     x.set_defaults(func=_export_diffusion)

@@ -96,40 +96,92 @@ def _np(tree):
 # Reading a released checkpoint
 
 
+MODEL_KEYS = ("latent_dim", "layers", "num_heads", "ff_size", "dropout", "activation", "arch")
+
+
 def read_config_yaml(path: str | os.PathLike) -> dict:
-    """The ``model:`` section of an official Hydra ``config.yaml`` (or the file itself if it has none)."""
+    """The ``model:`` section of an official Hydra ``config.yaml`` (or the file itself if it is that section:
+    model keys at the top level); a file with neither is refused, naming what it holds."""
     import yaml
 
     try:
         doc = yaml.safe_load(Path(path).read_text())
-    except (OSError, yaml.YAMLError) as e:
+    except IsADirectoryError:
+        raise DataError("is a directory; --config names the official config.yaml file", path=path) from None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
         raise DataError(f"cannot read the config ({e})", path=path) from None
     if not isinstance(doc, dict):
         raise DataError("config.yaml is not a mapping", path=path)
     model = doc.get("model", doc)
     if not isinstance(model, dict):
         raise DataError("config.yaml's 'model' is not a mapping", path=path)
+    if "model" not in doc and not any(k in doc for k in MODEL_KEYS):
+        raise DataError(f"no 'model:' section (top-level keys: {sorted(map(str, doc))[:8]}); the official "
+                        f"config.yaml has model: with {', '.join(MODEL_KEYS[:4])}", path=path)
     return model
 
 
 def read_state_dict(path: str | os.PathLike) -> dict[str, Any]:
     """The state dict of an official ``model.pt`` (``{"state_dict": …}``, or a bare state dict)."""
     obj = torch_pickle.load(path)
-    sd = obj.get("state_dict", obj) if isinstance(obj, dict) else obj
-    if not isinstance(sd, dict) or not sd:
-        raise DataError("no state dict in the checkpoint (expected {'state_dict': {name: tensor}})", path=path)
+    if isinstance(obj, dict) and isinstance(obj.get("state_dict"), dict):
+        sd = obj["state_dict"]
+    elif isinstance(obj, dict) and obj and all(isinstance(v, np.ndarray) for v in obj.values()):
+        sd = obj  # a bare state dict
+    else:
+        if isinstance(obj, dict):
+            held = [f"{k!r} ({len(v)} tensors)" if isinstance(v, dict) and any(isinstance(x, np.ndarray)
+                    for x in v.values()) else repr(k) for k, v in list(obj.items())[:6]]
+            what = f"a dict of {', '.join(held)}" if held else "an empty dict"
+        else:
+            what = f"a {type(obj).__name__}"
+        raise DataError(f"no state dict in the checkpoint: it holds {what}; expected the official "
+                        "{'state_dict': {name: tensor}} (or a bare {name: tensor})", path=path)
+    if not sd:
+        raise DataError("the checkpoint's state dict is empty", path=path)
     return {k[len("module."):] if k.startswith("module.") else k: v for k, v in sd.items()}
+
+
+# Where the width D shows in the tensors' shapes (name, axis): each of them must agree, so that a single
+# damaged tensor is named as the odd one out rather than every correct tensor being checked against it.
+WIDTH_AXES = (("null_text_embedding", -1), *((n, -1) for n in CLS_NAMES), ("input_process.pose_embedding.weight", 0),
+              ("text_embedding_project.weight", 0), ("output_process.pose_head.weight", 1),
+              ("embed_timestep.time_embedding.0.weight", 0), ("embed_timestep.time_embedding.2.weight", 0))
+
+
+def _agreed(sd: Mapping[str, Any], axes, what: str, *, path=None) -> tuple[int, str]:
+    """The size the tensors ``axes`` agree on, and a note of where it comes from; a tensor that disagrees
+    with the others is refused by name."""
+    seen = {}
+    for name, ax in axes:
+        a = sd.get(name)
+        if isinstance(a, np.ndarray) and a.ndim >= (ax + 1 if ax >= 0 else -ax):
+            seen[name] = int(a.shape[ax])
+    if not seen:
+        tl.tensor(sd, axes[0][0], path=path)  # the missing tensor's own refusal
+    values = [v for v in seen.values()]
+    size = max(set(values), key=values.count)
+    odd = [n for n, v in seen.items() if v != size]
+    if odd:
+        agree = [n for n, v in seen.items() if v == size]
+        raise DataError(f"tensor {odd[0]!r} has shape {tuple(sd[odd[0]].shape)}: {what} {seen[odd[0]]}, but "
+                        f"{len(agree)} other tensor(s) ({agree[0]}, …) have {what} {size}", path=path)
+    return size, f"{what} {size} from {len(seen)} tensors' shapes"
 
 
 def infer_config(sd: Mapping[str, Any], *, heads: int | None, yaml_model: dict | None, path=None,
                  config_path=None) -> DiTConfig:
     """Sizes from the tensors' shapes, checked against ``config.yaml``'s ``model:`` keys when given; the
-    head count from the config or ``heads`` (no shape reveals it)."""
-    D = tl.tensor(sd, "null_text_embedding", path=path).shape[-1]
+    head count from the config or ``heads`` (no shape reveals it). Every refusal names its source: the
+    tensor, ``config.yaml`` or ``--heads``."""
+    from handx_jax.interop import checks
+
+    D, _ = _agreed(sd, WIDTH_AXES, "width", path=path)
     L = tl.layer_count(sd, DECODER)
     if L == 0:
         raise DataError(f"no decoder layers ({DECODER}.0.…): not a {ARCH} checkpoint", path=path)
-    F = tl.tensor(sd, f"{DECODER}.0.linear1.weight", path=path).shape[0]
+    F, _ = _agreed(sd, [(f"{DECODER}.{i}.linear1.weight", 0) for i in range(L)]
+                   + [(f"{DECODER}.{i}.linear2.weight", 1) for i in range(L)], "FF size", path=path)
     Dt = tl.tensor(sd, "text_embedding_project.weight", path=path).shape[1]
     M = tl.tensor(sd, "input_process.pose_embedding.weight", path=path).shape[1]
     if M != 42 * 4:
@@ -144,18 +196,30 @@ def infer_config(sd: Mapping[str, Any], *, heads: int | None, yaml_model: dict |
         if act != "gelu":
             raise DataError(f"model.activation is {act!r}; the denoiser uses gelu", path=config_path)
         for key, got in (("latent_dim", D), ("layers", L), ("ff_size", F)):
-            if key in ym and int(ym[key]) != got:
+            if key in ym and checks.whole(ym[key], f"model.{key}", path=config_path) != got:
                 raise DataError(f"model.{key} is {ym[key]} but the checkpoint's tensors have {got}", path=config_path)
     h_cfg = ym.get("num_heads")
-    if heads is not None and h_cfg is not None and int(h_cfg) != heads:
-        raise DataError(f"--heads {heads} contradicts model.num_heads {h_cfg}", path=config_path)
-    H = heads if heads is not None else (int(h_cfg) if h_cfg is not None else None)
-    if H is None:
+    if h_cfg is not None:
+        h_cfg = checks.whole(h_cfg, "model.num_heads", path=config_path)
+    if heads is not None:
+        heads = checks.whole(heads, "--heads")
+        if h_cfg is not None and h_cfg != heads:
+            raise DataError(f"--heads {heads} contradicts model.num_heads {h_cfg}", path=config_path)
+    if heads is None and h_cfg is None:
+        if yaml_model is not None:
+            raise DataError("no model.num_heads, and the number of heads is in no tensor's shape: add it to the "
+                            "config's model: section, or give --heads N", path=config_path)
         raise DataError("the number of heads is in no tensor's shape: give --config config.yaml (model.num_heads) "
                         "or --heads N", path=path)
-    if H <= 0 or D % H:
-        raise DataError(f"{H} heads do not divide the width {D}", path=path)
-    dropout = float(ym.get("dropout", 0.1))
+    H = heads if heads is not None else h_cfg
+    if D % H:
+        src, where = ("--heads", None) if heads is not None else ("model.num_heads", config_path)
+        raise DataError(f"{src} {H} does not divide the width {D} (the tensors' shapes): each head takes D / H "
+                        "values", path=where)
+    try:
+        dropout = float(ym.get("dropout", 0.1))
+    except (TypeError, ValueError):
+        raise DataError(f"model.dropout is {ym.get('dropout')!r}, not a number", path=config_path) from None
     return DiTConfig(layers=L, dim=D, heads=H, ff=F, dropout=dropout, text_dim=Dt)
 
 
@@ -213,22 +277,29 @@ def read_stats(*, data: str | os.PathLike | None = None, stats: str | os.PathLik
         from handx_jax.data.dataset import Dataset
 
         return rep.NormStats.from_npz_dict(Dataset.open(data).stats, "diffusion")
+    from handx_jax.interop import checks
+
     p = Path(stats)
-    try:
-        if p.is_dir():
-            mean, std = np.load(p / "mean.npy"), np.load(p / "std.npy")
-        else:
-            with np.load(p) as z:
-                d = dict(z)
-            if "diffusion_mean" in d:
-                return rep.NormStats.from_npz_dict(d, "diffusion")
-            mean, std = d["mean"], d["std"]
-    except (OSError, ValueError, KeyError) as e:
-        raise DataError(f"cannot read mean/std ({type(e).__name__}: {e})", path=p) from None
+    mean_path = std_path = p
+    if p.is_dir():
+        mean_path, std_path = p / "mean.npy", p / "std.npy"
+        mean, std = checks.load_array_file(mean_path), checks.load_array_file(std_path)
+    else:
+        d = checks.load_array_file(p, npz=True)
+        if not isinstance(d, dict):
+            raise DataError("an .npy array; --stats takes a folder with mean.npy and std.npy, or an .npz with "
+                            "mean/std", path=p)
+        names = ("diffusion_mean", "diffusion_std") if "diffusion_mean" in d else ("mean", "std")
+        if any(n not in d for n in names):
+            raise DataError(f"no {names[0]}/{names[1]} arrays (it holds {sorted(d)[:6]})", path=p)
+        mean, std = d[names[0]], d[names[1]]
     mean, std = np.asarray(mean, np.float32).reshape(-1), np.asarray(std, np.float32).reshape(-1)
     if mean.size != 168 or std.size != 168:
         raise DataError(f"mean/std have {mean.size}/{std.size} values; the diffusion features have 42 x 4 = 168",
                         path=p)
+    checks.norm_stats(mean, std, mean_path=mean_path, std_path=std_path)
+    if not p.is_dir() and "diffusion_mean" in d:  # a run's norm_stats.npz or a dataset's stats.npz: its eps too
+        return rep.NormStats.from_npz_dict(d, "diffusion")
     return rep.NormStats(mean=mean.reshape(42, 4), std=std.reshape(42, 4))
 
 
@@ -248,13 +319,20 @@ def import_checkpoint(model_pt: str | os.PathLike, out: str | os.PathLike, *, en
     from handx_jax.io import atomic_dir, atomic_write_json, write_tree_checksum
     from handx_jax.text.hf import as_encoder
 
+    from handx_jax.interop import checks
+    from handx_jax.io import check_free_space, library_output_held, refuse_existing
+
     fam = get_family("diffusion")
+    refuse_existing(out, overwrite=overwrite)  # at once, not after reading the weights
     model_pt = Path(model_pt)
     sd = read_state_dict(model_pt)
     ym = read_config_yaml(config) if config is not None else None
     cfg_m = infer_config(sd, heads=heads, yaml_model=ym, path=model_pt, config_path=config)
-    pe_gap = check_tables(sd, cfg_m, path=model_pt)
-    params = params_from_official(sd, cfg_m, path=model_pt)
+    heads_from = "--heads" if heads is not None else "config.yaml's model.num_heads"
+    with checks.sizes_from(f"width {cfg_m.dim} and FF {cfg_m.ff} agreed by the tensors' shapes, "
+                           f"{cfg_m.heads} heads from {heads_from}"):
+        pe_gap = check_tables(sd, cfg_m, path=model_pt)
+        params = params_from_official(sd, cfg_m, path=model_pt)
     unused = unused_tensors(sd, cfg_m)
     if unused:
         raise DataError(f"{len(unused)} tensor(s) this importer does not know, e.g. {unused[:3]} (another "
@@ -293,11 +371,15 @@ def import_checkpoint(model_pt: str | os.PathLike, out: str | os.PathLike, *, en
 
         state = {"params": jax.tree_util.tree_map(jnp.asarray, params), "opt_state": {}, "ema": {},
                  "step": jnp.zeros((), jnp.int32)}
-        mngr = ocp.CheckpointManager((tmp / "checkpoints").absolute(), options=ocp.CheckpointManagerOptions(
-            create=True, enable_async_checkpointing=False))
-        mngr.save(0, args=ocp.args.StandardSave(state))
-        mngr.wait_until_finished()
-        mngr.close()
+        # orbax needs about the weights' bytes; a full disk is one line naming --out (io.atomic_dir), and what
+        # orbax and tensorstore print while failing is held back (io.library_output_held).
+        check_free_space(tmp / "checkpoints", 2 * sum(a.nbytes for a in jax.tree_util.tree_leaves(params)))
+        with library_output_held():
+            mngr = ocp.CheckpointManager((tmp / "checkpoints").absolute(), options=ocp.CheckpointManagerOptions(
+                create=True, enable_async_checkpointing=False))
+            mngr.save(0, args=ocp.args.StandardSave(state))
+            mngr.wait_until_finished()
+            mngr.close()
         write_tree_checksum(tmp / "checkpoints" / "0")
     return {"run": str(out), "model": dataclasses.asdict(cfg_m), "params": numbers["params"],
             "sha256": record["source"]["sha256"], "pe_max_abs_diff": pe_gap}
@@ -324,14 +406,45 @@ model:
 """
 
 
+def _export_targets(out, config, stats, overwrite: bool) -> list[tuple[str, Path]]:
+    """Every file ``export`` writes, each named by its flag, checked before anything is read or written: an
+    existing one is refused without ``--force``, a directory where a file goes (or a file where the
+    ``--stats`` folder goes) names the flag."""
+    from handx_jax.io import refuse_existing
+
+    targets = [("--out", Path(out))]
+    if config:
+        targets.append(("--config", Path(config)))
+    if stats:
+        s = Path(stats)
+        if s.exists() and not s.is_dir():
+            raise DataError(f"--stats {s} is a file; it names the folder to write mean.npy and std.npy into")
+        targets += [("--stats", s / "mean.npy"), ("--stats", s / "std.npy")]
+    for flag, p in targets:
+        if p.is_dir():
+            raise DataError(f"{flag} {p} is a directory; it names the {p.name if flag == '--stats' else 'file'} "
+                            "to write")
+        refuse_existing(p, overwrite=overwrite, flag=flag)
+    return targets
+
+
 def export_run(run_dir: str | os.PathLike, out: str | os.PathLike, *, config: str | os.PathLike | None = None,
-               stats: str | os.PathLike | None = None, ema: bool = True) -> dict:
+               stats: str | os.PathLike | None = None, ema: bool = True, overwrite: bool = False) -> dict:
     """Write the run's weights as an official ``model.pt`` (``{"state_dict": …}``, ``_text_model.*`` left
-    out as the official training loop saves it). Returns what was written and what the official format
-    does not carry (``dropped``)."""
+    out as the official training loop saves it), and optionally its ``config.yaml`` and statistics. Returns
+    what was written and what the official format does not carry (``dropped``).
+
+    All or nothing: every output is checked first (``_export_targets``) and held (``io.exclusive_output``:
+    a second export to the same file is refused), each is written atomically, and if one fails the ones
+    already written are removed again."""
+    import contextlib
+
     from handx_jax.families import get_family, run_config
+    from handx_jax.interop import checks
+    from handx_jax.io import atomic_save_npy, exclusive_output
     from handx_jax.train import load_params
 
+    targets = _export_targets(out, config, stats, overwrite)
     fam = get_family("diffusion")
     doc = run_config(run_dir, fam.FAMILY)
     cfg = fam.config_from_dict(doc)
@@ -341,7 +454,8 @@ def export_run(run_dir: str | os.PathLike, out: str | os.PathLike, *, config: st
                         path=run_dir)
     params, step = load_params(run_dir, ema=ema)
     sd = official_from_params(params, m)
-    torch_pickle.save(out, {"state_dict": sd})
+    for k, v in sd.items():  # load_params refuses NaN too; the names here are the official ones
+        checks.finite(k, v, path=Path(run_dir) / "checkpoints" / str(step))
     used_ema = bool(ema and cfg.train.ema_decay > 0)
     dropped = [
         f"the frozen text encoder (the official loader rebuilds T5 itself; this run used {cfg.data.encoder or '?'}: "
@@ -354,18 +468,29 @@ def export_run(run_dir: str | os.PathLike, out: str | os.PathLike, *, config: st
     if cfg.train.ema_decay > 0:
         dropped.insert(2, f"the run's {'raw' if used_ema else 'EMA'} weights (exported: the "
                           f"{'EMA' if used_ema else 'raw'} ones, step {step})")
+    norm = None
     if stats:
+        from handx_jax import representation as rep
+
         with np.load(Path(run_dir) / fam.NORM_FILE) as z:
-            from handx_jax import representation as rep
-
             norm = rep.NormStats.from_npz_dict(dict(z), "diffusion")
-        Path(stats).mkdir(parents=True, exist_ok=True)
-        from handx_jax.io import atomic_save_npy
-
-        atomic_save_npy(Path(stats) / "mean.npy", norm.mean)
-        atomic_save_npy(Path(stats) / "std.npy", norm.std)
-    if config:
-        atomic_write_text(config, CONFIG_TEMPLATE.format(dim=m.dim, layers=m.layers, heads=m.heads, ff=m.ff,
-                                                         dropout=m.dropout, cond_drop=cfg.diffusion.cond_drop))
+    written: list[Path] = []
+    with contextlib.ExitStack() as held:
+        for flag, p in targets:
+            held.enter_context(exclusive_output(p, overwrite=overwrite, flag=flag))
+        try:
+            written.append(torch_pickle.save(out, {"state_dict": sd}))
+            if norm is not None:
+                written.append(atomic_save_npy(Path(stats) / "mean.npy", norm.mean))
+                written.append(atomic_save_npy(Path(stats) / "std.npy", norm.std))
+            if config:
+                written.append(atomic_write_text(config, CONFIG_TEMPLATE.format(
+                    dim=m.dim, layers=m.layers, heads=m.heads, ff=m.ff, dropout=m.dropout,
+                    cond_drop=cfg.diffusion.cond_drop)))
+        except BaseException:
+            for p in written:  # nothing half-written: all of the export or none of it
+                with contextlib.suppress(OSError):
+                    p.unlink()
+            raise
     return {"out": str(out), "tensors": len(sd), "step": step, "ema": used_ema, "dropped": dropped,
             "model": dataclasses.asdict(m)}

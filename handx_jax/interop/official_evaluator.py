@@ -74,8 +74,12 @@ def infer_config(sd: Mapping[str, Any], *, heads: int, text_dim: int, path=None)
     if motion_dim != 126:
         raise DataError(f"motionencoder.skel_embedding takes {motion_dim} features; the official evaluator's "
                         "input is 2 x 21 x 3 = 126", path=path)
-    if heads <= 0 or d % heads:
-        raise DataError(f"{heads} heads do not divide the latent width {d}", path=path)
+    from handx_jax.interop import checks
+
+    heads = checks.whole(heads, "--heads")
+    if d % heads:
+        raise DataError(f"--heads {heads} does not divide the latent width {d} (motionencoder.mu_token): each head "
+                        "takes d / H values", path=path)
     L, F = sizes["text"]
     return EvaluatorConfig(latent=d, layers=L, heads=heads, ff=F, dropout=0.1, motion_input="positions",
                            motion_patch=1, text_dim=text_dim, frames=60, recon=False)
@@ -131,21 +135,17 @@ def _get(tree, path):
 def read_stats(mean_path, std_path):
     from handx_jax import representation as rep
 
+    from handx_jax.interop import checks
+
     arrays = []
     for p in (mean_path, std_path):
-        try:
-            a = np.load(p, allow_pickle=False)
-        except (OSError, ValueError) as e:
-            raise DataError(f"cannot read a .npy array ({e})", path=p) from None
+        a = checks.load_array_file(p)
         if a.size != 126:
             raise DataError(f"shape {a.shape}: the official evaluator's statistics broadcast as (126,) over the "
                             "(N, 60, 126) motion; a per-frame table is not supported", path=p)
         arrays.append(np.asarray(a, np.float32).reshape(126))
     mean, std = arrays
-    if not np.all(np.isfinite(mean)) or not np.all(np.isfinite(std)) or np.any(std <= 0):
-        bad = np.flatnonzero(~np.isfinite(std) | (std <= 0))
-        raise DataError(f"std is zero, negative or not finite at {bad[:6].tolist()} (the official code divides by "
-                        "it without an epsilon)", path=std_path)
+    checks.norm_stats(mean, std, mean_path=mean_path, std_path=std_path)
     return rep.NormStats(mean=mean, std=std)
 
 
@@ -161,13 +161,19 @@ def import_checkpoint(ckpt: str | os.PathLike, out: str | os.PathLike, *, mean: 
 
     import jax
 
+    from handx_jax.interop import checks
+    from handx_jax.io import refuse_existing
+
+    refuse_existing(out, overwrite=overwrite)  # at once, not after reading the weights
     ckpt = Path(ckpt)
     top = read_checkpoint(ckpt)
     sd = top["state_dict"]
     enc = as_encoder(encoder)
     cfg = infer_config(sd, heads=heads, text_dim=enc.cfg.d_model, path=ckpt)
-    pe_gap = check_tables(sd, cfg.latent, path=ckpt)
-    params = params_from_official(sd, cfg, path=ckpt)
+    with checks.sizes_from(f"latent {cfg.latent} from motionencoder.mu_token, FF {cfg.ff} from layer 0's linear1, "
+                           f"{cfg.heads} heads from --heads"):
+        pe_gap = check_tables(sd, cfg.latent, path=ckpt)
+        params = params_from_official(sd, cfg, path=ckpt)
     expected = jax.tree_util.tree_map(lambda a: a.shape, param_shapes(cfg, 8))
     got = jax.tree_util.tree_map(lambda a: a.shape, params)
     if expected != got:

@@ -20,7 +20,9 @@ StateDict = Mapping[str, np.ndarray]
 
 def tensor(sd: StateDict, name: str, shape: tuple[int, ...] | None = None, *, path=None) -> np.ndarray:
     """``sd[name]`` as a float32 array, refused (naming the file and tensor) if absent, not a tensor
-    (an inert placeholder of the reader), or of another shape."""
+    (an inert placeholder of the reader), of another shape (the message says where the expected sizes
+    come from: ``checks.sizes_from``) or holding a NaN/inf (``checks.finite``)."""
+    from handx_jax.interop import checks
     from handx_jax.interop.torch_pickle import inert_name
 
     if name not in sd:
@@ -30,10 +32,11 @@ def tensor(sd: StateDict, name: str, shape: tuple[int, ...] | None = None, *, pa
         what = inert_name(a) or type(a).__name__
         raise DataError(f"state dict entry {name!r} is a pickled {what}, not a tensor", path=path)
     if shape is not None and tuple(a.shape) != tuple(shape):
-        raise DataError(f"tensor {name!r} has shape {tuple(a.shape)}, the sizes imply {tuple(shape)}", path=path)
+        raise DataError(f"tensor {name!r} has shape {tuple(a.shape)}; the sizes imply {tuple(shape)}"
+                        f"{checks.sizes_note()}", path=path)
     if a.dtype != np.float32:
         raise DataError(f"tensor {name!r} is {a.dtype}; float32 weights expected", path=path)
-    return a
+    return checks.finite(name, a, path=path)
 
 
 def linear_from(sd, name, d_in, d_out, *, path=None) -> dict:

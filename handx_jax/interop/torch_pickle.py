@@ -108,6 +108,35 @@ def inert_name(obj: Any) -> str | None:
     return f"{cls.module}.{cls.name}" if isinstance(cls, type) and issubclass(cls, Inert) else None
 
 
+# Bounded reads (issue 43 item 4): a tensor is a view (size, stride) of its storage, and stride 0 lets a few
+# bytes claim any size. A tensor that needs more elements than its storage holds (an expansion) is
+# materialised only up to EXPAND_LIMIT bytes, and all tensors of a file together only up to
+# BUDGET_FACTOR x the file's size + EXPAND_LIMIT (shared storages are read once, but each view of one is
+# copied). Beyond either the tensor is refused, by name, before anything is allocated.
+EXPAND_LIMIT = 16 << 20
+BUDGET_FACTOR = 4
+
+
+class _Oversized:
+    """Stands for a tensor refused as too large while the pickle is read; :func:`load` names its key."""
+
+    def __init__(self, why: str):
+        self.why = why
+
+
+def _find_oversized(obj: Any, where: str = "", depth: int = 0) -> tuple[str, _Oversized] | None:
+    if isinstance(obj, _Oversized):
+        return where, obj
+    if depth > 50:
+        return None
+    items = obj.items() if isinstance(obj, dict) else enumerate(obj) if isinstance(obj, (list, tuple)) else ()
+    for k, v in items:
+        hit = _find_oversized(v, f"{where}[{k!r}]", depth + 1)
+        if hit:
+            return hit
+    return None
+
+
 class _Storage:
     def __init__(self, name: str):
         self.name, self.dtype = name, STORAGE_DTYPES[name]
@@ -123,6 +152,8 @@ class TorchUnpickler(RestrictedUnpickler):
         self._zf, self._prefix = zf, prefix
         self._storages: dict[str, np.ndarray] = {}
         self._inert: dict[tuple[str, str], type] = {}
+        self._budget = BUDGET_FACTOR * Path(path).stat().st_size + EXPAND_LIMIT
+        self.oversized: list[_Oversized] = []
 
     def error(self, message: str) -> DataError:
         return DataError(message, path=self._path)
@@ -184,6 +215,21 @@ class TorchUnpickler(RestrictedUnpickler):
             raise self.error(f"tensor of size {size} stride {stride} at offset {offset} overruns its storage of "
                              f"{storage.size} elements (corrupt file?)")
         item = storage.dtype.itemsize
+        count = 1
+        for n in size:
+            count *= n
+        nbytes = count * item
+        why = None
+        if count > storage.size - offset and nbytes > EXPAND_LIMIT:
+            why = (f"size {size} stride {stride} materialises {nbytes / 2**20:,.0f} MiB from a storage of "
+                   f"{storage.nbytes:,} bytes (an expansion over {EXPAND_LIMIT >> 20} MiB)")
+        elif nbytes > self._budget:
+            why = (f"size {size} would bring the checkpoint's tensors past {self._budget / 2**20:,.0f} MiB, "
+                   f"{BUDGET_FACTOR}x the file's size + {EXPAND_LIMIT >> 20} MiB")
+        if why is not None:
+            self.oversized.append(_Oversized(why))
+            return self.oversized[-1]
+        self._budget -= nbytes
         view = np.lib.stride_tricks.as_strided(storage[offset:], size, tuple(s * item for s in stride))
         return np.array(view)  # a contiguous, writable copy
 
@@ -213,6 +259,15 @@ def load(path: str | os.PathLike) -> Any:
         raise DataError("checkpoint file does not exist", path=path)
     zf, prefix = _open(path)
     with zf:
+        # PyTorch stores its records uncompressed; a compressed member that inflates far beyond the file (a
+        # zip bomb) is refused before it is read, as an expanded tensor is (bounded reads, issue 43).
+        limit = BUDGET_FACTOR * path.stat().st_size + EXPAND_LIMIT
+        big = max(zf.infolist(), key=lambda i: i.file_size, default=None)
+        if big is not None and sum(i.file_size for i in zf.infolist()) > limit:
+            raise DataError(f"its records inflate to {sum(i.file_size for i in zf.infolist()) / 2**20:,.0f} MiB ("
+                            f"{big.filename}: {big.file_size / 2**20:,.0f} MiB) from a file of "
+                            f"{path.stat().st_size:,} bytes, past {BUDGET_FACTOR}x its size + {EXPAND_LIMIT >> 20} "
+                            "MiB; refused (a crafted or corrupt file?)", path=path)
         try:
             order = zf.read(prefix + "byteorder").decode().strip() if prefix + "byteorder" in zf.namelist() \
                 else "little"
@@ -221,12 +276,19 @@ def load(path: str | os.PathLike) -> Any:
             raise DataError(f"cannot read the checkpoint (truncated or corrupt: {e})", path=path) from None
         if order != "little":
             raise DataError(f"byteorder is {order!r}: big-endian checkpoints are not supported", path=path)
+        up = TorchUnpickler(io.BytesIO(data), path=path, zf=zf, prefix=prefix)
         try:
-            return TorchUnpickler(io.BytesIO(data), path=path, zf=zf, prefix=prefix).load()
+            obj = up.load()
         except DataError:
             raise
         except Exception as e:  # a corrupt pickle: EOFError, UnpicklingError, a bad opcode argument ...
             raise DataError(f"corrupt data.pkl ({type(e).__name__}: {e})", path=path) from None
+        if up.oversized:
+            hit = _find_oversized(obj)
+            name = f"tensor {hit[0]}" if hit else "a tensor (inside an object this reader keeps inert)"
+            why = hit[1].why if hit else up.oversized[0].why
+            raise DataError(f"{name}: {why}; refused (a crafted or corrupt file?)", path=path)
+        return obj
 
 
 # --------------------------------------------------------------------------------------------------

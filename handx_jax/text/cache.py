@@ -308,9 +308,13 @@ def open_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, m
     if not root.exists():
         others = sorted(p.name for p in (Path(data_dir) / CACHE_DIRNAME).glob("*") if p.is_dir()
                         and not p.name.startswith(".")) if (Path(data_dir) / CACHE_DIRNAME).is_dir() else []
-        raise DataError(f"no text cache for this dataset + encoder {enc.fingerprint} (max_len {max_len}, {dtype}); "
-                        f"existing caches {others} were built for other encoders, data or options; "
-                        f"run `handx text cache --data {data_dir} --encoder {enc.path or encoder_dir}`", path=root.parent)
+        # the AR family and the evaluator read the joined cache: the command says so (issue 43)
+        flags = (" --joined" if joined else "") + (f" --max-len {max_len}" if max_len != 128 else "") + \
+            (f" --dtype {dtype}" if dtype != "float16" else "")
+        raise DataError(f"no text cache for this dataset + encoder {enc.fingerprint} (max_len {max_len}, {dtype}"
+                        f"{', joined' if joined else ''}); existing caches {others} were built for other encoders, "
+                        f"data or options; run `handx text cache --data {data_dir} --encoder {enc.path or encoder_dir}"
+                        f"{flags}`", path=root.parent)
     return TextCache.open(root, dataset=ds, encoder_fingerprint=enc.fingerprint,
                           tokenizer_fingerprint=enc.tokenizer.fingerprint)
 

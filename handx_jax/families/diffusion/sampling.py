@@ -246,7 +246,9 @@ def contact_request(prompts: Sequence[Prompt], contact: str, frames: int) -> np.
         raise ValueError("contact guidance from the caption needs each prompt's structured record: take the prompts "
                          "from a dataset with events.jsonl (--reference DIR, or --source DIR --clip ID); typed "
                          "prompts and .npz sources carry none")
-    return G.request_from_named(M.named_contacts([p.record for p in prompts]), len(prompts), frames)
+    named = M.named_contacts([p.record for p in prompts])
+    G.check_named(named, len(prompts))
+    return G.request_from_named(named, len(prompts), frames)
 
 
 def to_joints(run: DiffusionRun, x_BxFx42x4: np.ndarray, centers_Bx3: np.ndarray | None = None) -> np.ndarray:
