@@ -53,7 +53,7 @@ from handx_jax.io import DataError, atomic_write_json, atomic_write_text, sha256
     write_checksum
 
 VERSION = 4  # of the packaged assets; bumped whenever the recipe or any weight changes
-STANDARD_ANNOTATION = "reference"  # the standard corpus's annotation reading (Recipe.annotation)
+STANDARD_ANNOTATION = "reference"  # the standard corpus's annotation reading (Recipe.annotation; v1-v4 "reference")
 ASSETS = Path(__file__).resolve().parent / "assets" / "standard"
 CARD_JSON, CARD_MD, MANIFEST = "card.json", "CARD.md", "test_manifest.npz"
 CARD_SHA = CARD_JSON + ".sha256"  # io.write_checksum's sidecar: the card's own checksum

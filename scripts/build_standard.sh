@@ -6,7 +6,9 @@
 #
 #   scripts/build_standard.sh [WORK]          (WORK default /tmp/handx-standard; keeps data/, t5/, evaluator/)
 #
-# Knobs (environment): STEPS BATCH LR WARMUP DROPOUT (evaluator; default v4's 2-core CPU recipe), PRESET (small),
+# Knobs (environment): STEPS BATCH LR WARMUP DROPOUT (evaluator; default v5's 2-core CPU recipe), PRESET (small),
+# AUG_WHITE AUG_LOWFREQ (caption-preserving augmentation, mm; v5 1.5 and 3), MASK_SAME_TEXT REVERSE_NEGATIVE (v5
+# true; v4 was STEPS=4500 with all four off), VALIDITY_CLIPS (4000: the prefix the validity suite runs on),
 # ENCODER (a T5 encoder folder to reuse instead of training a tokenizer and a tiny T5; v4 reuses v3's, the
 # packaged one: ENCODER=handx_jax/assets/standard/encoder), T5_STEPS (0 = the tiny preset's 2000), NICE (0),
 # PY (python3). The recipe itself (clip count, seed, generator version) is handx_jax.standard.Recipe: change it
@@ -15,7 +17,12 @@
 set -euo pipefail
 WORK=${1:-/tmp/handx-standard}
 PY=${PY:-python3}
-STEPS=${STEPS:-4500}
+STEPS=${STEPS:-3000}
+AUG_WHITE=${AUG_WHITE:-1.5}
+AUG_LOWFREQ=${AUG_LOWFREQ:-3}
+MASK_SAME_TEXT=${MASK_SAME_TEXT:-true}
+REVERSE_NEGATIVE=${REVERSE_NEGATIVE:-true}
+VALIDITY_CLIPS=${VALIDITY_CLIPS:-4000}
 BATCH=${BATCH:-256}
 LR=${LR:-1e-3}
 WARMUP=${WARMUP:-300}
@@ -28,8 +35,8 @@ mkdir -p "$WORK"
 DATA=$WORK/data
 t0=$(date +%s)
 # The code's recipe, built with `data synth` (`standard corpus` refuses while the packaged card is the old recipe's)
-read -r CLIPS SEED < <("$PY" -c "from handx_jax.standard import code_recipe as r; print(r().clips, r().seed)")
-[ -f "$DATA/meta.json" ] || "${H[@]}" data synth --clips "$CLIPS" --seed "$SEED" --out "$DATA" --quiet
+read -r CLIPS SEED ANNOTATION < <("$PY" -c "from handx_jax.standard import code_recipe as r; print(r().clips, r().seed, r().annotation)")
+[ -f "$DATA/meta.json" ] || "${H[@]}" data synth --clips "$CLIPS" --seed "$SEED" --annotation "$ANNOTATION" --out "$DATA" --quiet
 t1=$(date +%s)
 if [ -n "${ENCODER:-}" ]; then
   # package replaces the assets folder: keep a copy of a packaged encoder outside it
@@ -44,10 +51,24 @@ t2=$(date +%s)
   "${H[@]}" eval train-evaluator --data "$DATA" --encoder "$WORK/t5/encoder" --out "$WORK/evaluator" \
     --preset "$PRESET" --steps "$STEPS" --batch-size "$BATCH" --lr "$LR" --warmup "$WARMUP" --no-final-eval \
     --set train.optim.weight_decay=0.01 --set model.dropout="$DROPOUT" --set text.max_len=256 \
-    --set data.text_bucket=256 --set train.log_every=100 --set train.ckpt_every=500 --set train.wandb=disabled
+    --set data.text_bucket=256 --set train.log_every=100 --set train.ckpt_every=500 --set train.wandb=disabled \
+    --set data.augment_white_mm="$AUG_WHITE" --set data.augment_lowfreq_mm="$AUG_LOWFREQ" \
+    --set model.mask_same_text="$MASK_SAME_TEXT" --set model.reverse_negative="$REVERSE_NEGATIVE"
 t3=$(date +%s)
+# The validity suite on a prefix, with the new evaluator folder (its figures go on the card).
+PREFIX=$WORK/prefix$VALIDITY_CLIPS
+[ -f "$PREFIX/meta.json" ] || "${H[@]}" data synth --clips "$VALIDITY_CLIPS" --seed "$SEED" --annotation "$ANNOTATION" \
+  --out "$PREFIX" --quiet
+[ -f "$WORK/validity/validity.json" ] || "${H[@]}" standard validity --data "$PREFIX" --evaluator "$WORK/evaluator" \
+  --out "$WORK/validity"
+# Keep the packaged evaluator being replaced loadable by its id (--evaluator standard-vN).
+OLD=$("$PY" -c "import json; from handx_jax import standard as s; print(json.loads((s.ASSETS / s.CARD_JSON).read_text())['version'])" 2>/dev/null || echo "")
+NEW=$("$PY" -c "from handx_jax import standard as s; print(s.VERSION)")
+ASSETS=$("$PY" -c "from handx_jax import standard as s; print(s.ASSETS)")
+if [ -n "$OLD" ] && [ "$OLD" != "$NEW" ] && [ ! -d "$ASSETS-v$OLD" ]; then cp -r "$ASSETS" "$ASSETS-v$OLD"; fi
 "${H[@]}" standard package --data "$DATA" --encoder "$WORK/t5/encoder" --evaluator "$WORK/evaluator" \
+  --validity "$WORK/validity/validity.json" \
   --note "corpus build=$((t1 - t0)) s" --note "tokenizer + tiny T5=$((t2 - t1)) s" \
   --note "text cache + evaluator training=$((t3 - t2)) s" \
-  --note "command=STEPS=$STEPS BATCH=$BATCH LR=$LR WARMUP=$WARMUP DROPOUT=$DROPOUT PRESET=$PRESET${ENCODER:+ ENCODER=$ENCODER} scripts/build_standard.sh"
+  --note "command=STEPS=$STEPS BATCH=$BATCH LR=$LR WARMUP=$WARMUP DROPOUT=$DROPOUT PRESET=$PRESET AUG_WHITE=$AUG_WHITE AUG_LOWFREQ=$AUG_LOWFREQ MASK_SAME_TEXT=$MASK_SAME_TEXT REVERSE_NEGATIVE=$REVERSE_NEGATIVE${ENCODER:+ ENCODER=$ENCODER} scripts/build_standard.sh"
 echo "done: $(( $(date +%s) - t0 )) s"
