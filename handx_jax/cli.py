@@ -44,7 +44,9 @@ GROUPS = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    from handx_jax.cliargs import Parser
+
+    p = Parser(  # subcommands' parsers are of the same class (argparse's parser_class)
         prog="handx",
         description="handx-jax: text-to-bimanual-hand-motion (HandX) in JAX, built for scaling sweeps.",
     )

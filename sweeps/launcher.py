@@ -8,8 +8,8 @@ subprocess so that one run's crash or memory never takes the sweep down:
     steps     shared steps the run needs (e.g. a tokenizer per codebook), in OUT/steps/NAME-HASH/,
               named from a hash of their commands: computed once, found again by every run
     train     handx train FAMILY --preset P --set ... --out RUN       (resumes from RUN/checkpoints)
-    generate  handx generate --run RUN --reference DATA --split test --limit N --out RUN/generated.npz
-    evaluate  handx eval run --evaluator E --generated RUN/generated.npz --reference DATA --json --out RUN
+    generate  handx generate --run RUN --data DATA --split test --limit N --out RUN/generated.npz
+    evaluate  handx eval run --evaluator E --generated RUN/generated.npz --data DATA --json --out RUN
 
 A stage is done when its output exists (every output is written atomically), so a killed sweep re-run
 with the same command picks up where it stopped; finished runs are not redone. One run's failure is
@@ -554,14 +554,14 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
                 # Prompt at the caption level the evaluator scores (its text policy), so that the
                 # generated file's captions are the ones the evaluator embeds.
                 level = json.loads((Path(cfg.evaluator) / "evaluator.json").read_text())["text"]["eval_level"]
-                stage("generate", _subst(["handx", "generate", "--run", str(d), "--reference", cfg.data, "--split",
+                stage("generate", _subst(["handx", "generate", "--run", str(d), "--data", cfg.data, "--split",
                                           cfg.eval_split, "--level", str(level), "--limit", str(cfg.eval_limit),
                                           "--samples", str(cfg.eval_samples),
                                           *(a for o in generate_settings(cfg, spec) for a in ("--set", o)),
                                           "--out", str(d / "generated.npz")], {}))
             if not state["evaluate"]:
                 stage("evaluate", _subst(["handx", "eval", "run", "--evaluator", cfg.evaluator, "--generated",
-                                          str(d / "generated.npz"), "--reference", cfg.data, "--block",
+                                          str(d / "generated.npz"), "--data", cfg.data, "--block",
                                           str(cfg.rprec_block), "--json", "--out", str(d)], {}))
         _update_json(status, status="done", error=None)
         return stage_state(cfg, spec)

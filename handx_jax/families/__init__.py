@@ -62,6 +62,9 @@ class Family:
     (``flops_per_sample_paper``…, beside the analytic count ``train`` records), or None where the paper
     defines no other convention. ``sweep_sample``: generation settings (``sample.*`` overrides) of a
     sweep's generate stage unless the sweep sets its own (``handx sweep run --set sample.KEY=V``).
+    ``tasks``: the generation tasks its runs serve (``handx generate --task``; a run's ``tasks`` is
+    this tuple). A family serving ``prediction`` takes ``--observed-frames N`` among its generate
+    flags (``handx eval prediction`` passes it); one serving none is a step, not a generator.
     """
 
     module: str  # import path of the family module
@@ -74,19 +77,29 @@ class Family:
     table: str | None = None
     flops: str | None = None
     sweep_sample: tuple[str, ...] = ()
+    tasks: tuple[str, ...] = ("text2motion",)
 
 
 FAMILIES: dict[str, Family] = {
     "diffusion": Family("handx_jax.families.diffusion", "the treble-residual diffusion model (paper §5.1)",
                         norm="diffusion", encoder=True, flops="handx_jax.families.diffusion.flops:from_config",
                         # DDIM-50: what every diffusion sweep has generated with (DDPM takes all 1,000 steps)
-                        sweep_sample=("sample.sampler=ddim", "sample.steps=50")),
+                        sweep_sample=("sample.sampler=ddim", "sample.steps=50"),
+                        tasks=("text2motion", "inbetween", "keyframes", "wrist", "reaction", "long", "prediction")),
     "tokenizer": Family("handx_jax.families.tokenizer", "the FSQ motion tokenizer of the AR family (paper §5.2)",
-                        norm="ar", results=False,
+                        norm="ar", results=False, tasks=(),
                         after_train=(("handx", "tokenize", "--tokenizer", "{out}", "--data", "{data}"),)),
     "ar": Family("handx_jax.families.ar", "the text-prefix LM over FSQ motion tokens (paper §5.2)",
-                 encoder=True, needs=("tokenizer",), table="table3"),
+                 encoder=True, needs=("tokenizer",), table="table3", tasks=("text2motion", "prediction")),
 }
+# What ``handx train NAME`` trains besides the families: artefacts that are neither generators nor
+# results rows (one training verb for everything, issue 42). NAME → the module with
+# ``add_train_args(parser)``, ``train_from_args(args) -> exit status`` and ``TRAIN_HELP``.
+TRAINABLES: dict[str, str] = {
+    "evaluator": "handx_jax.commands.eval",  # the contrastive evaluator (the yardstick)
+    "t5": "handx_jax.text.cli",  # T5 span-corruption pretraining (the encoder when none is on disk)
+}
+
 # Families registered from outside the package (``register``), as NAME=MODULE pairs: children of this
 # process (the sweep launcher's ``handx`` stages) find them here. MODULE holds ``REGISTRY: Family``.
 ENV = "HANDX_FAMILIES"

@@ -32,7 +32,7 @@ import numpy as np
 
 from handx_jax.families.diffusion import process as D
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
-from handx_jax.families import run_config
+from handx_jax.families import entry, run_config
 from handx_jax.io import DataError
 from handx_jax.models.dit import PRESETS, DiTConfig, TrebleDenoiser, forward_flops, init_denoiser, param_count, size_name
 from handx_jax.train import OptimConfig, TrainConfig
@@ -59,7 +59,7 @@ class DataConfig:
 @dataclass(frozen=True)
 class SampleConfig:
     """Generation settings of the run: its defaults for ``handx generate`` and a sweep's generate stage,
-    changed like any other key (``--set sample.steps=25``; ``handx generate --sampler/--steps`` are the
+    changed like any other key (``--set sample.steps=25``; ``handx generate --sampler/--sample-steps`` are the
     same keys). The guidance scale is ``diffusion.guidance``."""
 
     sampler: str = "ddpm"  # "ddpm" (ancestral, all T steps, the reference) or "ddim"
@@ -311,7 +311,7 @@ class DiffusionRun:
     # The family interface's run object: what ``handx generate`` calls.
     @property
     def tasks(self) -> tuple[str, ...]:
-        return D.TASKS
+        return entry(FAMILY).tasks  # declared in the registry; the sampler's masks are D.TASKS
 
     def generate(self, prompts, opts, *, samples: int = 1, task: str = "text2motion", sources=None,
                  keyframes: Sequence[int] = (30,), fixed_hand: str = "left") -> np.ndarray:
@@ -375,16 +375,15 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
 # ------------------------------------------------------------------------------------------------
 # Accounting and the command-line hooks of the family interface (handx_jax.families)
 
-T5_BASE = dict(vocab_size=32128, d_model=768, d_kv=64, d_ff=3072, num_layers=12, num_heads=12)
 
 
 def numbers(cfg: DiffusionRunConfig, *, text_len: int = 32, encoder_cfg=None) -> dict:
     """Parameters and analytic forward FLOPs per sample (2 per multiply-add; ``models.dit.forward_flops``)
     at ``text_len`` tokens per prompt; the frozen text encoder (``encoder_cfg``, default T5-base, the
     reference's encoder, §3.1) is counted apart, for three prompts."""
-    from handx_jax.text.t5 import T5Config, encoder_flops
+    from handx_jax.text.t5 import encoder_flops, t5_base
 
-    enc_cfg = encoder_cfg if encoder_cfg is not None else T5Config(**T5_BASE)
+    enc_cfg = encoder_cfg if encoder_cfg is not None else t5_base()
     return {"params": param_count(cfg.model), "params_non_embedding": params_non_embedding(cfg.model),
             "flops_per_sample": forward_flops(cfg.model, text_len),
             "text_flops_per_sample": 3 * int(encoder_flops(enc_cfg, text_len))}
@@ -447,7 +446,10 @@ def params_from_args(args: argparse.Namespace) -> tuple[str, dict]:
 
 def add_generate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sampler", choices=["ddpm", "ddim"], help="= --set sample.sampler=… (default: the run's, ddpm)")
-    p.add_argument("--steps", type=int, help="= --set sample.steps=N: DDIM steps (DDPM always uses all T steps)")
+    from handx_jax.cliargs import deprecated_flag
+
+    deprecated_flag(p, "--steps", p.add_argument(
+        "--sample-steps", type=int, help="= --set sample.steps=N: sampler steps of DDIM (DDPM always uses all T)"))
     p.add_argument("--guidance", type=float, help="= --set diffusion.guidance=X: CFG scale (default: the run's, 2.5)")
     p.add_argument("--contact", help="= --set sample.contact=SPEC: contact guidance (default off). 'caption' = the "
                                      "contact events of each prompt's record (prompts from a dataset), or a list "
@@ -467,7 +469,7 @@ def load_for_generate(args: argparse.Namespace, *, ema: bool, encoder, seed: int
     from handx_jax.families.diffusion.sampling import SampleOptions
     from handx_jax.text.prompts import typed_prompts
 
-    flags = [f"{k}={v}" for k, v in (("sample.sampler", args.sampler), ("sample.steps", args.steps),
+    flags = [f"{k}={v}" for k, v in (("sample.sampler", args.sampler), ("sample.steps", args.sample_steps),
                                      ("diffusion.guidance", args.guidance), ("sample.contact", args.contact),
                                      ("sample.contact_strength", args.contact_strength),
                                      ("sample.contact_schedule", args.contact_schedule)) if v is not None]
