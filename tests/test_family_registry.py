@@ -76,10 +76,10 @@ def train(run_dir, cfg: ToyConfig, *, stop_at=None, on_log=None, encoder=None) -
     def loss(params, batch, rng, train):
         return jnp.mean((batch["x"] - params["mean"]) ** 2), {}
 
-    return loop.train(run_dir, init=lambda rng: {"mean": jnp.ones((60, 42, 4))}, loss=loss,
-                      get_batch=lambda idx: {"x": x[np.asarray(idx)]}, num_examples=len(x), cfg=cfg.train,
-                      config=record, stop_at=stop_at, on_log=on_log, flops_per_sample=record["flops_per_sample"],
-                      resume_keys=("data", "train"))
+    return loop.train(run_dir, loop.TrainSpec(
+        init=lambda rng: {"mean": jnp.ones((60, 42, 4))}, loss=loss, cfg=cfg.train, config=record,
+        get_batch=lambda idx: {"x": x[np.asarray(idx)]}, num_examples=len(x),
+        flops_per_sample=record["flops_per_sample"], resume_keys=("data", "train")), stop_at=stop_at, on_log=on_log)
 
 
 @dataclass

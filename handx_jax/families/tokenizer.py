@@ -33,7 +33,8 @@ from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset
 from handx_jax.families import run_config
 from handx_jax.io import DataError
 from handx_jax.models import fsq as Q
-from handx_jax.train import OptimConfig, TrainConfig
+from handx_jax.optim import OptimConfig
+from handx_jax.train import TrainConfig
 
 FAMILY = "tokenizer"
 NORM_FILE = "norm_stats.npz"
@@ -268,12 +269,11 @@ def train(run_dir: str | os.PathLike, cfg: TokenizerRunConfig, *, stop_at: int |
         np.savez(run_dir / NORM_FILE, **norm.to_npz_dict("ar"))
     model = Q.FSQTokenizer(cfg.model)
     data = TrainData(ds.motion, clips, cfg.data.window, norm)
-    return loop.train(run_dir, init=lambda rng: Q.init_tokenizer(cfg.model, rng, cfg.data.window)[1],
-                      loss=make_loss(model, norm, cfg.loss), get_batch=data.batch, num_examples=data.num_items,
-                      cfg=cfg.train,
-                      config=record, stop_at=stop_at, on_log=on_log, flops_per_sample=record["flops_per_sample"],
-                      evaluate=None if x_val is None else make_evaluate(model, cfg.model, x_val, norm),
-                      resume_keys=RESUME_KEYS)
+    return loop.train(run_dir, loop.TrainSpec(
+        init=lambda rng: Q.init_tokenizer(cfg.model, rng, cfg.data.window)[1], loss=make_loss(model, norm, cfg.loss),
+        cfg=cfg.train, config=record, get_batch=data.batch, num_examples=data.num_items,
+        evaluate=None if x_val is None else make_evaluate(model, cfg.model, x_val, norm),
+        flops_per_sample=record["flops_per_sample"], resume_keys=RESUME_KEYS), stop_at=stop_at, on_log=on_log)
 
 
 # ------------------------------------------------------------------------------------------------

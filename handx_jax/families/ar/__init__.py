@@ -39,7 +39,8 @@ from handx_jax.families import tokenizer as T
 from handx_jax.families import entry, run_config
 from handx_jax.io import DataError
 from handx_jax.models import prefix_lm as P
-from handx_jax.train import OptimConfig, TrainConfig
+from handx_jax.optim import OptimConfig
+from handx_jax.train import TrainConfig
 
 FAMILY = "ar"
 PRESETS = P.PRESETS
@@ -295,11 +296,11 @@ def train(run_dir: str | os.PathLike, cfg: ARRunConfig, *, stop_at: int | None =
     model = P.PrefixLM(cfg.model)
     L = int(data.cache.meta["Lmax"])
     val = np.asarray(Dataset.open(cfg.data.path).split("val"))
-    return loop.train(run_dir, init=lambda rng: P.init_lm(cfg.model, rng, text_len=L)[1],
-                      loss=make_loss(model, cfg.data.text_drop),
-                      get_batch=data.batch, num_examples=data.num_items, cfg=cfg.train, config=record,
-                      stop_at=stop_at, on_log=on_log, flops_per_sample=record["flops_per_sample"],
-                      evaluate=make_evaluate(model, data, val) if len(val) else None, resume_keys=RESUME_KEYS)
+    return loop.train(run_dir, loop.TrainSpec(
+        init=lambda rng: P.init_lm(cfg.model, rng, text_len=L)[1], loss=make_loss(model, cfg.data.text_drop),
+        cfg=cfg.train, config=record, get_batch=data.batch, num_examples=data.num_items,
+        evaluate=make_evaluate(model, data, val) if len(val) else None,
+        flops_per_sample=record["flops_per_sample"], resume_keys=RESUME_KEYS), stop_at=stop_at, on_log=on_log)
 
 
 # ------------------------------------------------------------------------------------------------

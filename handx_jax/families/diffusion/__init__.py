@@ -35,7 +35,8 @@ from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset
 from handx_jax.families import entry, run_config
 from handx_jax.io import DataError
 from handx_jax.models.dit import PRESETS, DiTConfig, TrebleDenoiser, forward_flops, init_denoiser, param_count, size_name
-from handx_jax.train import OptimConfig, TrainConfig
+from handx_jax.optim import OptimConfig
+from handx_jax.train import TrainConfig
 
 FAMILY = "diffusion"
 FIELDS = ("left", "right", "interaction")
@@ -278,9 +279,10 @@ def train(run_dir: str | os.PathLike, cfg: DiffusionRunConfig, *, stop_at: int |
     def init(rng):
         return init_denoiser(cfg.model, rng, text_len=L)[1]
 
-    return loop.train(run_dir, init=init, loss=make_loss(model, cfg.diffusion), get_batch=data.batch,
-                      num_examples=data.num_items, cfg=cfg.train, config=record, stop_at=stop_at, on_log=on_log,
-                      flops_per_sample=record["flops_per_sample"], resume_keys=RESUME_KEYS)
+    return loop.train(run_dir, loop.TrainSpec(
+        init=init, loss=make_loss(model, cfg.diffusion), cfg=cfg.train, config=record, get_batch=data.batch,
+        num_examples=data.num_items, flops_per_sample=record["flops_per_sample"], resume_keys=RESUME_KEYS),
+        stop_at=stop_at, on_log=on_log)
 
 
 
