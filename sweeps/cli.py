@@ -34,7 +34,7 @@ def _block(text: str) -> int:
 
 
 def _sweep_kwargs(a: argparse.Namespace) -> dict:
-    from sweeps.launcher import _import
+    from sweeps.spec import _import
 
     kw = _kv(a.arg)
     params = inspect.signature(_import(a.sweep).runs).parameters

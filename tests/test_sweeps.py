@@ -330,9 +330,9 @@ def _fake_evaluator(path: Path, *, level: int = 0, weights: bytes = b"w1") -> Pa
 def _fake_handx_stages(monkeypatch, on_stage):
     """Run the fake training stage for real and hand each handx stage to ``on_stage(name, argv)`` (it
     writes the stage's output and returns what to record); returns the list of recorded calls."""
-    import sweeps.launcher as L
+    import sweeps.stages as stages  # run_command: the stages' subprocess runner
 
-    calls, real = [], L.run_command
+    calls, real = [], stages.run_command
 
     def run_command(argv, log, env):
         argv = list(argv)
@@ -342,7 +342,7 @@ def _fake_handx_stages(monkeypatch, on_stage):
         calls.append(on_stage(argv[argv.index("handx_jax") + 1], argv))
         return 0.0
 
-    monkeypatch.setattr(L, "run_command", run_command)
+    monkeypatch.setattr(stages, "run_command", run_command)
     return calls
 
 
@@ -354,11 +354,12 @@ def test_scores_of_another_evaluator_are_redone_and_kept(tmp_path, monkeypatch):
     import numpy as np
 
     import sweeps.launcher as L
+    import sweeps.stages as stages  # run_command: the stages' subprocess runner
     from analysis.schema import row_from_run_dir
     from handx_jax.evaluation import evaluator_id
 
     calls = []
-    real = L.run_command
+    real = stages.run_command
 
     def run_command(argv, log, env):
         argv = list(argv)
@@ -375,7 +376,7 @@ def test_scores_of_another_evaluator_are_redone_and_kept(tmp_path, monkeypatch):
             (run / "eval.json").write_text(json.dumps({"rprec_top3": 0.2, "_meta": {"evaluator_id": evaluator_id(E)}}))
         return 0.0
 
-    monkeypatch.setattr(L, "run_command", run_command)
+    monkeypatch.setattr(stages, "run_command", run_command)
     E1 = _fake_evaluator(tmp_path / "E1")
     spec = fake("a")
     cfg = cfg_for(tmp_path, evaluator=str(E1))
@@ -657,7 +658,8 @@ def test_generate_stage_passes_only_family_agnostic_settings(tmp_path):
     """The generate stage's settings are ``sample.*`` overrides: the registry's sweep default for the run's
     family, then the run's own, then the sweep's ``--set`` (the last wins); an old sweep.json's
     ``sampler``/``sampler_steps`` are read as those overrides."""
-    from sweeps.launcher import _load_state, generate_settings
+    from sweeps.launcher import generate_settings
+    from sweeps.results import load_state
 
     d = RunSpec("d", "diffusion", overrides=("model.layers=1", "sample.steps=8"))
     a = RunSpec("a", "ar", overrides=("sample.temperature=0.5",))
@@ -669,5 +671,5 @@ def test_generate_stage_passes_only_family_agnostic_settings(tmp_path):
     doc = {"config": {"data": "D", "encoder": "", "out": "x", "sampler": "ddim", "sampler_steps": 25},
            "runs": [{"name": "d", "family": "diffusion", "overrides": ["model.layers=1"]}]}
     (out / "sweep.json").write_text(json.dumps(doc))
-    old_cfg, specs = _load_state(out)
+    old_cfg, specs = load_state(out)
     assert old_cfg.sample == ("sample.sampler=ddim", "sample.steps=25") and specs[0].family == "diffusion"

@@ -14,8 +14,8 @@ How to add a family ``foo``:
      run after ``--set`` overrides), ``PRESETS``: named sizes, and
      ``make_config(preset, overrides=(), **paths) -> Config``;
    - ``train(run_dir, cfg, *, stop_at=None, on_log=None, encoder=None) -> dict``: build the model,
-     loss and batches and call ``handx_jax.train.train`` (which writes ``config.json``,
-     ``metrics.jsonl``, ``checkpoints/`` and refuses to resume with a different config);
+     loss and batches and call ``handx_jax.train.train(run_dir, TrainSpec(...))`` (which writes
+     ``config.json``, ``metrics.jsonl``, ``checkpoints/`` and refuses to resume with a different config);
    - ``load(run_dir, *, ema=True, encoder=None, overrides=()) -> run``, where ``run`` has ``tasks``,
      ``generate(prompts, opts, *, samples, task, sources, keyframes, fixed_hand)`` → joints
      (P, G, F, 2, 21, 3), ``generate_long(segments, opts, *, samples, source)`` (may raise
@@ -47,6 +47,18 @@ from types import ModuleType
 
 
 @dataclass(frozen=True)
+class Axis:
+    """A sweep axis a family adds to the shared ones (layers, dim, heads, ff, data fraction): the results
+    column ``name``, the config key a sweep point sets it with (``axes_of`` reads it from the point's
+    overrides), its letter in run ids (``run_id``) and its table header (``analysis.tables``)."""
+
+    name: str
+    key: str
+    short: str
+    header: str
+
+
+@dataclass(frozen=True)
 class Family:
     """What the rest of the system knows about a family; nothing outside its module names it.
 
@@ -62,6 +74,7 @@ class Family:
     (``flops_per_sample_paper``…, beside the analytic count ``train`` records), or None where the paper
     defines no other convention. ``sweep_sample``: generation settings (``sample.*`` overrides) of a
     sweep's generate stage unless the sweep sets its own (``handx sweep run --set sample.KEY=V``).
+    ``axes``: the sweep axes it adds (:class:`Axis`; the AR family's codebook).
     ``tasks``: the generation tasks its runs serve (``handx generate --task``; a run's ``tasks`` is
     this tuple). A family serving ``prediction`` takes ``--observed-frames N`` among its generate
     flags (``handx eval prediction`` passes it); one serving none is a step, not a generator.
@@ -77,6 +90,7 @@ class Family:
     table: str | None = None
     flops: str | None = None
     sweep_sample: tuple[str, ...] = ()
+    axes: tuple[Axis, ...] = ()
     tasks: tuple[str, ...] = ("text2motion",)
 
 
@@ -90,7 +104,9 @@ FAMILIES: dict[str, Family] = {
                         norm="ar", results=False, tasks=(),
                         after_train=(("handx", "tokenize", "--tokenizer", "{out}", "--data", "{data}"),)),
     "ar": Family("handx_jax.families.ar", "the text-prefix LM over FSQ motion tokens (paper §5.2)",
-                 encoder=True, needs=("tokenizer",), table="table3", tasks=("text2motion", "prediction")),
+                 encoder=True, needs=("tokenizer",), table="table3", tasks=("text2motion", "prediction"),
+                 # the FSQ codebook of the tokenizer it is trained from (its runs record it as "codebook")
+                 axes=(Axis("codebook", "model.codebook", "K", "Codebook"),)),
 }
 # What ``handx train NAME`` trains besides the families: artefacts that are neither generators nor
 # results rows (one training verb for everything, issue 42). NAME → the module with
@@ -99,6 +115,10 @@ TRAINABLES: dict[str, str] = {
     "evaluator": "handx_jax.commands.eval",  # the contrastive evaluator (the yardstick)
     "t5": "handx_jax.text.cli",  # T5 span-corruption pretraining (the encoder when none is on disk)
 }
+
+# The normalisation statistics a dataset's stats.npz holds besides the families' (``Family.norm``): those
+# of the trainables that read the dataset's motion (the evaluator's).
+TRAINABLE_NORMS: tuple[str, ...] = ("evaluator",)
 
 # Families registered from outside the package (``register``), as NAME=MODULE pairs: children of this
 # process (the sweep launcher's ``handx`` stages) find them here. MODULE holds ``REGISTRY: Family``.
@@ -149,6 +169,18 @@ def register(name: str, family: Family):
 def get_family(name: str) -> ModuleType:
     """The family module registered as ``name``; an unknown name is a ValueError with a hint."""
     return importlib.import_module(entry(name).module)
+
+
+def stats_names() -> list[str]:
+    """The statistics a dataset's ``stats.npz`` holds: each one a registered family normalises with
+    (``Family.norm``, in registry order), then the trainables' (``TRAINABLE_NORMS``)."""
+    out = [n for n in dict.fromkeys(entry(f).norm for f in names()) if n]
+    return out + [n for n in TRAINABLE_NORMS if n not in out]
+
+
+def family_axes() -> dict[str, Axis]:
+    """Every registered family's own sweep axes by column name (``Family.axes``)."""
+    return {a.name: a for f in names() for a in entry(f).axes}
 
 
 def flops_columns(config: dict) -> dict:
