@@ -240,8 +240,9 @@ def _predict(args: argparse.Namespace) -> int:
 
 
 def add_parser(subparsers) -> None:
-    p = subparsers.add_parser("eval", help="evaluator training and Table 2 metrics",
-                              description="Train the text–motion evaluator; score generated motion.")
+    p = subparsers.add_parser("eval", help="Table 2 metrics of generated motion; motion prediction",
+                              description="Score generated motion (Table 2) and motion prediction; the evaluator "
+                                          "itself trains with `handx train evaluator`.")
     sub = p.add_subparsers(dest="eval_command", metavar="SUBCOMMAND")
     sub.required = True
 

@@ -135,7 +135,7 @@ def _cache(args: argparse.Namespace) -> int:
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser("text", help="tokenizer, T5 encoder, T5 pretraining, embedding cache",
+    p = subparsers.add_parser("text", help="SentencePiece model, T5 encoding, embedding cache",
                               description="Text stack: SentencePiece tokenizer, T5 encoder (Hugging Face folders "
                                           "or pretrained here), and the frozen-encoder embedding cache.")
     p.set_defaults(func=lambda a: (p.print_help(), 0)[1])
