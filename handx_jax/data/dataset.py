@@ -356,7 +356,7 @@ def _chunk_moments(motion_path: str, idx: np.ndarray) -> dict[str, tuple[np.ndar
     from handx_jax import representation as rep
 
     m = np.asarray(np.load(motion_path, mmap_mode="r")[idx], dtype=np.float64)
-    return {name: rep.preset_moments(name, rep.NORM_PRESETS[name].featurize(m)) for name in stats_names()}
+    return {name: rep.preset_moments(name, rep.norm_preset(name).featurize(m)) for name in stats_names()}
 
 
 def stats_names() -> list[str]:

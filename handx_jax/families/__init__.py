@@ -62,8 +62,9 @@ class Axis:
 class Family:
     """What the rest of the system knows about a family; nothing outside its module names it.
 
-    ``norm``: the dataset normalisation statistics its motion is normalised with (a ``stats.npz``
-    prefix, ``representation.NORM_PRESETS``; the dataset computes every one a family declares).
+    ``norm``: how its motion is normalised, ``module:ATTRIBUTE`` of a ``representation.NormPreset``
+    (its featuriser, std floor and eps; its name is the ``stats.npz`` prefix; the dataset computes every
+    one a family declares).
     ``encoder``: ``handx train NAME`` takes ``--encoder`` (its runs read the frozen text encoder's cache).
     ``needs``: families whose trained run it is trained from, one shared sweep step each, passed as
     ``--NAME STEP_DIR`` (the AR LM: its tokenizer). ``after_train``: commands that finish such a step
@@ -93,15 +94,20 @@ class Family:
     axes: tuple[Axis, ...] = ()
     tasks: tuple[str, ...] = ("text2motion",)
 
+    def norm_preset(self):
+        """The ``representation.NormPreset`` that ``norm`` names (None without one); its ``name`` is the
+        family's ``stats.npz`` prefix."""
+        return _resolve(self.norm) if self.norm else None
+
 
 FAMILIES: dict[str, Family] = {
     "diffusion": Family("handx_jax.families.diffusion", "the treble-residual diffusion model (paper §5.1)",
-                        norm="diffusion", encoder=True, flops="handx_jax.families.diffusion.flops:from_config",
+                        norm="handx_jax.representation:DIFFUSION_NORM", encoder=True, flops="handx_jax.families.diffusion.flops:from_config",
                         # DDIM-50: what every diffusion sweep has generated with (DDPM takes all 1,000 steps)
                         sweep_sample=("sample.sampler=ddim", "sample.steps=50"),
                         tasks=("text2motion", "inbetween", "keyframes", "wrist", "reaction", "long", "prediction")),
     "tokenizer": Family("handx_jax.families.tokenizer", "the FSQ motion tokenizer of the AR family (paper §5.2)",
-                        norm="ar", results=False, tasks=(),
+                        norm="handx_jax.representation:AR_NORM", results=False, tasks=(),
                         after_train=(("handx", "tokenize", "--tokenizer", "{out}", "--data", "{data}"),)),
     "ar": Family("handx_jax.families.ar", "the text-prefix LM over FSQ motion tokens (paper §5.2)",
                  encoder=True, needs=("tokenizer",), table="table3", tasks=("text2motion", "prediction"),
@@ -118,7 +124,7 @@ TRAINABLES: dict[str, str] = {
 
 # The normalisation statistics a dataset's stats.npz holds besides the families' (``Family.norm``): those
 # of the trainables that read the dataset's motion (the evaluator's).
-TRAINABLE_NORMS: tuple[str, ...] = ("evaluator",)
+TRAINABLE_NORMS: tuple[str, ...] = ("handx_jax.representation:EVALUATOR_NORM",)
 
 # Families registered from outside the package (``register``), as NAME=MODULE pairs: children of this
 # process (the sweep launcher's ``handx`` stages) find them here. MODULE holds ``REGISTRY: Family``.
@@ -171,11 +177,25 @@ def get_family(name: str) -> ModuleType:
     return importlib.import_module(entry(name).module)
 
 
-def stats_names() -> list[str]:
-    """The statistics a dataset's ``stats.npz`` holds: each one a registered family normalises with
+def _resolve(path: str):
+    module, _, attr = path.partition(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+def norm_presets() -> dict:
+    """Every normalisation the registry declares, by its ``stats.npz`` prefix: each registered family's
     (``Family.norm``, in registry order), then the trainables' (``TRAINABLE_NORMS``)."""
-    out = [n for n in dict.fromkeys(entry(f).norm for f in names()) if n]
-    return out + [n for n in TRAINABLE_NORMS if n not in out]
+    paths = [entry(f).norm for f in names() if entry(f).norm] + list(TRAINABLE_NORMS)
+    out: dict = {}
+    for p in dict.fromkeys(paths):
+        preset = _resolve(p)
+        out.setdefault(preset.name, preset)
+    return out
+
+
+def stats_names() -> list[str]:
+    """The statistics a dataset's ``stats.npz`` holds (:func:`norm_presets`)."""
+    return list(norm_presets())
 
 
 def family_axes() -> dict[str, Axis]:

@@ -39,6 +39,7 @@ from handx_jax.optim import OptimConfig
 from handx_jax.train import TrainConfig
 
 FAMILY = "diffusion"
+NORM = entry(FAMILY).norm_preset().name  # the stats.npz prefix its registry entry declares
 FIELDS = ("left", "right", "interaction")
 NORM_FILE = "norm_stats.npz"
 
@@ -193,7 +194,7 @@ def load_train_data(cfg: DiffusionRunConfig) -> TrainData:
     clips = np.asarray(ds.split("train", 1.0 if pairs else cfg.data.fraction))
     if not len(clips):
         raise DataError("the train split is empty", path=cfg.data.path)
-    norm = rep.NormStats.from_npz_dict(ds.stats, "diffusion")
+    norm = rep.NormStats.from_npz_dict(ds.stats, NORM)
     xs = [norm.normalize(rep.to_diffusion(np.asarray(ds.motion[clips[s:s + 1024]], np.float64)))
           for s in range(0, len(clips), 1024)]
     x = np.concatenate(xs).astype(np.float32)
@@ -272,7 +273,7 @@ def train(run_dir: str | os.PathLike, cfg: DiffusionRunConfig, *, stop_at: int |
     loop.check_resume(run_dir, {**record, "train": to_dict(cfg.train)}, RESUME_KEYS)
     run_dir.mkdir(parents=True, exist_ok=True)
     if jax.process_index() == 0:
-        np.savez(run_dir / NORM_FILE, **data.norm.to_npz_dict("diffusion"))
+        np.savez(run_dir / NORM_FILE, **data.norm.to_npz_dict(NORM))
     model = make_model(cfg.model, cfg.train.bf16)
     L = int(data.cache.meta["Lmax"])
 
@@ -368,7 +369,7 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
                         f"({want})", path=enc.path or cfg.data.encoder)
     params, step = load_params(run_dir, ema=ema)
     with np.load(run_dir / NORM_FILE) as z:
-        norm = rep.NormStats.from_npz_dict(dict(z), "diffusion")
+        norm = rep.NormStats.from_npz_dict(dict(z), NORM)
     used_ema = bool(ema and cfg.train.ema_decay > 0)
     return DiffusionRun(run_dir, cfg, make_model(cfg.model), params, step, norm, enc, used_ema)
 
