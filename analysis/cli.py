@@ -14,6 +14,7 @@ import json
 import sys
 from typing import Any, Sequence
 
+from handx_jax.cliargs import deprecated_flag
 from handx_jax.io import DataError
 
 _SUFFIX = {"k": 1e3, "m": 1e6, "g": 1e9, "t": 1e12, "p": 1e15, "e": 1e18}
@@ -99,7 +100,7 @@ def _cmd_paper(args: argparse.Namespace) -> int:
     from analysis.fits import compare_models, select_xy
 
     rows = paper.load_table("B")
-    fits = {y: paper.fig4_fit(y, n_boot=args.n_boot, seed=args.seed, level=args.level)
+    fits = {y: paper.fig4_fit(y, n_boot=args.n_boot, seed=args.seed, level=args.confidence)
             for y in ("rprec_top1", "rprec_top2", "rprec_top3", "fid")}
     main = fits["rprec_top3"]
     xs, ys, _ = select_xy(rows, "flops", "rprec_top3")
@@ -181,7 +182,7 @@ def _one_block(rows: Sequence[dict[str, Any]], y: str) -> None:
         found = "; ".join(f"block {b}: {', '.join(v[:3])}{' …' if len(v) > 3 else ''}"
                           for b, v in sorted(blocks.items()))
         raise DataError(f"{y} was scored at {len(blocks)} R-Precision blocks ({found}); they are different "
-                        f"metrics: rescore the runs at one block (handx sweep rescore OUT --rprec-block N)")
+                        f"metrics: rescore the runs at one block (handx sweep rescore --out OUT --block N)")
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
@@ -193,7 +194,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     _one_block(rows, args.y)
     rows = _replicates(rows, args)
     _left_out(args, dropped_rows(rows, args.x, args.y))
-    fit = fit_rows(rows, args.x, args.y, level=args.level, n_boot=args.n_boot, seed=args.seed, method=args.method)
+    fit = fit_rows(rows, args.x, args.y, level=args.confidence, n_boot=args.n_boot, seed=args.seed, method=args.method)
     xcol = resolve_column(args.x, rows)
     convention = FLOPS_CONVENTIONS.get(xcol)
     if args.json:
@@ -208,7 +209,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if args.plot:
         from analysis.plots import plot_scaling, save_figure
 
-        fig = plot_scaling(rows, args.x, args.y, fit=fit, name=args.name or "runs", level=args.level)
+        fig = plot_scaling(rows, args.x, args.y, fit=fit, name=args.name or "runs", level=args.confidence)
         print(f"wrote {save_figure(fig, args.plot)}", file=sys.stderr)
     return 0
 
@@ -224,7 +225,7 @@ def _cmd_fig4(args: argparse.Namespace) -> int:
     _one_block(rows, "rprec_top3")
     rows = _replicates(rows, args)
     _left_out(args, dropped_rows(rows, "flops_paper", "rprec_top3"))
-    cmp = compare_with_fig4(rows, level=args.level, n_boot=args.n_boot, seed=args.seed)
+    cmp = compare_with_fig4(rows, level=args.confidence, n_boot=args.n_boot, seed=args.seed)
     if args.json:
         _emit_json(cmp.to_dict())
     else:
@@ -252,7 +253,7 @@ def _cmd_factors(args: argparse.Namespace) -> int:
     factors = [f.strip() for f in args.factors.split(",") if f.strip()]
     cols = [resolve_column(f, rows) for f in factors]
     _left_out(args, select_rows(rows, (*cols, resolve_column(args.y, rows)), log_axis=cols)[1])
-    fit = fit_factors(rows, factors, args.y, level=args.level)
+    fit = fit_factors(rows, factors, args.y, level=args.confidence)
     if args.json:
         _emit_json(fit.to_dict())
     else:
@@ -303,7 +304,7 @@ def _cmd_extrapolate(args: argparse.Namespace) -> int:
     _one_block(rows, args.y)
     rows = _replicates(rows, args)
     _left_out(args, dropped_rows(rows, args.x, args.y))
-    ext = extrapolate(rows, args.cut, x=args.x, y=args.y, level=args.level, n_boot=args.n_boot, seed=args.seed)
+    ext = extrapolate(rows, args.cut, x=args.x, y=args.y, level=args.confidence, n_boot=args.n_boot, seed=args.seed)
     if args.json:
         _emit_json(ext.to_dict())
     else:
@@ -347,7 +348,8 @@ def _add_fit_options(p: argparse.ArgumentParser, *, xy: bool = True) -> None:
                             "flops_analytic, compute (train_flops), params, data (data_fraction), samples "
                             "(samples_seen) (default: flops)")
         p.add_argument("--y", default="rprec_top3", help="metric column (default: rprec_top3)")
-    p.add_argument("--level", type=float, default=0.95, help="confidence level of CIs and intervals (default: 0.95)")
+    deprecated_flag(p, "--level", p.add_argument("--confidence", type=float, default=0.95,
+                                                 help="confidence level of CIs and intervals (default: 0.95)"))
     p.add_argument("--n-boot", type=int, default=2000, help="bootstrap resamples (default: 2000)")
     p.add_argument("--seed", type=int, default=0, help="bootstrap seed (default: 0)")
 
@@ -430,7 +432,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="comma-separated columns or aliases, two or more (default: flops_analytic,samples: "
                         "per-sample FLOPs and samples seen, whose product is training compute / 3)")
     q.add_argument("--y", default="rprec_top3", help="metric column (default: rprec_top3)")
-    q.add_argument("--level", type=float, default=0.95, help="confidence level of the CIs (default: 0.95)")
+    deprecated_flag(q, "--level", q.add_argument("--confidence", type=float, default=0.95,
+                                                 help="confidence level of the CIs (default: 0.95)"))
     q.add_argument("--json", action="store_true", help="print the fit as JSON")
     _add_mixed_evaluators(q)
     _add_replicates(q)

@@ -114,7 +114,7 @@ def compare_with_fig4(rows: Sequence[Mapping[str, Any]], *, level: float = 0.95,
     missing = [str(r.get("run_id")) for r in runs if r.get(X) is None]
     if missing:
         raise DataError(f"runs without {X} (the paper's FLOPs convention), e.g. {', '.join(missing[:3])}: a "
-                        f"diffusion run's row gets it from its config (handx sweep collect rebuilds the table)")
+                        f"diffusion run's row gets it from its config (handx sweep collect --out OUT rebuilds the table)")
     if len(runs) < 3:
         raise DataError(f"need at least 3 scored runs to fit, got {len(runs)}")
     fit = fit_rows(runs, x=X, y="rprec_top3", level=level, n_boot=n_boot, seed=seed)
@@ -124,7 +124,7 @@ def compare_with_fig4(rows: Sequence[Mapping[str, Any]], *, level: float = 0.95,
     caveats = []
     if blocks != (FIG4_BLOCK,):
         caveats.append(f"R-Precision block {', '.join(map(str, blocks)) or 'unrecorded'}, Fig. 4's is {FIG4_BLOCK} "
-                       f"(rescore: handx sweep rescore OUT --rprec-block {FIG4_BLOCK})")
+                       f"(rescore: handx sweep rescore --out OUT --block {FIG4_BLOCK})")
     if fractions != (FIG4_FRACTION,):
         caveats.append(f"data fraction {', '.join(f'{x:g}' for x in fractions) or 'unrecorded'}, Fig. 4's is "
                        f"{FIG4_FRACTION:g}")

@@ -595,3 +595,15 @@ def extrapolate(rows: Sequence[Mapping[str, Any]], cut: float, *, x: str = "flop
     pts.sort(key=lambda p: p.x)
     return Extrapolation(cut=float(cut), x_name=xc, y_name=yc, fit=fit, points=tuple(pts),
                          fit_run_ids=tuple(str(used[i]["run_id"]) for i in np.flatnonzero(below)))
+
+
+def chance_level(y: str, rows: Sequence[Mapping[str, Any]] = (), block: int | None = None) -> float | None:
+    """Chance value of an R-Precision column: top-k of a block of B candidates is k/B (3/32 for top-3
+    at block 32). The block comes from ``block``, else the rows' ``rprec_block``, else 32 (Table 2)."""
+    if not y.startswith("rprec_top"):
+        return None
+    k = int(y[len("rprec_top"):])
+    if block is None:
+        blocks = {r.get("rprec_block") for r in rows if r.get("rprec_block") is not None}
+        block = blocks.pop() if len(blocks) == 1 else 32
+    return k / block

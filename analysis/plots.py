@@ -26,7 +26,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from analysis.fits import Extrapolation, LogLinearFit, fit_log_linear, resolve_column, select_xy
+from analysis.fits import Extrapolation, LogLinearFit, chance_level, fit_log_linear, resolve_column, select_xy
 from analysis.schema import COLUMN_BY_NAME, GROUND_TRUTH, LOWER_IS_BETTER, METRICS, column, config_label
 from analysis.tables import best_rows
 from handx_jax.io import atomic_write_bytes
@@ -122,18 +122,6 @@ def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = DPI) -> Path
     with mpl.rc_context(STYLE):
         fig.savefig(buf, format=fmt, dpi=dpi, metadata={"Software": "handx-jax analysis"} if fmt == "png" else None)
     return atomic_write_bytes(path, buf.getvalue())
-
-
-def chance_level(y: str, rows: Sequence[Mapping[str, Any]] = (), block: int | None = None) -> float | None:
-    """Chance value of an R-Precision column: top-k of a block of B candidates is k/B (3/32 for top-3
-    at block 32). The block comes from ``block``, else the rows' ``rprec_block``, else 32 (Table 2)."""
-    if not y.startswith("rprec_top"):
-        return None
-    k = int(y[len("rprec_top"):])
-    if block is None:
-        blocks = {r.get("rprec_block") for r in rows if r.get("rprec_block") is not None}
-        block = blocks.pop() if len(blocks) == 1 else 32
-    return k / block
 
 
 def _draw_chance(ax: Any, y: str, rows: Sequence[Mapping[str, Any]], block: int | None) -> None:

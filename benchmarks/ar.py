@@ -46,7 +46,8 @@ from handx_jax.families.ar import decode as AD  # noqa: E402
 from handx_jax import hostdevices  # noqa: E402
 from handx_jax.models import fsq as Q  # noqa: E402
 from handx_jax.models import prefix_lm as P  # noqa: E402
-from handx_jax.train import OptimConfig, TrainConfig, train  # noqa: E402
+from handx_jax.optim import OptimConfig  # noqa: E402
+from handx_jax.train import TrainConfig, TrainSpec, train  # noqa: E402
 from _peak import device_peak, emit, matmul_peak  # noqa: E402
 
 
@@ -67,9 +68,9 @@ def bench_tokenizer(preset: str, codebook: int, batch_size: int, steps: int, bf1
         return Q.tokenizer_loss(xhat.astype(jnp.float32), batch["x"], mean, scale)
 
     rows = []
-    train(work / f"tok_{preset}", init=lambda r: Q.init_tokenizer(cfg, r, 48)[1], loss=loss,
-          get_batch=lambda idx: {"x": x[idx]}, num_examples=n, cfg=_loop_cfg(batch_size, steps, bf16),
-          config={"family": "tokenizer"}, on_log=rows.append)
+    train(work / f"tok_{preset}", TrainSpec(
+        init=lambda r: Q.init_tokenizer(cfg, r, 48)[1], loss=loss, get_batch=lambda idx: {"x": x[idx]},
+        num_examples=n, cfg=_loop_cfg(batch_size, steps, bf16), config={"family": "tokenizer"}), on_log=rows.append)
     fwd = Q.forward_flops(cfg, 48)
     return {"preset": preset, "codebook": codebook, "width": cfg.width, "params": Q.param_count(cfg),
             "flops_per_sample": fwd, "batch_size": batch_size, "bf16": bf16,
@@ -86,10 +87,11 @@ def bench_lm(preset: str, nb_code: int, text_len: int, text_dim: int, batch_size
     text = r.normal(size=(n, text_len, text_dim)).astype(np.float16)
     mask = np.ones((n, text_len), bool)
     rows = []
-    train(work / f"lm_{preset}", init=lambda k: P.init_lm(cfg, k, text_len)[1],
-          loss=lambda p, b, k, t: P.lm_loss(model, p, b["text"].astype(jnp.float32), b["mask"], b["codes"]),
-          get_batch=lambda idx: {"codes": codes[idx], "text": text[idx], "mask": mask[idx]}, num_examples=n,
-          cfg=_loop_cfg(batch_size, steps, bf16, microbatch), config={"family": "ar"}, on_log=rows.append)
+    train(work / f"lm_{preset}", TrainSpec(
+        init=lambda k: P.init_lm(cfg, k, text_len)[1],
+        loss=lambda p, b, k, t: P.lm_loss(model, p, b["text"].astype(jnp.float32), b["mask"], b["codes"]),
+        get_batch=lambda idx: {"codes": codes[idx], "text": text[idx], "mask": mask[idx]}, num_examples=n,
+        cfg=_loop_cfg(batch_size, steps, bf16, microbatch), config={"family": "ar"}), on_log=rows.append)
     sps = rows[-1]["samples_per_s"]
     return {"preset": preset, "nb_code": nb_code, **P.param_counts(cfg), "flops_per_sample": P.forward_flops(cfg, text_len),
             "batch_size": batch_size, "microbatch": microbatch, "bf16": bf16, "samples_per_s": sps,

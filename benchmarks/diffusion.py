@@ -41,7 +41,7 @@ from handx_jax.families.diffusion import DiffusionRunConfig, apply_overrides, ma
 from handx_jax import hostdevices
 from handx_jax.families.diffusion.sampling import compile_sampler
 from handx_jax.models.dit import PRESETS, forward_flops, init_denoiser, param_count
-from handx_jax.train import train
+from handx_jax.train import TrainSpec, train
 from handx_jax.xla_options import inference_options
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/_peak.py, also when loaded by path
@@ -60,10 +60,10 @@ def bench_train(preset: str, cfg: DiffusionRunConfig, text_len: int, batch_size:
                                 f"train.ckpt_every={10 * steps}", "train.wandb=disabled", f"train.bf16={bf16}"])
     rows = []
     t0 = time.perf_counter()
-    train(work / f"train_{preset}", init=lambda r: init_denoiser(m, r, text_len)[1],
-          loss=make_loss(make_model(m, bf16), cfg.diffusion),
-          get_batch=lambda idx: {"x0": x0[idx], "text": text[idx], "mask": mask[idx]}, num_examples=n,
-          cfg=cfg.train, config={"family": "diffusion"}, on_log=rows.append)
+    train(work / f"train_{preset}", TrainSpec(
+        init=lambda r: init_denoiser(m, r, text_len)[1], loss=make_loss(make_model(m, bf16), cfg.diffusion),
+        get_batch=lambda idx: {"x0": x0[idx], "text": text[idx], "mask": mask[idx]}, num_examples=n,
+        cfg=cfg.train, config={"family": "diffusion"}), on_log=rows.append)
     return {"batch_size": batch_size, "bf16": bf16, "steps_timed": steps, "samples_per_s": rows[-1]["samples_per_s"],
             "first_interval_samples_per_s": rows[0]["samples_per_s"], "wall_s": time.perf_counter() - t0}
 

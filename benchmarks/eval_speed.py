@@ -98,7 +98,7 @@ def main(argv=None) -> dict:
         source = {"evaluator": a.evaluator, "reference": str(ds.root)}
         provenance = {"dataset": ds.fingerprint, "eval_level": ev.policy.eval_level, "clips": f"first {N}"}
     else:
-        from handx_jax.text.t5 import load_hf_t5_encoder
+        from handx_jax.text.hf import load_hf_t5_encoder
 
         enc = load_hf_t5_encoder(a.encoder)
         gt, *prompts = synthetic(N)

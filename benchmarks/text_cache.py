@@ -23,7 +23,8 @@ import jax.numpy as jnp
 from handx_jax.text import tokenizer as tk
 from handx_jax.text.cache import TextCache, build_cache
 from handx_jax.text.pretrain import model_config
-from handx_jax.text.t5 import T5EncoderModel, count_params, save_hf_t5_encoder
+from handx_jax.text.hf import save_hf_t5_encoder
+from handx_jax.text.t5 import T5EncoderModel, count_params
 from handx_jax.text.toy import write_toy_dataset
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/_peak.py, also when loaded by path

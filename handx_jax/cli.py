@@ -1,10 +1,10 @@
 """The ``handx`` command. Each area registers its own subcommand group from its ``cli`` module.
 
     handx data ...      corpus synthesis, import/export, statistics, rendering   (handx_jax.data.cli)
-    handx text ...      tokenizer, T5 encoder, pretraining, embedding cache       (handx_jax.text.cli)
-    handx train ...     train a model family (handx_jax.families.FAMILIES)        (handx_jax.commands.train)
+    handx text ...      SentencePiece model, T5 encoding, embedding cache         (handx_jax.text.cli)
+    handx train ...     train a family, the evaluator or a T5 (families registry) (handx_jax.commands.train)
     handx generate ...  sample motion from text, with masked-constraint tasks    (handx_jax.commands.generate)
-    handx eval ...      train the evaluator, score generated motion              (handx_jax.commands.eval)
+    handx eval ...      score generated motion, motion prediction                (handx_jax.commands.eval)
     handx params ...    parameter counts and analytic FLOPs                      (handx_jax.commands.params)
     handx sweep ...     launch sweeps locally or on SLURM, resumable             (sweeps.cli)
     handx analyze ...   scaling fits, tables and plots                           (analysis.cli)
@@ -12,6 +12,10 @@
     handx standard ...  the packaged standard evaluator and its corpus           (handx_jax.standard)
     handx import ...    the released HandX weights → run / evaluator folders      (handx_jax.interop.cli)
     handx export ...    a diffusion run → the released HandX checkpoint format    (handx_jax.interop.cli)
+
+Every command spells a concept one way (``handx_jax/cliargs.py``: ``--data``, ``--out``, ``--block``,
+``--level``, ``--confidence``, ``--steps``, ``--sample-steps``, ``--encoder``); the spellings of the
+release before still work and print one line naming the new one.
 
 Subcommand modules import heavy dependencies (jax, matplotlib) inside their handlers, so ``--help``
 stays fast.
@@ -44,7 +48,9 @@ GROUPS = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    from handx_jax.cliargs import Parser
+
+    p = Parser(  # subcommands' parsers are of the same class (argparse's parser_class)
         prog="handx",
         description="handx-jax: text-to-bimanual-hand-motion (HandX) in JAX, built for scaling sweeps.",
     )

@@ -83,7 +83,7 @@ def model_stages(out: Path, data: Path, steps: int | None, eval_limit: int, eval
     enc, sweep = str(encoder_dir()), out / "sweep"
     _handx("standard", "info")
     _handx("text", "cache", "--data", str(data), "--encoder", enc, "--nn-check", "500")
-    _handx("eval", "run", "--ground-truth", "--reference", str(data), "--replications", "10")
+    _handx("eval", "run", "--ground-truth", "--data", str(data), "--replications", "10")
     # The short version of `make sweep-cpu` (sweeps/diffusion_cpu_study.py, preset demo): its three sizes on all
     # the prefix's train clips, steps growing with size, two runs at a time, each scored by the standard evaluator.
     _handx("sweep", "run", str(SWEEP), "--preset", "demo", *(("--arg", f"steps={steps}") if steps else ()),
@@ -115,8 +115,10 @@ STUDY = Path(__file__).resolve().parent.parent / "docs" / "results" / "cpu_study
 def rises(rows: list[dict], fit: dict) -> tuple[bool, str]:
     """Whether a sweep's fit shows the scaling (issue 31 item 4): a positive slope and the largest run's
     top-3 interval above chance (k/block), with the numbers that decide it."""
+    from analysis.fits import chance_level
+
     big = max(rows, key=lambda r: r["train_flops"])
-    chance = 3 / big["rprec_block"]
+    chance = chance_level("rprec_top3", block=big["rprec_block"])
     lo = big["rprec_top3"] - big["rprec_top3_ci"]
     ok = fit["slope"] > 0 and lo > chance
     return ok, (f"slope {fit['slope']:+.4f} per decade (95% CI [{fit['slope_ci'][0]:.4f}, {fit['slope_ci'][1]:.4f}]), "

@@ -11,6 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
+from handx_jax.data.dataset import TEXT_FIELDS
 from handx_jax.io import DataError
 
 
@@ -79,14 +80,14 @@ def with_records(prompts: Sequence[Prompt], ds, clips) -> list[Prompt]:
 
 
 def split_prompts(ds, split: str, limit: int | None = None, level: int = -1):
-    """Batch mode's prompts (``handx generate --reference``, ``handx eval prediction``): the clips of a
+    """Batch mode's prompts (``handx generate --data``, ``handx eval prediction``): the clips of a
     dataset split (at most ``limit``: shuffled with seed 42, the first ``limit`` taken, sorted back, as
     the reference selects its evaluation clips), their captions at ``level`` and their motion.
     Returns (clip indices, prompts, motions (float32, one per clip))."""
     clips = np.asarray(ds.split(split))
     if limit and limit < len(clips):
         clips = np.sort(np.random.default_rng(42).permutation(clips)[:limit])
-    prompts = [Prompt(*(ds.texts[c][f][level] for f in ("left", "right", "interaction"))) for c in clips]
+    prompts = [Prompt(*(ds.texts[c][f][level] for f in TEXT_FIELDS)) for c in clips]
     return clips, prompts, [np.asarray(ds.motion[c], np.float32) for c in clips]
 
 

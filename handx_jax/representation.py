@@ -441,15 +441,19 @@ class NormStats:
             if f"{name}_eps" in d:
                 eps = float(np.asarray(d[f"{name}_eps"]))
             else:
-                eps = NORM_PRESETS[name].eps if name in NORM_PRESETS else 0.0
+                try:
+                    eps = norm_preset(name).eps
+                except ValueError:  # statistics no registered family or trainable declares
+                    eps = 0.0
         return cls(mean=mean, std=std, eps=eps)
 
 
 @dataclass(frozen=True)
 class NormPreset:
     """How stats are computed for one representation (§1.8, §5.3): ``featurize(joints, convention)`` →
-    features ending in ``feature_shape``. Which presets a dataset's ``stats.npz`` holds is what the family
-    registry declares (``Family.norm``) plus the evaluator's."""
+    features ending in ``feature_shape``; ``name`` is its ``stats.npz`` prefix. Which presets a family
+    normalises with, and so which a dataset's ``stats.npz`` holds, is the registry's (``Family.norm``,
+    ``families.TRAINABLE_NORMS``; :func:`norm_preset`)."""
 
     name: str
     feature_shape: tuple[int, ...]
@@ -458,17 +462,25 @@ class NormPreset:
     featurize: Callable[..., np.ndarray] | None = None
 
 
-NORM_PRESETS: dict[str, NormPreset] = {
-    # §1.8: per (joint, channel), std < 1e-4 → 1, no eps.
-    "diffusion": NormPreset("diffusion", DIFFUSION_SHAPE, min_std=1e-4, featurize=to_diffusion),
-    # §1.8: per 288-d feature, std < 1e-6 → 1, loaders add 1e-6.
-    "ar": NormPreset("ar", (AR_DIM,), min_std=1e-6, eps=1e-6,
-                     featurize=lambda j, convention="paper": to_ar(j, convention=convention)),
-    # §5.3 uses shipped mean/std_can_pos whose floor is unpublished; 1e-4 (as diffusion) maps the
-    # identically-zero right-wrist features to std 1.
-    "evaluator": NormPreset("evaluator", (EVALUATOR_DIM,), min_std=1e-4,
-                            featurize=lambda j, convention="paper": to_evaluator(j)),
-}
+# The normalisation of each representation. §1.8: per (joint, channel), std < 1e-4 → 1, no eps.
+DIFFUSION_NORM = NormPreset("diffusion", DIFFUSION_SHAPE, min_std=1e-4, featurize=to_diffusion)
+# §1.8: per 288-d feature, std < 1e-6 → 1, loaders add 1e-6.
+AR_NORM = NormPreset("ar", (AR_DIM,), min_std=1e-6, eps=1e-6,
+                     featurize=lambda j, convention="paper": to_ar(j, convention=convention))
+# §5.3 uses shipped mean/std_can_pos whose floor is unpublished; 1e-4 (as diffusion) maps the
+# identically-zero right-wrist features to std 1.
+EVALUATOR_NORM = NormPreset("evaluator", (EVALUATOR_DIM,), min_std=1e-4,
+                            featurize=lambda j, convention="paper": to_evaluator(j))
+
+
+def norm_preset(name: str) -> NormPreset:
+    """The preset the registry declares under the ``stats.npz`` prefix ``name`` (``families.norm_presets``)."""
+    from handx_jax.families import norm_presets
+
+    presets = norm_presets()
+    if name not in presets:
+        raise ValueError(f"unknown normalisation preset {name!r}; expected one of {tuple(presets)}")
+    return presets[name]
 
 
 def _iter_chunks(x: np.ndarray | Iterable[np.ndarray], chunk_size: int) -> Iterator[np.ndarray]:
@@ -536,13 +548,13 @@ def compute_preset_stats(kind: str, features: np.ndarray | Iterable[np.ndarray],
 
     Every axis before the preset's feature shape is reduced (e.g. clips and frames).
     """
-    pr = _preset(kind)
+    pr = norm_preset(kind)
     flat = (_flat_features(kind, c) for c in _iter_chunks(features, chunk_size))
     return compute_norm_stats(flat, axis=0, min_std=pr.min_std, eps=pr.eps, chunk_size=chunk_size)
 
 
 def _flat_features(kind: str, c: np.ndarray) -> np.ndarray:
-    fs = _preset(kind).feature_shape
+    fs = norm_preset(kind).feature_shape
     if c.ndim <= len(fs) or tuple(c.shape[-len(fs):]) != fs:
         raise ValueError(f"{kind} stats: features must end in {fs}, got {c.shape}")
     return c.reshape(-1, *fs)
@@ -557,15 +569,8 @@ def preset_moments(kind: str, features: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 def stats_from_moments(kind: str, s: np.ndarray, ss: np.ndarray, n: int) -> NormStats:
     """Mean/std under preset ``kind`` from summed :func:`preset_moments`."""
-    pr = _preset(kind)
+    pr = norm_preset(kind)
     return _stats_from_sums(s, ss, n, min_std=pr.min_std, eps=pr.eps)
-
-
-def _preset(kind: str) -> NormPreset:
-    try:
-        return NORM_PRESETS[kind]
-    except KeyError:
-        raise ValueError(f"unknown normalisation preset {kind!r}; expected one of {tuple(NORM_PRESETS)}") from None
 
 
 def motion_norm_stats(kind: str, motion_NxTx2x21x3: np.ndarray, *, convention: Convention = "paper",
@@ -575,7 +580,7 @@ def motion_norm_stats(kind: str, motion_NxTx2x21x3: np.ndarray, *, convention: C
     Features are computed ``chunk_size`` clips at a time and reduced over clips and frames, so each
     clip counts once (§1.8).
     """
-    featurize = _preset(kind).featurize
+    featurize = norm_preset(kind).featurize
     m = motion_NxTx2x21x3
     if m.ndim != 5 or tuple(m.shape[2:]) != (2, sk.NUM_JOINTS, 3):
         raise ValueError(f"motion_norm_stats: expected (N, T, 2, 21, 3), got {tuple(m.shape)}")

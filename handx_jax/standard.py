@@ -28,9 +28,9 @@ rows are on the full test split.
 
     handx standard info [--json]                    the card
     handx standard corpus --out DIR [--clips M]     build the standard corpus (or its first M clips)
-    handx standard check DIR                        is DIR the standard corpus or a prefix of it?
+    handx standard check --data DIR                 is DIR the standard corpus or a prefix of it?
     handx standard package --data DIR --encoder ENC --evaluator E --out ASSETS   (maintainers)
-    handx eval run --generated G.npz --reference DIR    (no --evaluator: the standard one)
+    handx eval run --generated G.npz --data DIR         (no --evaluator: the standard one)
 """
 
 from __future__ import annotations
@@ -576,7 +576,7 @@ def card_markdown(card: Mapping[str, Any]) -> str:
     ]
     for b, r in gt.items():
         lines.append(f"| {b} | {_row(r)} |")
-    lines += ["", f"{c['test_clips']:,} test prompts. Reproduce: `handx eval run --ground-truth --reference DIR "
+    lines += ["", f"{c['test_clips']:,} test prompts. Reproduce: `handx eval run --ground-truth --data DIR "
               f"[--block 16]` on the standard corpus.", ""]
     v = card.get("validity")
     if v:
@@ -678,7 +678,9 @@ def add_parser(subparsers) -> None:
     c.add_argument("--quiet", action="store_true", help="no progress bar")
     c.set_defaults(func=_corpus)
     k = sub.add_parser("check", help="is a dataset the standard corpus (or a prefix)? if not, say why and exit 2")
-    k.add_argument("data", help="dataset directory")
+    from handx_jax.cliargs import deprecated_positional
+
+    deprecated_positional(k, k.add_argument("--data", required=True, metavar="DIR", help="dataset directory"), "data")
     k.add_argument("--json", action="store_true")
     k.set_defaults(func=_check)
     from handx_jax.validity.cli import add_parser as add_validity

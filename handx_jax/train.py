@@ -1,20 +1,20 @@
-"""One training loop for every model family: state, jitted step, data order, checkpoints, logging.
+"""One training loop for every model family: state, jitted step, data order, checkpoints.
 
-A family supplies ``init(rng) -> params`` and ``loss(params, batch, rng, train) -> (loss, aux)``
-plus a ``get_batch(indices) -> pytree of arrays``; everything else lives here:
+A family hands :func:`train` a :class:`TrainSpec`: ``init(rng) -> params``, ``loss(params, batch, rng,
+train) -> (loss, aux)``, a ``get_batch(indices) -> pytree of arrays``, its ``TrainConfig`` and the run
+record; everything else lives here, the optimiser in ``handx_jax.optim`` and the run folder's files in
+``handx_jax.runlog``:
 
-- AdamW with decoupled weight decay on parameters of ndim ≥ 2 only (reference §3.6), linear warm-up,
-  gradient clipping applied *before* the update (the reference clips after ``opt.step()``, §9.17),
+- The optimiser of ``TrainConfig.optim`` (``optim.py``: AdamW, warm-up and schedule, clipping),
   optional EMA weights, optional bf16 compute (params and optimizer state stay float32).
 - Data order is a pure function of (seed, step): epoch e uses permutation(seed, e). The data
   position is therefore the step, and a resumed run sees exactly the batches it would have seen.
 - orbax checkpoints every ``ckpt_every`` steps and at the end, holding params, optimizer state, EMA,
   step and rng; a killed run resumes from the latest one and ends with the same parameters.
-- Linear warm-up and cosine/constant schedule as traced numbers (:func:`schedule_values`); a warm-up as
-  long as the run or longer is capped at a fifth of it (:func:`effective_warmup`). Each log line's
+- The schedule's numbers are a traced argument of the step (``optim.schedule_values``); each log line's
   ``lr`` is the learning rate the logged step's update really applied.
-- The run folder gets ``config.json`` (atomic), ``metrics.jsonl`` (one fsynced line per log) and
-  ``checkpoints/``; wandb mirrors them (offline by default; WANDB_MODE overrides). Re-running on a
+- The run folder gets ``config.json``, ``metrics.jsonl`` (``runlog.RunLogger``) and
+  ``checkpoints/``. Re-running on a
   folder resumes it, only with the same configuration (:func:`check_resume`), and ``metrics.jsonl`` is
   trimmed to the restored step (step 0 when no checkpoint was written yet), so a killed run never
   logs a step twice.
@@ -45,20 +45,10 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from handx_jax.io import (TREE_CHECKSUMS, DataError, append_jsonl, atomic_write_json, check_finite_params, read_jsonl,
-                          verify_tree_checksum, write_tree_checksum)
+from handx_jax.io import TREE_CHECKSUMS, DataError, check_finite_params, verify_tree_checksum, write_tree_checksum
+from handx_jax.optim import OptimConfig, effective_warmup, learning_rate, optimizer_for, schedule_values
+from handx_jax.runlog import RunLogger
 
-
-@dataclass(frozen=True)
-class OptimConfig:
-    lr: float = 1e-4
-    b1: float = 0.9
-    b2: float = 0.95
-    eps: float = 1e-8
-    weight_decay: float = 5e-6
-    warmup_steps: int = 0
-    schedule: str = "constant"  # "constant" (reference) or "cosine" (decay to 0 at the last step)
-    grad_clip: float = 1.0  # 0 disables
 
 
 @dataclass(frozen=True)
@@ -89,58 +79,6 @@ class TrainConfig:
     optim: OptimConfig = OptimConfig()
 
 
-def effective_warmup(warmup_steps: int, total_steps: int) -> int:
-    """The warm-up a run really uses: as configured, unless it is as long as the run or longer, when it is
-    capped at a fifth of the run (the evaluator trainer's fraction, ``evaluation.training``).
-
-    Capped rather than refused: a family's warm-up is set for its full-length recipe (the reference's
-    8,000 tokenizer and 15,000 LM steps, §4.3/§4.7) and a sweep shortens the run with ``train.steps``
-    alone; refusing would make every short run of every preset restate its warm-up, and uncapped, such a
-    run never reaches its peak lr (issue 30: a 200-step tokenizer ended at lr 5e-6 of 2e-4). A warm-up
-    shorter than the run is the user's choice and is kept."""
-    if total_steps > 0 and warmup_steps >= total_steps:
-        return max(total_steps // 5, 1)
-    return warmup_steps
-
-
-def schedule_values(cfg: OptimConfig, total_steps: int) -> np.ndarray:
-    """The numbers of the learning-rate schedule, [peak lr, warm-up steps, decay end], as float32; the
-    warm-up is :func:`effective_warmup` (capped when it would last the whole run).
-
-    The train step takes them as a traced argument rather than baking them in as constants, so runs
-    that differ only in learning rate, warm-up or length (a sweep's data-fraction axis at fixed epochs,
-    a learning-rate scan, a resumed or extended run) share one compiled step, through the persistent
-    compilation cache, instead of compiling it again each."""
-    if cfg.schedule not in ("constant", "cosine"):
-        raise ValueError(f"unknown schedule {cfg.schedule!r}")
-    warmup = effective_warmup(cfg.warmup_steps, total_steps)
-    if cfg.schedule == "cosine":
-        return np.asarray([cfg.lr, max(warmup, 1), max(total_steps, 2, warmup + 1)], np.float32)
-    return np.asarray([cfg.lr, warmup, max(total_steps, 1)], np.float32)
-
-
-def learning_rate(count, values, schedule: str):
-    """The learning rate at update ``count`` from :func:`schedule_values` (concrete or traced).
-
-    Same values as optax's schedules: "constant" = linear 0 -> lr over the warm-up, then lr
-    (``join_schedules([linear_schedule, constant_schedule])``); "cosine" =
-    ``warmup_cosine_decay_schedule(0, lr, warmup, end)``, decaying to 0 at step ``end``."""
-    lr, warmup, end = values[0], values[1], values[2]
-    c = jnp.asarray(count, jnp.float32)
-    ramp = lr * jnp.clip(c, 0.0, warmup) / jnp.maximum(warmup, 1.0)
-    if schedule == "constant":
-        return jnp.where(c < warmup, ramp, lr)
-    frac = jnp.clip(c - warmup, 0.0, end - warmup) / (end - warmup)
-    return jnp.where(c < warmup, ramp, lr * 0.5 * (1.0 + jnp.cos(jnp.pi * frac)))
-
-
-def optimizer_for(cfg: OptimConfig, lr_fn: Callable) -> optax.GradientTransformation:
-    """Global-norm clipping, then AdamW with ``lr_fn(count)`` and weight decay on matrices only."""
-    decay_mask = lambda p: jax.tree_util.tree_map(lambda x: x.ndim >= 2, p)  # noqa: E731
-    parts = [optax.clip_by_global_norm(cfg.grad_clip)] if cfg.grad_clip > 0 else []
-    parts.append(optax.adamw(lr_fn, b1=cfg.b1, b2=cfg.b2, eps=cfg.eps, weight_decay=cfg.weight_decay,
-                             mask=decay_mask))
-    return optax.chain(*parts)
 
 
 def batch_indices(n: int, batch_size: int, seed: int, step: int) -> np.ndarray:
@@ -231,67 +169,6 @@ def _host_batches(get_batch: Callable[[np.ndarray], Any] | None, steps: range, n
                 fut.cancel()
 
 
-def _versions_record(config_path: Path) -> dict:
-    """config.json's ``versions`` (handx_jax.provenance: python, jax, jaxlib, flax, optax, orbax, numpy):
-    those that started the run. A resume under other versions keeps them and adds ``versions_at_resume``,
-    so the record never claims a single stack for a run trained on two."""
-    from handx_jax.provenance import versions
-
-    now = versions()
-    try:
-        old = json.loads(config_path.read_text()).get("versions") if config_path.exists() else None
-    except (json.JSONDecodeError, AttributeError):
-        old = None
-    if not isinstance(old, dict) or old == now:
-        return {"versions": now}
-    return {"versions": old, "versions_at_resume": now}
-
-
-class RunLogger:
-    """config.json + metrics.jsonl in the run folder, mirrored to wandb (process 0 only)."""
-
-    def __init__(self, run_dir: Path, config: dict, mode: str = "offline"):
-        self.run_dir = Path(run_dir)
-        self.enabled = jax.process_index() == 0
-        self._wandb = None
-        self.metrics_path = self.run_dir / "metrics.jsonl"
-        if not self.enabled:
-            return
-        self.run_dir.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(self.run_dir / "config.json", {**config, **_versions_record(self.run_dir / "config.json")})
-        mode = os.environ.get("WANDB_MODE", mode)
-        if mode != "disabled":
-            try:
-                import wandb
-
-                os.environ.setdefault("WANDB_DIR", str(self.run_dir))
-                os.environ.setdefault("WANDB_CACHE_DIR", str(self.run_dir / ".wandb-cache"))
-                self._wandb = wandb.init(project=config.get("wandb_project", "handx-jax"), dir=str(self.run_dir),
-                                         config=config, mode=mode, id=self.run_dir.name.replace("/", "-"),
-                                         resume="allow", reinit=True)
-            except Exception as e:  # wandb is a mirror: never let it kill a run
-                print(f"[wandb disabled: {e}]")
-
-    def log(self, row: dict) -> None:
-        if not self.enabled:
-            return
-        append_jsonl(self.metrics_path, row)
-        if self._wandb is not None:
-            self._wandb.log({k: v for k, v in row.items() if k != "step"}, step=int(row["step"]))
-
-    def truncate_after(self, step: int) -> None:
-        """On resume, drop metric lines logged after the checkpoint we restart from."""
-        if self.enabled and self.metrics_path.exists():
-            rows = [r for r in read_jsonl(self.metrics_path, strict=False) if r.get("step", 0) <= step]
-            from handx_jax.io import atomic_write_jsonl
-
-            atomic_write_jsonl(self.metrics_path, rows)
-
-    def close(self) -> None:
-        if self._wandb is not None:
-            self._wandb.finish()
-
-
 # TrainConfig fields added after runs were written: absent from an older config.json, they read as the default.
 _ADDED_TRAIN_FIELDS = {"microbatch": TrainConfig.microbatch}
 
@@ -340,47 +217,54 @@ def _cast(tree, dtype):
     return jax.tree_util.tree_map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, tree)
 
 
-def train(
-    run_dir: str | os.PathLike,
-    *,
-    init: Callable[[jax.Array], Any],
-    loss: Callable[[Any, Any, jax.Array, bool], tuple[jax.Array, dict]],
-    get_batch: Callable[[np.ndarray], Any] | None = None,
-    num_examples: int = 0,
-    cfg: TrainConfig,
-    config: dict,
-    stop_at: int | None = None,
-    on_log: Callable[[dict], None] | None = None,
-    flops_per_sample: float | None = None,
-    evaluate: Callable[[Any, Any, int], dict] | None = None,
-    resume_keys: Sequence[str] | None = None,
-    get_step_batch: Callable[[int], Any] | None = None,
-    optimizer: tuple[optax.GradientTransformation, Callable] | None = None,
-    save_at_stop: bool = False,
-) -> dict:
-    """Train (or resume) a run; returns {"params", "ema", "step"}.
+@dataclass(frozen=True)
+class TrainSpec:
+    """What :func:`train` trains: the model, its data, its configuration, and the hooks a family adds.
+
+    ``init(rng) -> params``; ``loss(params, batch, rng, train) -> (loss, aux)``. Batches come from
+    ``get_batch(indices)`` over ``num_examples`` items in the order of :func:`batch_indices`, or, for a
+    family with its own data order, from ``get_step_batch(step)`` (a pure function of the step, so
+    resumes stay exact). ``cfg``: the loop's settings; ``config``: the run record written to
+    config.json (with ``train``). ``evaluate(params, ema, step)`` (``ema`` is ``{}`` without EMA)
+    returns metrics logged as a row of their own at step 0 of a fresh run, every ``cfg.eval_every``
+    steps and at the last step; it must not change the training state. ``optimizer`` =
+    (transformation, schedule) replaces the one built from ``cfg.optim`` (a family with its own
+    recipe, e.g. T5 pretraining). ``flops_per_sample`` (forward FLOPs of the trainable model per
+    sample) makes every log line carry the cumulative ``train_flops`` = 3 × forward × samples seen.
+    ``resume_keys``: the keys of ``config`` (+ ``train``) a resumed run must share with the folder's
+    config.json (default: all).
+    """
+
+    init: Callable[[jax.Array], Any]
+    loss: Callable[[Any, Any, jax.Array, bool], tuple[jax.Array, dict]]
+    cfg: TrainConfig
+    config: dict
+    get_batch: Callable[[np.ndarray], Any] | None = None
+    num_examples: int = 0
+    get_step_batch: Callable[[int], Any] | None = None
+    evaluate: Callable[[Any, Any, int], dict] | None = None
+    optimizer: tuple[optax.GradientTransformation, Callable] | None = None
+    flops_per_sample: float | None = None
+    resume_keys: Sequence[str] | None = None
+
+
+def train(run_dir: str | os.PathLike, spec: TrainSpec, *, stop_at: int | None = None,
+          on_log: Callable[[dict], None] | None = None, save_at_stop: bool = False) -> dict:
+    """Train (or resume) a run of ``spec``; returns {"params", "ema", "step"}.
 
     ``stop_at`` ends the process early (as if killed) after that step's checkpoint logic — used by the
-    kill-and-resume tests. ``flops_per_sample`` (forward FLOPs of the trainable model per sample) makes
-    every log line carry the cumulative ``train_flops`` = 3 × forward × samples seen (fwd + bwd).
-    ``evaluate(params, ema, step)`` (``ema`` is ``{}`` without EMA) returns metrics logged as a row of
-    their own at step 0 of a fresh run, every ``cfg.eval_every`` steps and at the last step; it must
-    not change the training state. ``resume_keys``: the keys of ``config`` (+ ``train``) a resumed run
-    must share with the folder's config.json (default: all).
-
-    Batches come from ``get_batch(indices)`` over ``num_examples`` items in the order of
-    :func:`batch_indices`, or, for a family with its own data order, from ``get_step_batch(step)``
-    (a pure function of the step, so resumes stay exact). ``optimizer`` = (transformation, schedule)
-    replaces the one built from ``cfg.optim`` (a family with its own recipe, e.g. T5 pretraining).
-    ``save_at_stop`` checkpoints at ``stop_at`` (a pre-emptible job's time slice) instead of
-    behaving as killed there.
+    kill-and-resume tests; ``save_at_stop`` checkpoints at ``stop_at`` (a pre-emptible job's time
+    slice) instead of behaving as killed there. ``on_log(row)`` sees every logged row.
     """
+    init, loss, cfg, config = spec.init, spec.loss, spec.cfg, spec.config
+    get_batch, num_examples, get_step_batch = spec.get_batch, spec.num_examples, spec.get_step_batch
+    evaluate, optimizer, flops_per_sample = spec.evaluate, spec.optimizer, spec.flops_per_sample
     import orbax.checkpoint as ocp
     from jax.sharding import NamedSharding, PartitionSpec as P
 
     run_dir = Path(run_dir).absolute()
     doc = {**config, "train": dataclasses.asdict(cfg)}
-    check_resume(run_dir, doc, resume_keys)
+    check_resume(run_dir, doc, spec.resume_keys)
     # The run-folder lock (handx_jax.runlock.RunLock, issue 14.8) is taken by `handx train` around the
     # whole family run, before the family writes its first file; library callers take it themselves.
     logger = RunLogger(run_dir, doc, cfg.wandb)
@@ -596,7 +480,3 @@ def load_params(run_dir: str | os.PathLike, *, ema: bool = False, step: int | No
         while len(_RESTORED) > _RESTORED_MAX:
             _RESTORED.popitem(last=False)
     return params, int(step)
-
-
-def read_config(run_dir: str | os.PathLike) -> dict:
-    return json.loads((Path(run_dir) / "config.json").read_text())

@@ -42,13 +42,13 @@ if [ -n "${ENCODER:-}" ]; then
   # package replaces the assets folder: keep a copy of a packaged encoder outside it
   [ -f "$WORK/t5/encoder/model.safetensors" ] || { mkdir -p "$WORK/t5" && cp -r "$ENCODER" "$WORK/t5/encoder"; }
 else
-  [ -f "$DATA/tokenizer/spiece.model" ] || "${H[@]}" text tokenizer --data "$DATA"
+  [ -f "$DATA/tokenizer/spiece.model" ] || "${H[@]}" text sentencepiece --data "$DATA"
   [ -f "$WORK/t5/encoder/model.safetensors" ] || \
-    "${H[@]}" text pretrain --data "$DATA" --preset tiny --out "$WORK/t5" --steps "$T5_STEPS" --log-every 200
+    "${H[@]}" train t5 --data "$DATA" --preset tiny --out "$WORK/t5" --steps "$T5_STEPS" --log-every 200
 fi
 t2=$(date +%s)
 [ -f "$WORK/evaluator/evaluator.json" ] || \
-  "${H[@]}" eval train-evaluator --data "$DATA" --encoder "$WORK/t5/encoder" --out "$WORK/evaluator" \
+  "${H[@]}" train evaluator --data "$DATA" --encoder "$WORK/t5/encoder" --out "$WORK/evaluator" \
     --preset "$PRESET" --steps "$STEPS" --batch-size "$BATCH" --lr "$LR" --warmup "$WARMUP" --no-final-eval \
     --set train.optim.weight_decay=0.01 --set model.dropout="$DROPOUT" --set text.max_len=256 \
     --set data.text_bucket=256 --set train.log_every=100 --set train.ckpt_every=500 --set train.wandb=disabled \

@@ -78,7 +78,7 @@ evaluator_branch() {
   stage joined_cache "${H[@]}" text cache --data "$W/std" --encoder "$ENC" --joined --levels 0 --max-len 256 \
     --batch-size 1024
   [ -f "$W/evaluator/evaluator.json" ] || \
-    stage evaluator_training "${H[@]}" eval train-evaluator --data "$W/std" --encoder "$ENC" --out "$W/evaluator" \
+    stage evaluator_training "${H[@]}" train evaluator --data "$W/std" --encoder "$ENC" --out "$W/evaluator" \
       --preset small --steps "$EV_STEPS" --batch-size "$EV_BATCH" --lr "$EV_LR" --warmup "$EV_WARMUP" \
       --train-levels 0 --no-final-eval --set train.optim.weight_decay=0.01 --set train.prefetch=8 \
       --set text.max_len=256 --set data.text_bucket=256 --set train.log_every=200 --set train.ckpt_every=1000 \
@@ -152,7 +152,7 @@ if [ -f "$W/assets/card.json" ] && [ -d "$W/ladder" ]; then
     > "$W/rescore.log" 2>&1
   say "rescore exit $?"; tail -n 12 "$W/rescore.log"
 fi
-[ -d "$W/ladder" ] && "${H[@]}" sweep collect "$W/ladder" > /dev/null 2>&1
+[ -d "$W/ladder" ] && "${H[@]}" sweep collect --out "$W/ladder" > /dev/null 2>&1
 mkdir -p "$W/lease_logs" && cp "$W"/*.log "$W/gpu_util.csv" "$W/lease_logs/" 2>/dev/null
 [ -d "$W/evaluator" ] && cp "$W/evaluator/metrics.jsonl" "$W/lease_logs/evaluator_metrics.jsonl" 2>/dev/null
 tar czf "$OUT/logs.tar.gz" -C "$W" lease_logs

@@ -72,7 +72,7 @@ fi
 
 pack() {
   [ -d "$W/sweep" ] || return 0
-  "${H[@]}" sweep collect "$W/sweep" > /dev/null 2>&1
+  "${H[@]}" sweep collect --out "$W/sweep" > /dev/null 2>&1
   tar czf "$OUT/ar_sweep.tar.gz.tmp" -C "$W" --exclude='checkpoints' --exclude='generated.npz' \
     --exclude='jax_cache' --exclude='*.msgpack' --exclude='*.npy' --exclude='.wandb-cache' sweep \
     && mv "$OUT/ar_sweep.tar.gz.tmp" "$OUT/ar_sweep.tar.gz"

@@ -38,7 +38,7 @@ if [ -n "${STEPS:-}" ]; then
   echo "steps given: $STEPS (no probe)"
 else
 rm -rf /tmp/handx-probe
-$PY -m handx_jax eval train-evaluator --data "$DATA" --encoder "$ENC" --out /tmp/handx-probe --preset "$PRESET" \
+$PY -m handx_jax train evaluator --data "$DATA" --encoder "$ENC" --out /tmp/handx-probe --preset "$PRESET" \
   --steps 40 --batch-size "$BATCH" --lr "$LR" --train-levels "$TRAIN_LEVELS" --no-final-eval "${SETS[@]}" \
   --set train.log_every=20 --set train.ckpt_every=100000 --set train.wandb=disabled
 RATE=$($PY -c "import json;r=[json.loads(l) for l in open('/tmp/handx-probe/metrics.jsonl')];print(r[-1]['samples_per_s'])")
@@ -46,7 +46,7 @@ STEPS=$($PY -c "print(min(${MAX_STEPS:-10**9}, max(200, int($RATE * $BUDGET / $B
 echo "probe: $RATE samples/s -> $STEPS steps of batch $BATCH for ${BUDGET} s (setup so far $(( $(date +%s) - t0 )) s)"
 fi
 
-$PY -m handx_jax eval train-evaluator --data "$DATA" --encoder "$ENC" --out "$OUT/evaluator" --preset "$PRESET" \
+$PY -m handx_jax train evaluator --data "$DATA" --encoder "$ENC" --out "$OUT/evaluator" --preset "$PRESET" \
   --steps "$STEPS" --batch-size "$BATCH" --lr "$LR" --warmup "$WARMUP" --train-levels "$TRAIN_LEVELS" "${SETS[@]}" \
   --set train.log_every=200 --set train.ckpt_every=100000 --set train.wandb=disabled
 echo "trained: $(( $(date +%s) - t0 )) s"

@@ -7,6 +7,8 @@ import inspect
 import json
 import sys
 
+from handx_jax.cliargs import deprecated_flag, deprecated_positional
+
 
 def _kv(items):
     out = {}
@@ -32,7 +34,7 @@ def _block(text: str) -> int:
 
 
 def _sweep_kwargs(a: argparse.Namespace) -> dict:
-    from sweeps.launcher import _import
+    from sweeps.spec import _import
 
     kw = _kv(a.arg)
     params = inspect.signature(_import(a.sweep).runs).parameters
@@ -172,9 +174,10 @@ def add_parser(subparsers) -> None:
     r.add_argument("--evaluator", help="evaluator checkpoint; without it runs are trained but not scored")
     r.add_argument("--eval-limit", type=int, default=512, help="test clips generated per run")
     r.add_argument("--eval-samples", type=int, default=1, help="generations per prompt")
-    r.add_argument("--rprec-block", type=_block, default=None,
-                   help="R-Precision block of the evaluate stage (default: the sweep file's RPREC_BLOCK, else 32; "
-                        "the flops ladder's is 16, as the paper's Table B / Fig. 4)")
+    deprecated_flag(r, "--rprec-block", r.add_argument(
+        "--block", type=_block, default=None, dest="rprec_block",
+        help="R-Precision block of the evaluate stage (default: the sweep file's RPREC_BLOCK, else 32; "
+                        "the flops ladder's is 16, as the paper's Table B / Fig. 4)"))
     r.add_argument("--set", action="append", default=[], metavar="sample.KEY=VALUE",
                    help="generation setting of every run's generate stage (over the family's sweep default and the "
                         "run's own sample.* overrides), e.g. sample.steps=25 (diffusion: sample.sampler, "
@@ -192,7 +195,7 @@ def add_parser(subparsers) -> None:
     r.add_argument("--dry-run", action="store_true", help="print the runs (and SLURM resources) and exit")
     r.set_defaults(func=_run)
     s = sub.add_parser("status", help="done, running, failed and pending runs")
-    s.add_argument("out", help="sweep folder")
+    deprecated_positional(s, s.add_argument("--out", required=True, metavar="OUT", help="sweep folder"), "out")
     s.add_argument("--json", action="store_true", help="one JSON object per run")
     s.set_defaults(func=_status)
     q = sub.add_parser("rescore", help="score a sweep's trained runs with another evaluator (nothing is retrained)",
@@ -201,15 +204,16 @@ def add_parser(subparsers) -> None:
                                    "done: runs already scored by it are kept, others are rescored from their samples "
                                    "(regenerated first only if EVALUATOR scores another caption level); the old "
                                    "scores stay as RUN/eval.<old id>.json.")
-    q.add_argument("out", help="sweep folder (must exist)")
+    deprecated_positional(q, q.add_argument("--out", required=True, metavar="OUT", help="sweep folder (must exist)"), "out")
     q.add_argument("--evaluator", help="evaluator folder; default (or 'standard'): the packaged standard evaluator")
     q.add_argument("--data", help="the sweep's dataset, if it moved since the launch")
     q.add_argument("--executor", choices=("local", "slurm", "debug"), default="local")
     q.add_argument("--max-parallel", type=int, default=None, help="runs scored at once (default: the sweep's)")
-    q.add_argument("--rprec-block", type=_block, default=None,
-                   help="R-Precision block to score at (default: the sweep's); runs scored at another block are "
-                        "rescored from their samples, the old scores kept as RUN/eval.<id>.b<block>.json")
+    deprecated_flag(q, "--rprec-block", q.add_argument(
+        "--block", type=_block, default=None, dest="rprec_block",
+        help="R-Precision block to score at (default: the sweep's); runs scored at another block are "
+                        "rescored from their samples, the old scores kept as RUN/eval.<id>.b<block>.json"))
     q.set_defaults(func=_rescore)
     c = sub.add_parser("collect", help="rebuild OUT/results.jsonl and OUT/results.csv from the run folders")
-    c.add_argument("out", help="sweep folder (must exist)")
+    deprecated_positional(c, c.add_argument("--out", required=True, metavar="OUT", help="sweep folder (must exist)"), "out")
     c.set_defaults(func=_collect)

@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-# Table B (L, d, H, FFN), the paper's FLOPs ladder at 5% data (App. C; the reference's default head
-# count differs, §9.16).
-TABLE_B = ((2, 256, 4, 1024), (4, 256, 4, 1024), (4, 384, 6, 1536), (8, 384, 6, 1536), (8, 512, 8, 2048),
-           (12, 512, 8, 2048), (12, 768, 12, 3072))
+from handx_jax.models.ladder import TABLE_B  # noqa: F401 (Table B (L, d, H, FFN): the one definition)
+
 # Table C's diffusion sizes by depth (L -> d, FFN); heads are not printed: d / 64 as in Table B.
 TABLE_C = {4: (256, 1024), 8: (512, 1024), 12: (512, 1024), 16: (768, 3072)}
 FRACTIONS = (0.05, 0.2, 1.0)  # the nested clip subsets of Table 2 (5% ⊂ 20% ⊂ 100%)

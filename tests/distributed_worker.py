@@ -15,7 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handx_jax.train import OptimConfig, TrainConfig, initialize_distributed, train
+from handx_jax.optim import OptimConfig
+from handx_jax.train import TrainConfig, TrainSpec, initialize_distributed, train
 
 rng = np.random.default_rng(0)
 X = rng.normal(size=(64, 6)).astype(np.float32)
@@ -38,8 +39,8 @@ def run(run_dir) -> dict:
     """The training of this test (the single-process reference calls it in its own process)."""
     cfg = TrainConfig(steps=12, batch_size=8, seed=1, log_every=1, ckpt_every=6, wandb="disabled", prefetch=0,
                       optim=OptimConfig(lr=3e-2, warmup_steps=0, grad_clip=0.0))
-    return train(run_dir, init=init, loss=loss, get_batch=lambda idx: {"x": X[idx], "y": Y[idx]}, num_examples=64,
-                 cfg=cfg, config={"family": "test", "processes": jax.process_count()})
+    return train(run_dir, TrainSpec(init=init, loss=loss, get_batch=lambda idx: {"x": X[idx], "y": Y[idx]},
+                                    num_examples=64, cfg=cfg, config={"family": "test", "processes": jax.process_count()}))
 
 
 if __name__ == "__main__":

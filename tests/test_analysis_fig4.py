@@ -58,7 +58,7 @@ def test_slope_difference_and_its_interval_from_independent_least_squares():
 def test_caveats_name_what_differs_from_fig4(capsys, tmp_path):
     c = compare_with_fig4(ladder(0.3, block=32, fraction=0.2, sizes=5), n_boot=200)
     assert not c.comparable and len(c.caveats) == 3
-    assert "block 32, Fig. 4's is 16" in c.caveats[0] and "--rprec-block 16" in c.caveats[0]
+    assert "block 32, Fig. 4's is 16" in c.caveats[0] and "--block 16" in c.caveats[0]
     assert "data fraction 0.2, Fig. 4's is 0.05" in c.caveats[1] and "5 model sizes" in c.caveats[2]
     assert "NOT like for like" in c.summary()
     # A short FLOPs range (tiny denoisers behind a large text encoder) is named too.

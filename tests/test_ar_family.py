@@ -80,7 +80,7 @@ def test_generate_writes_the_official_layout(built, tmp_path):
 
     data, _, run = built
     out = tmp_path / "gen.npz"
-    assert main(["generate", "--run", str(run), "--reference", str(data), "--split", "test", "--limit", "3",
+    assert main(["generate", "--run", str(run), "--data", str(data), "--split", "test", "--limit", "3",
                  "--samples", "2", "--temperature", "1.0", "--top-k", "20", "--encoder", str(ENCODER),
                  "--out", str(out)]) == 0
     clips = read_handx_npz(out)

@@ -38,7 +38,7 @@ def test_huge_motion_is_one_line_naming_file_clip_and_field(tmp_path, capsys, sc
     clips = _clips(1, scale)
     g = write_handx_npz(tmp_path / "gen.npz", clips)
     words = words.format(m=float(np.abs(clips[1].motion.astype(np.float64)).max()))
-    rc = main(["eval", "run", *evaluator, "--generated", str(g), "--reference", str(tmp_path / "ds"),
+    rc = main(["eval", "run", *evaluator, "--generated", str(g), "--data", str(tmp_path / "ds"),
                "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and err.startswith(f"handx: error: file {g}: clip c1, field 'motion': ") and words in err, err
@@ -117,7 +117,7 @@ def test_eval_run_refuses_a_changed_standard_evaluator_in_one_line(assets_copy, 
 
     _flip(assets_copy / "evaluator" / "params.msgpack")
     monkeypatch.setattr(standard, "ASSETS", assets_copy)
-    rc = main(["eval", "run", "--ground-truth", "--reference", str(tmp_path / "ds"), "--out", str(tmp_path / "run")])
+    rc = main(["eval", "run", "--ground-truth", "--data", str(tmp_path / "ds"), "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and err == (f"handx: error: file {assets_copy / 'evaluator' / 'params.msgpack'}: standard evaluator "
                                "file corrupt: sha256 differs from card.json (reinstall the package)")

@@ -52,7 +52,7 @@ def test_load_sweep_refuses_through_the_api_too(tmp_path):
                                             ('{"config": {"nope": 1}, "runs": []}', "damaged sweep record")])
 def test_sweep_status_on_a_corrupt_sweep_json_names_it(tmp_path, capsys, content, words):
     (tmp_path / "sweep.json").write_text(content)
-    assert main(["sweep", "status", str(tmp_path)]) == 2
+    assert main(["sweep", "status", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"handx sweep status: error: file {tmp_path / 'sweep.json'}: ") and words in err
     assert "no sweep.json" not in err and "\n" not in err
@@ -60,5 +60,5 @@ def test_sweep_status_on_a_corrupt_sweep_json_names_it(tmp_path, capsys, content
 
 
 def test_sweep_status_without_sweep_json_still_says_so(tmp_path, capsys):
-    assert main(["sweep", "status", str(tmp_path)]) == 2
+    assert main(["sweep", "status", "--out", str(tmp_path)]) == 2
     assert "not a sweep folder (no sweep.json)" in capsys.readouterr().err

@@ -86,7 +86,7 @@ def test_corpus_content(corpus):
 
 
 def test_cli_stats_json_keys(corpus, capsys):
-    assert handx(["data", "stats", str(corpus), "--json"]) == 0
+    assert handx(["data", "stats", "--data", str(corpus), "--json"]) == 0
     st = json.loads(capsys.readouterr().out)
     for k in ("clips", "hours", "texts", "contact_ratio", "contact_duration_s", "contact_events_per_min",
               "motion_intensity", "unique_caption_fraction"):
@@ -98,19 +98,19 @@ def test_cli_stats_json_keys(corpus, capsys):
 
 
 def test_cli_show_and_prompt(corpus, tmp_path, capsys):
-    assert handx(["data", "show", str(corpus), "--clip", "3", "--out", str(tmp_path / "c.gif")]) == 0
+    assert handx(["data", "show", "--data", str(corpus), "--clip", "3", "--out", str(tmp_path / "c.gif")]) == 0
     from PIL import Image
 
     im = Image.open(tmp_path / "c.gif")
     assert im.n_frames == 60
-    assert handx(["data", "prompt", str(corpus), "--clip", "3"]) == 0
+    assert handx(["data", "prompt", "--data", str(corpus), "--clip", "3"]) == 0
     prompt = capsys.readouterr().out
     assert '"frame_count"' in prompt and "5" in prompt
 
 
 def test_export_import_roundtrip_exact(corpus, tmp_path, capsys):
     f = tmp_path / "train_can_pos_all_wotextfeat.npz"
-    assert handx(["data", "export-handx", str(corpus), "--out", str(f)]) == 0
+    assert handx(["data", "export-handx", "--data", str(corpus), "--out", str(f)]) == 0
     clips = read_handx_npz(f)
     # The official loader's access pattern works on our file.
     z = np.load(f, allow_pickle=True)
@@ -124,7 +124,7 @@ def test_export_import_roundtrip_exact(corpus, tmp_path, capsys):
 
 
 def test_cli_errors_are_clear(tmp_path, capsys):
-    assert handx(["data", "stats", str(tmp_path / "missing")]) == 2
+    assert handx(["data", "stats", "--data", str(tmp_path / "missing")]) == 2
     assert "missing" in capsys.readouterr().err
     bad = tmp_path / "test_bad.npz"
     bad.write_bytes(b"PK\x03\x04 not really a zip")

@@ -33,14 +33,14 @@ def test_show_level_out_of_range(tmp_path):
                   stats=False)
     for level in (9, 2, -3):
         with pytest.raises(SystemExit, match=rf"--level {level} out of range: .* has 2 caption levels \(0\.\.1, or -2\.\.-1"):
-            handx(["data", "show", str(tmp_path / "ds"), "--clip", "0", "--out", str(tmp_path / "x.gif"),
+            handx(["data", "show", "--data", str(tmp_path / "ds"), "--clip", "0", "--out", str(tmp_path / "x.gif"),
                    "--level", str(level)])
     assert not (tmp_path / "x.gif").exists()
 
 
 def test_eval_run_replications_must_be_positive(tmp_path):
     with pytest.raises(SystemExit, match="--replications must be at least 1, got 0"):
-        handx(["eval", "run", "--evaluator", str(tmp_path / "E"), "--reference", str(tmp_path / "D"),
+        handx(["eval", "run", "--evaluator", str(tmp_path / "E"), "--data", str(tmp_path / "D"),
                "--ground-truth", "--replications", "0"])
 
 
@@ -50,7 +50,7 @@ def test_empty_text_is_refused_everywhere(tmp_path, capsys):
     from handx_jax.text.prompts import check_texts
 
     enc = str(__import__("pathlib").Path(__file__).parent / "fixtures" / "t5_tiny_relu")
-    assert handx(["text", "encode", "--weights", enc, "hello", "  "]) == 2
+    assert handx(["text", "encode", "--encoder", enc, "hello", "  "]) == 2
     assert "TEXT 2 of 2 is empty ('  ')" in capsys.readouterr().err
     rc = handx(["generate", "--run", str(tmp_path / "run"), "--left", "", "--right", "a", "--interaction", "b",
                 "--out", str(tmp_path / "g.npz")])

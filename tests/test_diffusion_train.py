@@ -137,6 +137,7 @@ def test_params_json(capsys):
     assert main(["params", "diffusion", "--layers", "2", "--dim", "64", "--heads", "4", "--ff", "128", "--text-dim",
                  "32", "--text-len", "16", "--encoder", str(ENCODER), "--json"]) == 0
     small = json.loads(capsys.readouterr().out)
-    from handx_jax.text.t5 import encoder_flops, load_hf_t5_encoder
+    from handx_jax.text.hf import load_hf_t5_encoder
+    from handx_jax.text.t5 import encoder_flops
 
     assert small["text_flops_per_sample"] == 3 * encoder_flops(load_hf_t5_encoder(ENCODER).cfg, 16)

@@ -289,7 +289,7 @@ def test_cli_run_json_keys_and_eval_json(setup, tmp_path, capsys):
     root, data, E = setup
     ds = Dataset.open(data)
     g = write_handx_npz(tmp_path / "gen.npz", _generated(ds, groups=2, noise=0.01))
-    rc = main(["eval", "run", "--evaluator", str(E), "--generated", str(g), "--reference", str(data), "--json",
+    rc = main(["eval", "run", "--evaluator", str(E), "--generated", str(g), "--data", str(data), "--json",
                "--replications", "3", "--block", "4", "--out", str(tmp_path / "run")])
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
@@ -312,11 +312,11 @@ def test_cli_run_json_keys_and_eval_json(setup, tmp_path, capsys):
     from analysis.schema import _eval_values
 
     assert set(_eval_values(ev_json, tmp_path / "run" / "eval.json")) == set(out)
-    rc = main(["eval", "run", "--evaluator", str(E), "--ground-truth", "--reference", str(data),
+    rc = main(["eval", "run", "--evaluator", str(E), "--ground-truth", "--data", str(data),
                "--replications", "3", "--block", "4"])
     text = capsys.readouterr().out
     assert rc == 0 and "Ground Truth" in text and "Top-1" in text and "FID" in text
-    rc = main(["eval", "run", "--evaluator", str(E), "--ground-truth", "--reference", str(tmp_path / "nope")])
+    rc = main(["eval", "run", "--evaluator", str(E), "--ground-truth", "--data", str(tmp_path / "nope")])
     assert rc == 2
     # --level scores against another caption level (same numbers as the API at that level);
     # --no-reference-cache neither reads nor writes the cache and changes no value.
@@ -326,7 +326,7 @@ def test_cli_run_json_keys_and_eval_json(setup, tmp_path, capsys):
     default = evaluate_ground_truth(load_evaluator(E), ds, MetricConfig(rprec_block=4, replications=3)).flat()
     assert abs(want["mm_dist"] - default["mm_dist"]) > 1e-4  # the level really changes the captions
     for extra in ([], ["--no-reference-cache"]):
-        rc = main(["eval", "run", "--evaluator", str(E), "--ground-truth", "--reference", str(data), "--json",
+        rc = main(["eval", "run", "--evaluator", str(E), "--ground-truth", "--data", str(data), "--json",
                    "--replications", "3", "--block", "4", "--level", "-1", *extra])
         assert rc == 0
         assert json.loads(capsys.readouterr().out) == pytest.approx(want, abs=1e-6)

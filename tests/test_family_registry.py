@@ -20,7 +20,8 @@ from handx_jax.train import TrainConfig
 
 # The registry line (registered for the test's duration: handx_jax.families.register; the module by its
 # import path from the repository root, which the launcher's stages have on PYTHONPATH).
-REGISTRY = Family(module="tests.test_family_registry", help="a mean-pose toy family (tests only)", norm="diffusion")
+REGISTRY = Family(module="tests.test_family_registry", help="a mean-pose toy family (tests only)",
+                  norm="handx_jax.representation:DIFFUSION_NORM")
 
 FAMILY = "toy"
 PRESETS = {"tiny": None}
@@ -65,21 +66,21 @@ def train(run_dir, cfg: ToyConfig, *, stop_at=None, on_log=None, encoder=None) -
     from handx_jax.data.dataset import Dataset
 
     ds = Dataset.open(cfg.data.path)
-    norm = rep.NormStats.from_npz_dict(ds.stats, REGISTRY.norm)
+    norm = rep.NormStats.from_npz_dict(ds.stats, REGISTRY.norm_preset().name)
     clips = np.asarray(ds.split("train", cfg.data.fraction))
     x = norm.normalize(rep.to_diffusion(np.asarray(ds.motion[clips], np.float64))).astype(np.float32)
     Path(run_dir).mkdir(parents=True, exist_ok=True)
-    np.savez(Path(run_dir) / "norm.npz", **norm.to_npz_dict(REGISTRY.norm))
+    np.savez(Path(run_dir) / "norm.npz", **norm.to_npz_dict(REGISTRY.norm_preset().name))
     record = {"family": FAMILY, "preset": cfg.preset, "data": to_dict(cfg.data), "data_fraction": cfg.data.fraction,
               **numbers(cfg)}
 
     def loss(params, batch, rng, train):
         return jnp.mean((batch["x"] - params["mean"]) ** 2), {}
 
-    return loop.train(run_dir, init=lambda rng: {"mean": jnp.ones((60, 42, 4))}, loss=loss,
-                      get_batch=lambda idx: {"x": x[np.asarray(idx)]}, num_examples=len(x), cfg=cfg.train,
-                      config=record, stop_at=stop_at, on_log=on_log, flops_per_sample=record["flops_per_sample"],
-                      resume_keys=("data", "train"))
+    return loop.train(run_dir, loop.TrainSpec(
+        init=lambda rng: {"mean": jnp.ones((60, 42, 4))}, loss=loss, cfg=cfg.train, config=record,
+        get_batch=lambda idx: {"x": x[np.asarray(idx)]}, num_examples=len(x),
+        flops_per_sample=record["flops_per_sample"], resume_keys=("data", "train")), stop_at=stop_at, on_log=on_log)
 
 
 @dataclass
@@ -110,7 +111,7 @@ def load(run_dir, *, ema=True, encoder=None, overrides=()) -> ToyRun:
     run_config(run_dir, FAMILY)
     params, step = load_params(run_dir)
     with np.load(Path(run_dir) / "norm.npz") as z:
-        norm = rep.NormStats.from_npz_dict(dict(z), REGISTRY.norm)
+        norm = rep.NormStats.from_npz_dict(dict(z), REGISTRY.norm_preset().name)
     return ToyRun(norm.denormalize(np.asarray(params["mean"])), step)
 
 
@@ -172,7 +173,7 @@ def test_a_third_family_trains_generates_runs_in_a_sweep_and_lands_in_the_table(
         train_mean = rep.to_diffusion(np.asarray(ds.motion[np.asarray(ds.split("train"))], np.float64)).mean(0)
         run_dir = tmp_path / "sweep" / "runs" / "toy-30"
         with np.load(run_dir / "norm.npz") as z:
-            init = rep.NormStats.from_npz_dict(dict(z), REGISTRY.norm).denormalize(np.ones((60, 42, 4)))
+            init = rep.NormStats.from_npz_dict(dict(z), REGISTRY.norm_preset().name).denormalize(np.ones((60, 42, 4)))
         run = load(run_dir)
         assert run.step == 30
         assert np.abs(run.mean_Fx42x4 - train_mean).mean() < 0.5 * np.abs(init - train_mean).mean()

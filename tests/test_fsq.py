@@ -213,10 +213,11 @@ def fitted_8(tmp_path_factory):
     optim = dataclasses.replace(T.CPU_TRAIN.optim, lr=3e-3, warmup_steps=20)
     cfg = dataclasses.replace(T.CPU_TRAIN, steps=200, batch_size=8, log_every=200, ckpt_every=200, eval_every=0,
                               wandb="disabled", prefetch=0, optim=optim)
-    out = loop.train(root / "run", init=lambda rng: Q.init_tokenizer(CFG, rng, x.shape[1])[1],
-                     loss=T.make_loss(MODEL, norm, T.TokenizerRunConfig().loss), get_batch=lambda idx: {"x": x},
-                     num_examples=8, cfg=cfg, config={"family": "tokenizer-test"},
-                     evaluate=T.make_evaluate(MODEL, CFG, x, norm), on_log=rows.append)
+    out = loop.train(root / "run", loop.TrainSpec(
+        init=lambda rng: Q.init_tokenizer(CFG, rng, x.shape[1])[1],
+        loss=T.make_loss(MODEL, norm, T.TokenizerRunConfig().loss), get_batch=lambda idx: {"x": x},
+        num_examples=8, cfg=cfg, config={"family": "tokenizer-test"}, evaluate=T.make_evaluate(MODEL, CFG, x, norm)),
+        on_log=rows.append)
     before, after = (r for r in rows if "eval/mpjpe_mm" in r)
     assert (before["step"], after["step"]) == (0, 200)
     return norm, jnp.asarray(x), before, after, out["params"]

@@ -95,7 +95,7 @@ def test_every_command_reports_enospc_in_one_line(monkeypatch, capsys, tmp_path)
         raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "x.bin"))
 
     monkeypatch.setattr(data_cli, "_export", full)
-    assert handx(["data", "export-handx", str(tmp_path), "--out", str(tmp_path / "o.npz")]) == 2
+    assert handx(["data", "export-handx", "--data", str(tmp_path), "--out", str(tmp_path / "o.npz")]) == 2
     assert capsys.readouterr().err == f"handx: error: no space left on device writing {tmp_path / 'x.bin'} " \
                                       "(free some space or write elsewhere)\n"
 
@@ -106,7 +106,7 @@ def test_every_command_reports_enospc_in_one_line(monkeypatch, capsys, tmp_path)
             raise RuntimeError("write failed") from e
 
     monkeypatch.setattr(data_cli, "_export", wrapped)
-    assert handx(["data", "export-handx", str(tmp_path), "--out", str(tmp_path / "o.npz")]) == 2
+    assert handx(["data", "export-handx", "--data", str(tmp_path), "--out", str(tmp_path / "o.npz")]) == 2
     assert capsys.readouterr().err.startswith("handx: error: no space left on device")
 
 

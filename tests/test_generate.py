@@ -13,7 +13,7 @@ from handx_jax.families.diffusion.sampling import SampleOptions, generate, gener
 from handx_jax.generation import Prompt
 from tests.diffusion_fixtures import make_run
 
-FAST = ["--sampler", "ddim", "--steps", "8", "--samples", "2"]
+FAST = ["--sampler", "ddim", "--sample-steps", "8", "--samples", "2"]
 
 
 @pytest.fixture(scope="module")
@@ -101,7 +101,7 @@ def test_text2motion_prompts_gif_and_batch_mode(setup, tmp_path):
     np.testing.assert_array_equal(read_handx_npz(tmp_path / "s.npz")[0].motion, c[0].motion)
     # Batch mode: every test clip × G, with source_clip/group fields.
     ds = Dataset.open(data)
-    assert main(["generate", "--run", str(run), "--reference", str(data), "--split", "test", "--limit", "3", *FAST,
+    assert main(["generate", "--run", str(run), "--data", str(data), "--split", "test", "--limit", "3", *FAST,
                  "--batch-size", "2", "--out", str(tmp_path / "b.npz")]) == 0  # 3 chunks of 2: the program above
     b = read_handx_npz(tmp_path / "b.npz")
     test_ids = {ds.ids[i] for i in ds.split("test")}
@@ -181,7 +181,7 @@ def test_eval_prediction_scores_a_diffusion_run(setup, capsys):
 
     data, run = setup
     assert main(["eval", "prediction", "--run", str(run), "--observed-frames", "16", "--limit", "1",
-                 "--samples", "2", "--sampler", "ddim", "--steps", "8"]) == 0
+                 "--samples", "2", "--sampler", "ddim", "--sample-steps", "8"]) == 0
     assert "49-60" in capsys.readouterr().out
     res = json.loads((run / "eval_prediction.json").read_text())  # the default place: the run folder
     assert [h["frames"] for h in res["horizons"]] == ["17-32", "33-48", "49-60"]

@@ -317,7 +317,7 @@ def test_norm_stats_round_trip_and_npz(tmp_path):
     rng = np.random.default_rng(2)
     x = rng.normal(loc=3.0, scale=2.0, size=(40, 7, 288)).astype(np.float32)
     x[..., 5] = 1.25  # constant feature → std 1
-    pr = rep.NORM_PRESETS["ar"]
+    pr = rep.AR_NORM
     st = rep.compute_norm_stats(x, axis=(0, 1), min_std=pr.min_std, eps=pr.eps)
     assert st.mean.shape == (288,) and st.mean.dtype == np.float32 and st.eps == 1e-6
     assert st.std[5] == 1.0 and st.mean[5] == np.float32(1.25)
@@ -343,7 +343,7 @@ def test_norm_stats_chunked_stream_equals_in_memory(tmp_path):
     np.save(tmp_path / "motion.npy", j)
     mm = np.load(tmp_path / "motion.npy", mmap_mode="r")
     for kind, fn in (("diffusion", rep.to_diffusion), ("ar", rep.to_ar), ("evaluator", rep.to_evaluator)):
-        pr = rep.NORM_PRESETS[kind]
+        pr = rep.norm_preset(kind)
         feats = fn(j)
         axes = tuple(range(feats.ndim - len(pr.feature_shape)))
         full = rep.compute_norm_stats(feats, axis=axes, min_std=pr.min_std, eps=pr.eps, chunk_size=10 ** 6)

@@ -134,7 +134,7 @@ def test_eval_run_without_evaluator_uses_the_standard_one(std, monkeypatch, tmp_
     root, full, prefix, assets = std
     monkeypatch.setattr(standard, "ASSETS", assets)
     monkeypatch.setenv("HANDX_CACHE_DIR", str(tmp_path / "cache"))
-    assert main(["eval", "run", "--ground-truth", "--reference", str(prefix.root), "--block", "2",
+    assert main(["eval", "run", "--ground-truth", "--data", str(prefix.root), "--block", "2",
                  "--replications", "3", "--json"]) == 0
     row = json.loads(capsys.readouterr().out)
     ev = standard.load()
@@ -143,7 +143,7 @@ def test_eval_run_without_evaluator_uses_the_standard_one(std, monkeypatch, tmp_
     assert row["rprec_top1"] == pytest.approx(want["rprec_top1"]) and row["fid"] == pytest.approx(want["fid"])
     assert list((tmp_path / "cache" / f"standard-v{standard.VERSION}" / "reference_cache").glob("*.npz"))
     # eval.json names the yardstick: standard-vN and the packaged folder's id
-    assert main(["eval", "run", "--ground-truth", "--reference", str(prefix.root), "--block", "2",
+    assert main(["eval", "run", "--ground-truth", "--data", str(prefix.root), "--block", "2",
                  "--replications", "3", "--json", "--out", str(tmp_path / "run")]) == 0
     meta = json.loads((tmp_path / "run" / "eval.json").read_text())["_meta"]
     from handx_jax.evaluation import evaluator_id
@@ -155,7 +155,7 @@ def test_eval_run_without_evaluator_uses_the_standard_one(std, monkeypatch, tmp_
     meta = json.loads((d / "meta.json").read_text())
     meta["recipe"]["seed"] = 9
     (d / "meta.json").write_text(json.dumps(meta))
-    assert main(["eval", "run", "--ground-truth", "--reference", str(d), "--json"]) != 0
+    assert main(["eval", "run", "--ground-truth", "--data", str(d), "--json"]) != 0
     assert "not the standard recipe" in capsys.readouterr().err
 
 

@@ -152,7 +152,7 @@ def test_run_names_cannot_leave_out(tmp_path):
 
 
 def test_collect_refuses_a_mistyped_path(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "handx_jax", "sweep", "collect", str(tmp_path / "no-such-sweep")],
+    r = subprocess.run([sys.executable, "-m", "handx_jax", "sweep", "collect", "--out", str(tmp_path / "no-such-sweep")],
                        capture_output=True, text=True, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)})
     assert r.returncode != 0 and "no sweep folder" in r.stderr and r.stdout == ""
     assert not (tmp_path / "no-such-sweep").exists()
@@ -199,7 +199,7 @@ def test_failure_is_recorded_and_the_sweep_goes_on(tmp_path, monkeypatch):
                        cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)})
     assert r.returncode == 1 and "1 of 2 run(s) failed" in r.stderr
     assert (tmp_path / "cli/runs/q/train_done.json").exists()
-    r = subprocess.run([sys.executable, "-m", "handx_jax", "sweep", "status", str(tmp_path / "cli")],
+    r = subprocess.run([sys.executable, "-m", "handx_jax", "sweep", "status", "--out", str(tmp_path / "cli")],
                        capture_output=True, text=True, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)})
     assert r.returncode == 0 and "1 done, 0 running, 1 failed, 0 pending" in r.stdout
 
@@ -330,9 +330,9 @@ def _fake_evaluator(path: Path, *, level: int = 0, weights: bytes = b"w1") -> Pa
 def _fake_handx_stages(monkeypatch, on_stage):
     """Run the fake training stage for real and hand each handx stage to ``on_stage(name, argv)`` (it
     writes the stage's output and returns what to record); returns the list of recorded calls."""
-    import sweeps.launcher as L
+    import sweeps.stages as stages  # run_command: the stages' subprocess runner
 
-    calls, real = [], L.run_command
+    calls, real = [], stages.run_command
 
     def run_command(argv, log, env):
         argv = list(argv)
@@ -342,7 +342,7 @@ def _fake_handx_stages(monkeypatch, on_stage):
         calls.append(on_stage(argv[argv.index("handx_jax") + 1], argv))
         return 0.0
 
-    monkeypatch.setattr(L, "run_command", run_command)
+    monkeypatch.setattr(stages, "run_command", run_command)
     return calls
 
 
@@ -354,11 +354,12 @@ def test_scores_of_another_evaluator_are_redone_and_kept(tmp_path, monkeypatch):
     import numpy as np
 
     import sweeps.launcher as L
+    import sweeps.stages as stages  # run_command: the stages' subprocess runner
     from analysis.schema import row_from_run_dir
     from handx_jax.evaluation import evaluator_id
 
     calls = []
-    real = L.run_command
+    real = stages.run_command
 
     def run_command(argv, log, env):
         argv = list(argv)
@@ -375,7 +376,7 @@ def test_scores_of_another_evaluator_are_redone_and_kept(tmp_path, monkeypatch):
             (run / "eval.json").write_text(json.dumps({"rprec_top3": 0.2, "_meta": {"evaluator_id": evaluator_id(E)}}))
         return 0.0
 
-    monkeypatch.setattr(L, "run_command", run_command)
+    monkeypatch.setattr(stages, "run_command", run_command)
     E1 = _fake_evaluator(tmp_path / "E1")
     spec = fake("a")
     cfg = cfg_for(tmp_path, evaluator=str(E1))
@@ -425,7 +426,7 @@ def test_scores_of_another_evaluator_are_redone_and_kept(tmp_path, monkeypatch):
 
 
 def test_rescore_a_sweep_with_a_new_evaluator(tmp_path, monkeypatch, capsys):
-    """`handx sweep rescore OUT --evaluator E`: the sweep's trained runs are scored by E with the sweep's
+    """`handx sweep rescore --out OUT --evaluator E`: the sweep's trained runs are scored by E with the sweep's
     own settings, in the sweep's order; an untrained run is named and left alone; a second rescore is a no-op."""
     import shutil
 
@@ -449,18 +450,18 @@ def test_rescore_a_sweep_with_a_new_evaluator(tmp_path, monkeypatch, capsys):
     assert not launch([fake("a"), fake("b", size=2), fake("c", "--fail")], cfg).failed.keys() - {"c"}
     assert calls.count("eval") == 2
     calls.clear()
-    assert main(["sweep", "rescore", str(tmp_path / "sweep"), "--evaluator", str(E2)]) == 0
+    assert main(["sweep", "rescore", "--out", str(tmp_path / "sweep"), "--evaluator", str(E2)]) == 0
     out = capsys.readouterr().out
     assert "rescoring 2 of 3 run(s)" in out and "not trained, left alone: c" in out
     assert calls == ["eval", "eval"]  # nothing trained, samples reused
     rows = rows_of(tmp_path / "sweep" / "results.jsonl")
     assert [r["run_id"] for r in rows] == ["a", "b", "c"]
     assert [r.get("evaluator_id") for r in rows] == [evaluator_id(E2)] * 2 + [None]
-    assert main(["sweep", "rescore", str(tmp_path / "sweep"), "--evaluator", str(E2)]) == 0
+    assert main(["sweep", "rescore", "--out", str(tmp_path / "sweep"), "--evaluator", str(E2)]) == 0
     assert "rescoring 0 of 3 run(s)" in capsys.readouterr().out and calls == ["eval", "eval"]
-    assert main(["sweep", "rescore", str(tmp_path / "nope"), "--evaluator", str(E2)]) == 2
+    assert main(["sweep", "rescore", "--out", str(tmp_path / "nope"), "--evaluator", str(E2)]) == 2
     assert "no sweep folder" in capsys.readouterr().err
-    assert main(["sweep", "rescore", str(tmp_path / "sweep"), "--evaluator", str(tmp_path / "E9")]) == 2
+    assert main(["sweep", "rescore", "--out", str(tmp_path / "sweep"), "--evaluator", str(tmp_path / "E9")]) == 2
     assert "E9: no evaluator folder here" in capsys.readouterr().err
     # a sweep whose evaluator has since been deleted still reports its status
     shutil.rmtree(E2)
@@ -479,7 +480,7 @@ def test_a_sweep_launched_with_a_relative_out_is_read_from_anywhere(tmp_path, mo
     before = rows_of(tmp_path / "rel/sweep/results.jsonl")
     assert [r["status"] for r in before] == ["done", "done"]
     monkeypatch.chdir(REPO)
-    assert main(["sweep", "collect", str(tmp_path / "rel/sweep")]) == 0
+    assert main(["sweep", "collect", "--out", str(tmp_path / "rel/sweep")]) == 0
     assert rows_of(tmp_path / "rel/sweep/results.jsonl") == before
     assert [r["status"] for r in status(tmp_path / "rel/sweep")] == ["done", "done"]
     (tmp_path / "rel/sweep").rename(tmp_path / "moved")
@@ -487,7 +488,7 @@ def test_a_sweep_launched_with_a_relative_out_is_read_from_anywhere(tmp_path, mo
 
 
 def test_scores_at_another_block_are_redone_from_the_same_samples(tmp_path, monkeypatch, capsys):
-    """A sweep scores at its R-Precision block (the sweep file's RPREC_BLOCK, or --rprec-block): runs
+    """A sweep scores at its R-Precision block (the sweep file's RPREC_BLOCK, or --block): runs
     scored at another block are rescored from their samples, the old scores kept as
     eval.<id>.b<block>.json and never overwritten; the table's rprec_block follows."""
     import sweeps.launcher as L
@@ -518,7 +519,7 @@ def test_scores_at_another_block_are_redone_from_the_same_samples(tmp_path, monk
     assert stage_state(cfg16, spec) == {"train": True, "generate": True, "evaluate": False}
     assert L.run_status(tmp_path / "sweep", cfg16, spec) == (
         "pending", "scored at R-Precision block 32, the sweep's is 16: rescore")
-    assert main(["sweep", "rescore", str(tmp_path / "sweep"), "--evaluator", str(E), "--rprec-block", "16"]) == 0
+    assert main(["sweep", "rescore", "--out", str(tmp_path / "sweep"), "--evaluator", str(E), "--block", "16"]) == 0
     assert "at R-Precision block 16" in capsys.readouterr().out
     assert calls[3:] == [("evaluate", 16)] and (run / "generated.npz").read_bytes() == samples
     assert json.loads((run / f"eval.{eid}.b32.json").read_text())["rprec_top3"] == 3.0 / 32
@@ -526,7 +527,7 @@ def test_scores_at_another_block_are_redone_from_the_same_samples(tmp_path, monk
     assert rows_of(tmp_path / "sweep" / "results.jsonl")[0]["rprec_block"] == 16
     # the rescore's block is now the sweep's: a plain relaunch or rescore has nothing to do
     assert json.loads((tmp_path / "sweep" / "sweep.json").read_text())["config"]["rprec_block"] == 16
-    assert main(["sweep", "rescore", str(tmp_path / "sweep"), "--evaluator", str(E)]) == 0
+    assert main(["sweep", "rescore", "--out", str(tmp_path / "sweep"), "--evaluator", str(E)]) == 0
     assert "rescoring 0 of 1" in capsys.readouterr().out and len(calls) == 4
 
     # Back to 32 and to 16 again: each earlier file is kept, none overwritten.
@@ -540,7 +541,7 @@ def test_scores_at_another_block_are_redone_from_the_same_samples(tmp_path, monk
     assert L.load_rprec_block("sweeps/diffusion_flops_ladder.py") == 16
     assert L.load_rprec_block("sweeps/diffusion_cpu_study.py") == 32
     with pytest.raises(SystemExit) as e:
-        main(["sweep", "run", "sweeps/diffusion_flops_ladder.py", "--rprec-block", "1", "--out", str(tmp_path / "x")])
+        main(["sweep", "run", "sweeps/diffusion_flops_ladder.py", "--block", "1", "--out", str(tmp_path / "x")])
     assert e.value.code == 2 and "at least 2" in capsys.readouterr().err
 
 
@@ -657,7 +658,8 @@ def test_generate_stage_passes_only_family_agnostic_settings(tmp_path):
     """The generate stage's settings are ``sample.*`` overrides: the registry's sweep default for the run's
     family, then the run's own, then the sweep's ``--set`` (the last wins); an old sweep.json's
     ``sampler``/``sampler_steps`` are read as those overrides."""
-    from sweeps.launcher import _load_state, generate_settings
+    from sweeps.launcher import generate_settings
+    from sweeps.results import load_state
 
     d = RunSpec("d", "diffusion", overrides=("model.layers=1", "sample.steps=8"))
     a = RunSpec("a", "ar", overrides=("sample.temperature=0.5",))
@@ -669,5 +671,5 @@ def test_generate_stage_passes_only_family_agnostic_settings(tmp_path):
     doc = {"config": {"data": "D", "encoder": "", "out": "x", "sampler": "ddim", "sampler_steps": 25},
            "runs": [{"name": "d", "family": "diffusion", "overrides": ["model.layers=1"]}]}
     (out / "sweep.json").write_text(json.dumps(doc))
-    old_cfg, specs = _load_state(out)
+    old_cfg, specs = load_state(out)
     assert old_cfg.sample == ("sample.sampler=ddim", "sample.steps=25") and specs[0].family == "diffusion"

@@ -13,7 +13,7 @@ import jax
 import numpy as np
 import pytest
 
-from handx_jax.text.t5 import load_hf_t5_encoder, save_hf_t5_encoder
+from handx_jax.text.hf import load_hf_t5_encoder, save_hf_t5_encoder
 
 FIXTURES = Path(__file__).parent / "fixtures"
 VARIANTS = ["t5_tiny_relu", "t5_tiny_gated"]

@@ -14,7 +14,8 @@ from handx_jax.io import DataError
 from handx_jax.text import cli
 from handx_jax.text import tokenizer as tk
 from handx_jax.text.cache import TextCache, build_cache, neighbour_accuracy, open_cache
-from handx_jax.text.t5 import T5Config, T5EncoderModel, encoder_flops, load_hf_t5_encoder, save_hf_t5_encoder
+from handx_jax.text.hf import load_hf_t5_encoder, save_hf_t5_encoder
+from handx_jax.text.t5 import T5Config, T5EncoderModel, encoder_flops
 from handx_jax.text.toy import write_toy_dataset
 
 
@@ -128,7 +129,7 @@ def test_cli_cache_and_encode(setup, capsys):
     assert lines[1]["nearest_neighbour_check"] == "val" and 0 <= lines[1]["accuracy"] <= 1
 
     texts = ["left thumb taps", tk.join_fields("left hand waves", "right hand rests", "hands touch")]
-    a = p.parse_args(["text", "encode", "--weights", str(enc_dir), "--json", *texts])
+    a = p.parse_args(["text", "encode", "--encoder", str(enc_dir), "--json", *texts])
     assert a.func(a) == 0
     doc = json.loads(capsys.readouterr().out)
     assert set(doc) == {"ids", "hidden"}

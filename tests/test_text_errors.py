@@ -11,7 +11,7 @@ import pytest
 from handx_jax.io import DataError
 from handx_jax.text import cli
 from handx_jax.text import tokenizer as tk
-from handx_jax.text.t5 import load_hf_t5_encoder
+from handx_jax.text.hf import load_hf_t5_encoder
 from handx_jax.text.toy import write_toy_dataset
 
 FIXTURE = Path(__file__).parent / "fixtures" / "t5_tiny_relu"
@@ -103,7 +103,7 @@ def test_corrupt_weights(folder):
 def test_cli_errors_and_help(tmp_path, capsys):
     p = argparse.ArgumentParser(prog="handx")
     cli.add_parser(p.add_subparsers())
-    for argv in (["text", "--help"], ["text", "encode", "--help"], ["text", "tokenizer", "--help"],
+    for argv in (["text", "--help"], ["text", "encode", "--help"], ["text", "sentencepiece", "--help"],
                  ["text", "pretrain", "--help"], ["text", "cache", "--help"]):
         with pytest.raises(SystemExit) as e:
             p.parse_args(argv)
@@ -111,7 +111,7 @@ def test_cli_errors_and_help(tmp_path, capsys):
     assert "usage: handx text" in capsys.readouterr().out
     with pytest.raises(SystemExit):
         p.parse_args(["text", "pretrain", "--data", "d", "--out", "o", "--preset", "huge"])
-    a = p.parse_args(["text", "encode", "--weights", str(tmp_path / "none"), "hello"])
+    a = p.parse_args(["text", "encode", "--encoder", str(tmp_path / "none"), "hello"])
     with pytest.raises(DataError, match="encoder folder does not exist"):
         a.func(a)
     data = write_toy_dataset(tmp_path / "data", num_clips=8)
@@ -141,7 +141,7 @@ def test_damaged_weights_are_named(folder, damage):
 def test_checksum_catches_flipped_bytes(folder, tmp_path):
     """64 flipped bytes inside a tensor loaded silently; the sidecar written on save now refuses them."""
     from handx_jax.io import checksum_path, verify_checksum, write_checksum
-    from handx_jax.text.t5 import save_hf_t5_encoder
+    from handx_jax.text.hf import save_hf_t5_encoder
 
     enc = load_hf_t5_encoder(folder)
     out = save_hf_t5_encoder(tmp_path / "saved", enc.cfg, enc.params, enc.tokenizer)

@@ -1,6 +1,5 @@
 """Span-corruption pretraining: the objective, the loss going down, exact resume, the exported encoder."""
 
-import argparse
 import json
 
 import jax
@@ -8,7 +7,7 @@ import numpy as np
 import pytest
 
 from handx_jax.io import DataError, read_jsonl
-from handx_jax.text import cli
+from handx_jax.cli import main
 from handx_jax.text import tokenizer as tk
 from handx_jax.text.pretrain import PretrainConfig, pretrain, span_corrupt, target_length
 from handx_jax.text.hf import load_hf_t5_encoder
@@ -66,10 +65,7 @@ CLI_ARGS = ["--preset", "tiny", "--steps", "24", "--batch-size", "16", "--lr", "
 
 def test_pretrain_lowers_loss_and_resumes_exactly(data, tmp_path):
     # the real entry point, through the CLI (same settings as CFG)
-    p = argparse.ArgumentParser()
-    cli.add_parser(p.add_subparsers())
-    a = p.parse_args(["text", "pretrain", "--data", str(data), "--out", str(tmp_path / "b"), *CLI_ARGS])
-    assert a.func(a) == 0
+    assert main(["train", "t5", "--data", str(data), "--out", str(tmp_path / "b"), *CLI_ARGS]) == 0
     full = json.loads((tmp_path / "b" / "pretrain.json").read_text())
     assert full["eval_loss_end"] < full["eval_loss_start"] - 1.0
     assert full["train_loss_last"] < full["train_loss_first"]

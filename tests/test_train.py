@@ -6,7 +6,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from handx_jax.train import OptimConfig, TrainConfig, batch_indices, load_params, train
+from handx_jax.optim import OptimConfig
+from handx_jax.train import TrainConfig, TrainSpec, batch_indices, load_params
+from handx_jax.train import train as train_spec
+
+
+def train(run_dir, *, stop_at=None, on_log=None, **spec):
+    """The loop on the TrainSpec of these fields (these tests' keyword form)."""
+    return train_spec(run_dir, TrainSpec(**spec), stop_at=stop_at, on_log=on_log)
 
 
 def _problem():
@@ -167,7 +174,7 @@ def test_checkpoints_carry_checksums_and_flipped_bytes_are_refused(tmp_path):
 def test_learning_rate_matches_optax_schedules(schedule, warmup, steps):
     import optax
 
-    from handx_jax.train import learning_rate, schedule_values
+    from handx_jax.optim import learning_rate, schedule_values
 
     cfg = OptimConfig(lr=3e-3, warmup_steps=warmup, schedule=schedule)
     if schedule == "constant":
@@ -211,7 +218,7 @@ def test_runs_differing_in_lr_and_length_share_one_compiled_step(tmp_path, monke
 def test_warmup_longer_than_the_run_is_capped_and_the_logged_lr_reaches_its_peak(tmp_path, schedule):
     """Issue 30: a 10-step run whose warm-up is 100 steps (a full-length recipe shortened by
     ``train.steps``) warms up over a fifth of the run; the ``lr`` of metrics.jsonl is the one applied."""
-    from handx_jax.train import effective_warmup, learning_rate, schedule_values
+    from handx_jax.optim import effective_warmup, learning_rate, schedule_values
 
     assert effective_warmup(100, 10) == 2 and effective_warmup(10, 10) == 2 and effective_warmup(9, 10) == 9
     assert effective_warmup(8000, 300) == 60 and effective_warmup(5, 0) == 5

@@ -11,7 +11,7 @@ def fail(cmd: str, err: object, code: int = 2) -> int:
     return code
 
 
-def parse_family(args, verb: str, family_parser):
+def parse_family(args, verb: str, family_parser, also=()):
     """The shared head of ``handx train|params FAMILY``: list the families, show help, or parse the
     family's own flags. Returns ``(family_args, None)`` to go on, or ``(None, exit_status)``."""
     from handx_jax.families import entry, names
@@ -19,6 +19,10 @@ def parse_family(args, verb: str, family_parser):
     if args.family is None:
         args.parser.print_help()
         print("\nfamilies:\n" + "\n".join(f"  {k:<12s}{entry(k).help}" for k in names()))
+        if also:  # handx train: what it trains besides the families (families.TRAINABLES)
+            import importlib
+
+            print("also:\n" + "\n".join(f"  {k:<12s}{importlib.import_module(m).TRAIN_HELP}" for k, m in also.items()))
         return None, 0 if args.help else fail(f"handx {verb}", "give a FAMILY")
     try:
         p = family_parser(args.family)

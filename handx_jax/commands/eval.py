@@ -1,8 +1,8 @@
-"""``handx eval …``: train the text–motion evaluator and score generated motion (paper Table 2).
+"""``handx eval …``: score generated motion (paper Table 2); the evaluator's training flags (``handx train evaluator``).
 
-    handx eval train-evaluator --data DIR --encoder ENC --out E [--preset small] [--steps N] [--set key.sub=v]
-    handx eval run [--evaluator E] --generated G.npz --reference DIR [--samples K] [--json] [--out RUN_DIR]
-    handx eval run --evaluator E --ground-truth --reference DIR [--json]
+    handx train evaluator --data DIR --encoder ENC --out E [--preset small] [--steps N] [--set key.sub=v]
+    handx eval run [--evaluator E] --generated G.npz --data DIR [--samples K] [--json] [--out RUN_DIR]
+    handx eval run --evaluator E --ground-truth --data DIR [--json]
     handx eval prediction --run RUN --observed-frames N [--data D] [--split test] [--limit M] [--samples K]
                           [--horizons 17-32,33-48,49-60] [--out FILE] [--json] [family flags, e.g. --sampler ddim]
     handx eval prediction --baseline last-frame --data D --observed-frames N [...]
@@ -25,11 +25,36 @@ import dataclasses
 import json
 import sys
 
+from handx_jax.cliargs import deprecated_command, deprecated_flag
 from handx_jax.config import add_config_args
 
 PR_BASELINES = ("last-frame",)  # handx eval prediction --baseline (evaluation/prediction.py: last_frame)
 
-def _train(args: argparse.Namespace) -> int:
+TRAIN_HELP = "the contrastive text–motion evaluator (the yardstick of paper Table 2)"
+TRAIN_DESCRIPTION = ("Train the evaluator (config: handx_jax.evaluation.EvaluatorRunConfig; --set takes its dotted "
+                     "keys: model.*, text.*, train.*, train.optim.*, data.text_bucket, metrics.*, final_eval). "
+                     "Re-running resumes an unfinished folder (same config).")
+
+
+def add_train_args(t: argparse.ArgumentParser) -> None:
+    """``handx train evaluator``'s flags (a trainable of the registry, ``families.TRAINABLES``)."""
+    t.add_argument("--data", required=True, help="dataset directory (trains on its train split)")
+    t.add_argument("--encoder", required=True, help="frozen T5 encoder folder (Hugging Face layout)")
+    t.add_argument("--out", required=True, help="evaluator folder E (resumed if unfinished)")
+    add_config_args(t, ("tiny", "small", "paper"), default="small", example="model.layers=2")
+    t.add_argument("--steps", type=int, help="training steps (train.steps; default 3000)")
+    t.add_argument("--batch-size", type=int, help="train.batch_size (default 128)")
+    t.add_argument("--lr", type=float, help="train.optim.lr (default 3e-4)")
+    t.add_argument("--warmup", type=int, help="train.optim.warmup_steps (default 200, capped at steps/5)")
+    t.add_argument("--max-len", type=int, help="joined-caption token limit (text.max_len; default 256)")
+    t.add_argument("--train-levels", help="comma-separated caption levels to train on, or 'all' (default 0)")
+    t.add_argument("--eval-level", type=int, help="text.eval_level: the caption level it scores at (−1 = most detailed; default 0)")
+    t.add_argument("--block", type=int, help="R-Precision block of the final Ground Truth row (default 32)")
+    t.add_argument("--no-final-eval", action="store_true", help="skip the Ground Truth row on the test split")
+    t.add_argument("--force", action="store_true", help="retrain over a finished evaluator folder")
+
+
+def train_from_args(args: argparse.Namespace) -> int:
     from handx_jax.commands import fail
     from handx_jax.config import print_config
     from handx_jax.evaluation import make_evaluator_config, train_evaluator
@@ -46,7 +71,7 @@ def _train(args: argparse.Namespace) -> int:
     try:
         cfg = make_evaluator_config(args.preset, sets + args.set, data=args.data, encoder=args.encoder)
     except ValueError as e:
-        return fail("handx eval train-evaluator", e)
+        return fail("handx train evaluator", e)
     if args.print_config:
         print_config(cfg)
         return 0
@@ -97,7 +122,7 @@ def _run(args: argparse.Namespace) -> int:
         ev = load_evaluator(args.evaluator, encoder=args.encoder)
     if args.level is not None:
         ev.policy = dataclasses.replace(ev.policy, eval_level=args.level)
-    ds = Dataset.open(args.reference)
+    ds = Dataset.open(args.data)
     if args.ground_truth:
         res, name = evaluate_ground_truth(ev, ds, cfg, split=args.split, cache=cache), "Ground Truth"
     else:
@@ -162,7 +187,12 @@ def _predict(args: argparse.Namespace) -> int:
     fam = fp = None
     if args.run:  # the run's family parses its own flags (as handx generate does); nothing here names one
         from handx_jax.commands.generate import family_parser
+        from handx_jax.families import entry, family_of
 
+        name = family_of(args.run)
+        if "prediction" not in entry(name).tasks:  # the registry says which families predict
+            return fail(PREDICTION, f"family {name} does not do --task prediction; it does "
+                                    f"{', '.join(entry(name).tasks) or 'no generation'}")
         fam, fp = family_parser(args.run)
         fp.prog = f"{PREDICTION} --run {args.run}"  # argparse's own errors (a bad family flag) name this command
     data = args.data or PR.run_data(args.run)
@@ -181,9 +211,7 @@ def _predict(args: argparse.Namespace) -> int:
     if args.run:
         fargs, rest = fp.parse_known_args([*args.extra, "--observed-frames", str(N)], namespace=argparse.Namespace(
             run=args.run, set=args.set, left=None, right=None, interaction=None))
-        if "--observed-frames" in rest:  # a family that predicts takes the flag (handx generate --task prediction)
-            return fail(PREDICTION, f"family {fam.FAMILY} does not do --task prediction")
-        if rest:
+        if rest:  # a family declaring "prediction" takes --observed-frames (families.Family.tasks)
             return fail(PREDICTION, f"unrecognized arguments: {' '.join(rest)}")
         run, opts = fam.load_for_generate(fargs, ema=not args.no_ema, encoder=args.encoder, seed=args.seed,
                                           batch_size=args.batch_size)
@@ -218,30 +246,16 @@ def _predict(args: argparse.Namespace) -> int:
 
 
 def add_parser(subparsers) -> None:
-    p = subparsers.add_parser("eval", help="evaluator training and Table 2 metrics",
-                              description="Train the text–motion evaluator; score generated motion.")
+    p = subparsers.add_parser("eval", help="Table 2 metrics of generated motion; motion prediction",
+                              description="Score generated motion (Table 2) and motion prediction; the evaluator "
+                                          "itself trains with `handx train evaluator`.")
     sub = p.add_subparsers(dest="eval_command", metavar="SUBCOMMAND")
     sub.required = True
 
-    t = sub.add_parser("train-evaluator", help="train a contrastive evaluator; write a versioned checkpoint folder",
-                       description="Train the evaluator (config: handx_jax.evaluation.EvaluatorRunConfig; --set takes "
-                                   "its dotted keys: model.*, text.*, train.*, train.optim.*, data.text_bucket, "
-                                   "metrics.*, final_eval). Re-running resumes an unfinished folder (same config).")
-    t.add_argument("--data", required=True, help="dataset directory (trains on its train split)")
-    t.add_argument("--encoder", required=True, help="frozen T5 encoder folder (Hugging Face layout)")
-    t.add_argument("--out", required=True, help="evaluator folder E (resumed if unfinished)")
-    add_config_args(t, ("tiny", "small", "paper"), default="small", example="model.layers=2")
-    t.add_argument("--steps", type=int, help="training steps (train.steps; default 3000)")
-    t.add_argument("--batch-size", type=int, help="train.batch_size (default 128)")
-    t.add_argument("--lr", type=float, help="train.optim.lr (default 3e-4)")
-    t.add_argument("--warmup", type=int, help="train.optim.warmup_steps (default 200, capped at steps/5)")
-    t.add_argument("--max-len", type=int, help="joined-caption token limit (text.max_len; default 256)")
-    t.add_argument("--train-levels", help="comma-separated caption levels to train on, or 'all' (default 0)")
-    t.add_argument("--eval-level", type=int, help="caption level used at evaluation (−1 = most detailed; default 0)")
-    t.add_argument("--block", type=int, help="R-Precision block of the final Ground Truth row (default 32)")
-    t.add_argument("--no-final-eval", action="store_true", help="skip the Ground Truth row on the test split")
-    t.add_argument("--force", action="store_true", help="retrain over a finished evaluator folder")
-    t.set_defaults(func=_train)
+    t = sub.add_parser("train-evaluator", help="(deprecated: handx train evaluator)",
+                       description=f"Deprecated spelling of `handx train evaluator`. {TRAIN_DESCRIPTION}")
+    add_train_args(t)
+    t.set_defaults(func=deprecated_command(train_from_args, "handx eval train-evaluator", "handx train evaluator"))
 
     r = sub.add_parser("run", help="Table 2 metrics of generated motion (or the Ground Truth row)")
     r.add_argument("--evaluator", help="evaluator folder E; default (or 'standard', or the packaged folder): the "
@@ -249,7 +263,8 @@ def add_parser(subparsers) -> None:
                                        "(`handx standard info`)")
     r.add_argument("--generated", help="generated clips: HandX .npz (entries may carry source_clip, group)")
     r.add_argument("--ground-truth", action="store_true", help="score the reference split's GT motion itself")
-    r.add_argument("--reference", required=True, help="the dataset the evaluator was trained on")
+    deprecated_flag(r, "--reference", r.add_argument("--data", required=True, metavar="DIR",
+                                                     help="the dataset the evaluator was trained on"))
     r.add_argument("--split", default="test", help="reference split (GT row; generated files without source_clip)")
     r.add_argument("--encoder", help="encoder folder, if moved since training (fingerprint-checked)")
     r.add_argument("--level", type=int, help="caption level to score against (default: the evaluator's eval_level; "
@@ -277,7 +292,7 @@ def add_parser(subparsers) -> None:
                                    "generate the rest K times, and score MPJPE-RA / MPJPE-PA / MPJPE per hand by "
                                    "horizon and APD over the K samples, with 95% intervals "
                                    "(handx_jax/evaluation/prediction.py). The run's own generation flags follow "
-                                   "(`handx generate --run RUN --help`: diffusion --sampler/--steps/--guidance, "
+                                   "(`handx generate --run RUN --help`: diffusion --sampler/--sample-steps/--guidance, "
                                    "ar --temperature/--top-k/--top-p; AR observes an even number of frames).")
     q.add_argument("--run", help="run folder (either family); or --baseline")
     q.add_argument("--baseline", choices=PR_BASELINES, help="score a trivial predictor instead of a run: last-frame "

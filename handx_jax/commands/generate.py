@@ -15,12 +15,12 @@ observed, the rest generated; scored by ``handx eval prediction``). A family may
 tasks. Generation settings are the run's own config (its ``sample.*`` keys), changed with ``--set
 sample.KEY=VALUE`` for any family (the sweep launcher's one channel); the run's family adds flags for
 the same keys: ``handx generate --run RUN --help`` lists them (for diffusion ``--sampler``,
-``--steps``, ``--guidance``; ``--set diffusion.p_hard=1.0`` etc.).
+``--sample-steps``, ``--guidance``; ``--set diffusion.p_hard=1.0`` etc.).
 
 Batch mode (for evaluation): one prompt per clip of a dataset split, G samples each, entries in clip
 order with fields ``source_clip`` (clip id) and ``group`` (0..G−1):
 
-    handx generate --run RUN --reference DIR --split test [--limit N] --samples G --out gen.npz
+    handx generate --run RUN --data DIR --split test [--limit N] --samples G --out gen.npz
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import time
 
+from handx_jax.cliargs import deprecated_flag
 from handx_jax.commands import fail
 
 CMD = "handx generate"
@@ -93,8 +94,8 @@ def _generate(args: argparse.Namespace) -> int:
     from handx_jax.generation import load_source, write_generated
 
     fargs = fp.parse_args(args.extra, namespace=argparse.Namespace(**vars(args)))
-    if args.task not in ("text2motion", "long") and not (args.source or args.reference):
-        return fail(CMD, f"--task {args.task} needs a constraint clip: --source (or --reference)")
+    if args.task not in ("text2motion", "long") and not (args.source or args.data):
+        return fail(CMD, f"--task {args.task} needs a constraint clip: --source (or --data)")
     try:
         prompts = _prompts(args)
         run, opts = fam.load_for_generate(fargs, ema=not args.no_ema, encoder=args.encoder, seed=args.seed,
@@ -106,13 +107,13 @@ def _generate(args: argparse.Namespace) -> int:
     keyframes = tuple(int(k) for k in args.keyframes.split(",")) if args.keyframes else (30,)
     t0 = time.perf_counter()
     G = args.samples
-    if args.reference:
+    if args.data:
         if prompts:
-            return fail(CMD, "--reference takes its prompts from the dataset; drop --left/--right/...")
+            return fail(CMD, "--data takes its prompts from the dataset; drop --left/--right/...")
         from handx_jax.data.dataset import Dataset
         from handx_jax.generation import split_prompts
 
-        ds = Dataset.open(args.reference)
+        ds = Dataset.open(args.data)
         clips, ps, sources = split_prompts(ds, args.split, args.limit, args.level)
         if getattr(opts, "needs_records", False):  # the sampler reads each prompt's record (contact guidance)
             from handx_jax.generation import with_records
@@ -130,7 +131,7 @@ def _generate(args: argparse.Namespace) -> int:
         src = load_source(args.source, args.clip, records=records) if args.source else None
         if not prompts:
             if src is None:
-                return fail(CMD, "give --left/--right/--interaction, a --source clip, or --reference")
+                return fail(CMD, "give --left/--right/--interaction, a --source clip, or --data")
             prompts = [src.prompts[args.level]]
         if args.task == "long":
             j = run.generate_long(prompts, opts, samples=G, source=None if src is None else src.joints)
@@ -170,10 +171,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "family supports")
     p.add_argument("--source", help="constraint clip: official-layout .npz or a dataset directory (with --clip)")
     p.add_argument("--clip", help="key in the .npz, or clip id/index in the dataset")
-    p.add_argument("--level", type=int, default=-1, help="annotation level for prompts taken from data (-1 = most detailed)")
+    p.add_argument("--level", type=int, default=-1, help="caption level of prompts taken from data (-1 = most detailed)")
     p.add_argument("--keyframes", help="comma-separated keyframe indices for --task keyframes (default 30)")
     p.add_argument("--fixed-hand", default="left", choices=["left", "right"], help="constrained hand for reaction")
-    p.add_argument("--reference", help="batch mode: dataset directory; one prompt per clip of --split")
+    deprecated_flag(p, "--reference", p.add_argument(
+        "--data", metavar="DIR", help="batch mode: dataset directory; one prompt per clip of --split"))
     p.add_argument("--split", default="test", choices=["train", "val", "test"])
     p.add_argument("--limit", type=int, help="batch mode: at most N clips (shuffled with seed 42, then sorted)")
     p.add_argument("--samples", type=int, default=1, help="samples per prompt (G)")

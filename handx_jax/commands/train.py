@@ -1,6 +1,8 @@
-"""``handx train <family>``: train (or resume) a model family into a run folder.
+"""``handx train NAME``: train (or resume) a model family, the evaluator or a T5 encoder into a folder.
 
     handx train diffusion --data DIR --encoder ENC --preset tiny --set train.steps=2000 --out RUN
+    handx train evaluator --data DIR --encoder ENC --preset small --out E
+    handx train t5 --data DIR --preset tiny --out RUN     (RUN/encoder: the exported frozen encoder)
 
 Re-running the same command on an existing run folder resumes it from its latest checkpoint (the
 configuration must match). ``--set`` takes dotted keys of the family's run config (for diffusion
@@ -40,8 +42,39 @@ def _print_row(row: dict) -> None:
         print(f"step {row['step']:>7d}  {vals}", flush=True)
 
 
+def trainable_parser(name: str) -> argparse.ArgumentParser:
+    """The ``handx train NAME`` parser of a trainable that is not a family (``families.TRAINABLES``)."""
+    import importlib
+
+    from handx_jax.families import TRAINABLES
+
+    mod = importlib.import_module(TRAINABLES[name])
+    p = argparse.ArgumentParser(prog=f"handx train {name}", description=f"Train {mod.TRAIN_HELP}. "
+                                f"{mod.TRAIN_DESCRIPTION}", allow_abbrev=False)
+    mod.add_train_args(p)
+    return p
+
+
+def _run_trainable(args: argparse.Namespace) -> int:
+    """``handx train evaluator|t5``: an artefact that is not a model family (``families.TRAINABLES``)."""
+    import importlib
+
+    from handx_jax.families import TRAINABLES
+
+    mod = importlib.import_module(TRAINABLES[args.family])
+    p = trainable_parser(args.family)
+    if args.help:
+        p.print_help()
+        return 0
+    return mod.train_from_args(p.parse_args(args.extra))
+
+
 def _run(args: argparse.Namespace) -> int:
-    fargs, status = parse_family(args, "train", family_parser)
+    from handx_jax.families import TRAINABLES
+
+    if args.family in TRAINABLES:
+        return _run_trainable(args)
+    fargs, status = parse_family(args, "train", family_parser, also=TRAINABLES)
     if fargs is None:
         return status
     cmd = f"handx train {args.family}"
@@ -79,10 +112,10 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser("train", help="train a model family into a run folder", add_help=False,
+    p = subparsers.add_parser("train", help="train a model family, the evaluator or a T5 encoder", add_help=False,
                               allow_abbrev=False, description=__doc__,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("family", nargs="?", metavar="FAMILY", help="model family (see the list below)")
+    p.add_argument("family", nargs="?", metavar="NAME", help="model family, evaluator or t5 (see the list below)")
     p.add_argument("-h", "--help", action="store_true", help="show this help (with FAMILY: its options)")
     p.set_defaults(func=_run, parser=p, takes_extra_args=True)
     return p

@@ -8,6 +8,13 @@ import os
 import sys
 from pathlib import Path
 
+from handx_jax.cliargs import deprecated_positional
+
+
+def _data_arg(s) -> None:
+    """``--data DIR``; the positional spelling of earlier releases still works, with a notice."""
+    deprecated_positional(s, s.add_argument("--data", required=True, metavar="DIR", help="dataset directory"), "data")
+
 
 def add_parser(subparsers) -> None:
     from handx_jax.data.clips import defect_reasons_help
@@ -36,19 +43,19 @@ def add_parser(subparsers) -> None:
     s.set_defaults(func=_synth)
 
     s = sub.add_parser("stats", help="corpus statistics (Table 1(b) quantities, caption uniqueness)")
-    s.add_argument("data", help="dataset directory")
+    _data_arg(s)
     s.add_argument("--json", action="store_true", help="print JSON")
     s.set_defaults(func=_stats)
 
     s = sub.add_parser("show", help="render one clip as an animated GIF")
-    s.add_argument("data", help="dataset directory")
+    _data_arg(s)
     s.add_argument("--clip", required=True, help="clip index or id")
     s.add_argument("--out", required=True, help="output .gif")
     s.add_argument("--level", type=int, default=0, help="caption level shown (0 = concise, -1 = most detailed)")
     s.set_defaults(func=_show)
 
     s = sub.add_parser("prompt", help="write the LLM captioning prompt for one clip")
-    s.add_argument("data", help="dataset directory")
+    _data_arg(s)
     s.add_argument("--clip", required=True, help="clip index or id")
     s.add_argument("--out", help="write to this file instead of stdout")
     s.set_defaults(func=_prompt)
@@ -65,13 +72,13 @@ def add_parser(subparsers) -> None:
     s.set_defaults(func=_import)
 
     s = sub.add_parser("export-handx", help="export a dataset in the official HandX .npz layout")
-    s.add_argument("data", help="dataset directory")
+    _data_arg(s)
     s.add_argument("--out", required=True, help="output .npz")
     s.add_argument("--split", choices=("all", "train", "val", "test"), default="all")
     s.set_defaults(func=_export)
 
     s = sub.add_parser("verify", help="check a dataset's files against its recorded fingerprint")
-    s.add_argument("data", help="dataset directory")
+    _data_arg(s)
     s.set_defaults(func=_verify)
 
 

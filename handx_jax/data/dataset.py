@@ -356,16 +356,14 @@ def _chunk_moments(motion_path: str, idx: np.ndarray) -> dict[str, tuple[np.ndar
     from handx_jax import representation as rep
 
     m = np.asarray(np.load(motion_path, mmap_mode="r")[idx], dtype=np.float64)
-    return {name: rep.preset_moments(name, rep.NORM_PRESETS[name].featurize(m)) for name in stats_names()}
+    return {name: rep.preset_moments(name, rep.norm_preset(name).featurize(m)) for name in stats_names()}
 
 
 def stats_names() -> list[str]:
-    """The statistics ``stats.npz`` holds: each one a registered family normalises with (the registry's
-    ``Family.norm``, in registry order), then the evaluator's."""
-    from handx_jax.families import entry, names
+    """The statistics ``stats.npz`` holds: what the registry declares (``families.stats_names``)."""
+    from handx_jax import families
 
-    out = [n for n in dict.fromkeys(entry(f).norm for f in names()) if n]
-    return out + ([] if "evaluator" in out else ["evaluator"])
+    return families.stats_names()
 
 
 @dataclass

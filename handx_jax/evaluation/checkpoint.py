@@ -48,11 +48,11 @@ def _policy_from_json(d: Mapping) -> TextPolicy:
 
 def read_meta(root: str | os.PathLike) -> dict:
     root = Path(root)
-    hint = (" (training has not finished: rerun the same `handx eval train-evaluator` command to resume)"
+    hint = (" (training has not finished: rerun the same `handx train evaluator` command to resume)"
             if (root / "checkpoints").is_dir() else "")
     return read_format_meta(root / META_FILE, FORMAT, FORMAT_VERSION,
                             missing=f"not an evaluator checkpoint: missing {META_FILE}{hint}",
-                            upgrade="; retrain it with `handx eval train-evaluator`")
+                            upgrade="; retrain it with `handx train evaluator`")
 
 
 def evaluator_id(root: str | os.PathLike) -> str:

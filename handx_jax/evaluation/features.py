@@ -60,7 +60,7 @@ def evaluator_stats(ds, kind: str = "positions", clips: np.ndarray | None = None
     # Streamed 256 clips at a time (4,096 clips of 307 float64 features would be 600 MB at once), with
     # the positions preset's std floor.
     chunks = (fn(np.asarray(ds.motion[pick[s:s + 256]], np.float32)) for s in range(0, len(pick), 256))
-    return rep.compute_norm_stats(chunks, axis=(0, 1), min_std=rep.NORM_PRESETS["evaluator"].min_std)
+    return rep.compute_norm_stats(chunks, axis=(0, 1), min_std=rep.EVALUATOR_NORM.min_std)
 
 
 CAPTION_STYLES = ("sentinels", "official")

@@ -87,7 +87,7 @@ class TrainedEvaluator:
         c = check_compatible(self.meta.get("dataset"), ds, what="this evaluator", made="trained on",
                              fix=f"evaluate against the dataset the evaluator was trained on "
                                  f"({self.meta.get('dataset', {}).get('path')}), or train a new evaluator with "
-                                 f"`handx eval train-evaluator --data {ds.root}`")
+                                 f"`handx train evaluator --data {ds.root}`")
         if c.message:
             print(c.message, file=sys.stderr)
 

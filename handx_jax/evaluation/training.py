@@ -104,7 +104,7 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
     from handx_jax.models.layers import count_params
     from handx_jax.text.cache import build_cache, open_cache
     from handx_jax.text.hf import as_encoder
-    from handx_jax.train import train
+    from handx_jax.train import TrainSpec, train
 
     cfg.validate()
     out = Path(out)
@@ -162,8 +162,8 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
                 f"({row['samples_per_s']:.0f} samples/s)")
 
     t0 = time.perf_counter()
-    res = train(out, init=init, loss=loss, get_batch=tdata.batch, num_examples=len(tdata), cfg=tcfg,
-                config=config, on_log=on_log, stop_at=stop_at)
+    res = train(out, TrainSpec(init=init, loss=loss, cfg=tcfg, config=config, get_batch=tdata.batch,
+                               num_examples=len(tdata)), on_log=on_log, stop_at=stop_at)
     wall = time.perf_counter() - t0
     if res["step"] < tcfg.steps:  # stopped early (stop_at): the folder stays resumable, no checkpoint files
         return out

@@ -14,8 +14,8 @@ How to add a family ``foo``:
      run after ``--set`` overrides), ``PRESETS``: named sizes, and
      ``make_config(preset, overrides=(), **paths) -> Config``;
    - ``train(run_dir, cfg, *, stop_at=None, on_log=None, encoder=None) -> dict``: build the model,
-     loss and batches and call ``handx_jax.train.train`` (which writes ``config.json``,
-     ``metrics.jsonl``, ``checkpoints/`` and refuses to resume with a different config);
+     loss and batches and call ``handx_jax.train.train(run_dir, TrainSpec(...))`` (which writes
+     ``config.json``, ``metrics.jsonl``, ``checkpoints/`` and refuses to resume with a different config);
    - ``load(run_dir, *, ema=True, encoder=None, overrides=()) -> run``, where ``run`` has ``tasks``,
      ``generate(prompts, opts, *, samples, task, sources, keyframes, fixed_hand)`` → joints
      (P, G, F, 2, 21, 3), ``generate_long(segments, opts, *, samples, source)`` (may raise
@@ -47,11 +47,24 @@ from types import ModuleType
 
 
 @dataclass(frozen=True)
+class Axis:
+    """A sweep axis a family adds to the shared ones (layers, dim, heads, ff, data fraction): the results
+    column ``name``, the config key a sweep point sets it with (``axes_of`` reads it from the point's
+    overrides), its letter in run ids (``run_id``) and its table header (``analysis.tables``)."""
+
+    name: str
+    key: str
+    short: str
+    header: str
+
+
+@dataclass(frozen=True)
 class Family:
     """What the rest of the system knows about a family; nothing outside its module names it.
 
-    ``norm``: the dataset normalisation statistics its motion is normalised with (a ``stats.npz``
-    prefix, ``representation.NORM_PRESETS``; the dataset computes every one a family declares).
+    ``norm``: how its motion is normalised, ``module:ATTRIBUTE`` of a ``representation.NormPreset``
+    (its featuriser, std floor and eps; its name is the ``stats.npz`` prefix; the dataset computes every
+    one a family declares).
     ``encoder``: ``handx train NAME`` takes ``--encoder`` (its runs read the frozen text encoder's cache).
     ``needs``: families whose trained run it is trained from, one shared sweep step each, passed as
     ``--NAME STEP_DIR`` (the AR LM: its tokenizer). ``after_train``: commands that finish such a step
@@ -62,6 +75,10 @@ class Family:
     (``flops_per_sample_paper``…, beside the analytic count ``train`` records), or None where the paper
     defines no other convention. ``sweep_sample``: generation settings (``sample.*`` overrides) of a
     sweep's generate stage unless the sweep sets its own (``handx sweep run --set sample.KEY=V``).
+    ``axes``: the sweep axes it adds (:class:`Axis`; the AR family's codebook).
+    ``tasks``: the generation tasks its runs serve (``handx generate --task``; a run's ``tasks`` is
+    this tuple). A family serving ``prediction`` takes ``--observed-frames N`` among its generate
+    flags (``handx eval prediction`` passes it); one serving none is a step, not a generator.
     """
 
     module: str  # import path of the family module
@@ -74,19 +91,41 @@ class Family:
     table: str | None = None
     flops: str | None = None
     sweep_sample: tuple[str, ...] = ()
+    axes: tuple[Axis, ...] = ()
+    tasks: tuple[str, ...] = ("text2motion",)
+
+    def norm_preset(self):
+        """The ``representation.NormPreset`` that ``norm`` names (None without one); its ``name`` is the
+        family's ``stats.npz`` prefix."""
+        return _resolve(self.norm) if self.norm else None
 
 
 FAMILIES: dict[str, Family] = {
     "diffusion": Family("handx_jax.families.diffusion", "the treble-residual diffusion model (paper §5.1)",
-                        norm="diffusion", encoder=True, flops="handx_jax.families.diffusion.flops:from_config",
+                        norm="handx_jax.representation:DIFFUSION_NORM", encoder=True, flops="handx_jax.families.diffusion.flops:from_config",
                         # DDIM-50: what every diffusion sweep has generated with (DDPM takes all 1,000 steps)
-                        sweep_sample=("sample.sampler=ddim", "sample.steps=50")),
+                        sweep_sample=("sample.sampler=ddim", "sample.steps=50"),
+                        tasks=("text2motion", "inbetween", "keyframes", "wrist", "reaction", "long", "prediction")),
     "tokenizer": Family("handx_jax.families.tokenizer", "the FSQ motion tokenizer of the AR family (paper §5.2)",
-                        norm="ar", results=False,
+                        norm="handx_jax.representation:AR_NORM", results=False, tasks=(),
                         after_train=(("handx", "tokenize", "--tokenizer", "{out}", "--data", "{data}"),)),
     "ar": Family("handx_jax.families.ar", "the text-prefix LM over FSQ motion tokens (paper §5.2)",
-                 encoder=True, needs=("tokenizer",), table="table3"),
+                 encoder=True, needs=("tokenizer",), table="table3", tasks=("text2motion", "prediction"),
+                 # the FSQ codebook of the tokenizer it is trained from (its runs record it as "codebook")
+                 axes=(Axis("codebook", "model.codebook", "K", "Codebook"),)),
 }
+# What ``handx train NAME`` trains besides the families: artefacts that are neither generators nor
+# results rows (one training verb for everything, issue 42). NAME → the module with
+# ``add_train_args(parser)``, ``train_from_args(args) -> exit status`` and ``TRAIN_HELP``.
+TRAINABLES: dict[str, str] = {
+    "evaluator": "handx_jax.commands.eval",  # the contrastive evaluator (the yardstick)
+    "t5": "handx_jax.text.cli",  # T5 span-corruption pretraining (the encoder when none is on disk)
+}
+
+# The normalisation statistics a dataset's stats.npz holds besides the families' (``Family.norm``): those
+# of the trainables that read the dataset's motion (the evaluator's).
+TRAINABLE_NORMS: tuple[str, ...] = ("handx_jax.representation:EVALUATOR_NORM",)
+
 # Families registered from outside the package (``register``), as NAME=MODULE pairs: children of this
 # process (the sweep launcher's ``handx`` stages) find them here. MODULE holds ``REGISTRY: Family``.
 ENV = "HANDX_FAMILIES"
@@ -136,6 +175,32 @@ def register(name: str, family: Family):
 def get_family(name: str) -> ModuleType:
     """The family module registered as ``name``; an unknown name is a ValueError with a hint."""
     return importlib.import_module(entry(name).module)
+
+
+def _resolve(path: str):
+    module, _, attr = path.partition(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+def norm_presets() -> dict:
+    """Every normalisation the registry declares, by its ``stats.npz`` prefix: each registered family's
+    (``Family.norm``, in registry order), then the trainables' (``TRAINABLE_NORMS``)."""
+    paths = [entry(f).norm for f in names() if entry(f).norm] + list(TRAINABLE_NORMS)
+    out: dict = {}
+    for p in dict.fromkeys(paths):
+        preset = _resolve(p)
+        out.setdefault(preset.name, preset)
+    return out
+
+
+def stats_names() -> list[str]:
+    """The statistics a dataset's ``stats.npz`` holds (:func:`norm_presets`)."""
+    return list(norm_presets())
+
+
+def family_axes() -> dict[str, Axis]:
+    """Every registered family's own sweep axes by column name (``Family.axes``)."""
+    return {a.name: a for f in names() for a in entry(f).axes}
 
 
 def flops_columns(config: dict) -> dict:

@@ -30,12 +30,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
-from handx_jax.families import run_config
+from handx_jax.families import entry, run_config
 from handx_jax.io import DataError
 from handx_jax.models import fsq as Q
-from handx_jax.train import OptimConfig, TrainConfig
+from handx_jax.optim import OptimConfig
+from handx_jax.train import TrainConfig
 
 FAMILY = "tokenizer"
+NORM = entry(FAMILY).norm_preset().name  # the stats.npz prefix its registry entry declares
 NORM_FILE = "norm_stats.npz"
 WINDOW_STARTS = 13  # 60-frame clips, 48-frame windows at starts 0..12 (§4.3)
 TOKEN_CACHE_DIRNAME = "token_cache"
@@ -125,7 +127,7 @@ class TrainData:
     motion: Any  # (N, 60, 2, 21, 3) memory map
     clips: np.ndarray  # train clip indices
     window: int
-    norm: Any  # NormStats ("ar")
+    norm: Any  # NormStats (NORM)
     features: np.ndarray | None = None  # (len(clips), 60, 288) normalised float32, when precomputed
 
     def __post_init__(self):
@@ -160,7 +162,7 @@ def _ar_norm(ds):
     from handx_jax import representation as rep
 
     try:
-        return rep.NormStats.from_npz_dict(ds.stats, "ar")
+        return rep.NormStats.from_npz_dict(ds.stats, NORM)
     except KeyError as e:
         raise DataError(f"stats.npz has no AR statistics ({e}); rebuild the dataset", path=ds.root) from None
 
@@ -265,15 +267,14 @@ def train(run_dir: str | os.PathLike, cfg: TokenizerRunConfig, *, stop_at: int |
     loop.check_resume(run_dir, {**record, "train": to_dict(cfg.train)}, RESUME_KEYS)
     run_dir.mkdir(parents=True, exist_ok=True)
     if jax.process_index() == 0:
-        np.savez(run_dir / NORM_FILE, **norm.to_npz_dict("ar"))
+        np.savez(run_dir / NORM_FILE, **norm.to_npz_dict(NORM))
     model = Q.FSQTokenizer(cfg.model)
     data = TrainData(ds.motion, clips, cfg.data.window, norm)
-    return loop.train(run_dir, init=lambda rng: Q.init_tokenizer(cfg.model, rng, cfg.data.window)[1],
-                      loss=make_loss(model, norm, cfg.loss), get_batch=data.batch, num_examples=data.num_items,
-                      cfg=cfg.train,
-                      config=record, stop_at=stop_at, on_log=on_log, flops_per_sample=record["flops_per_sample"],
-                      evaluate=None if x_val is None else make_evaluate(model, cfg.model, x_val, norm),
-                      resume_keys=RESUME_KEYS)
+    return loop.train(run_dir, loop.TrainSpec(
+        init=lambda rng: Q.init_tokenizer(cfg.model, rng, cfg.data.window)[1], loss=make_loss(model, norm, cfg.loss),
+        cfg=cfg.train, config=record, get_batch=data.batch, num_examples=data.num_items,
+        evaluate=None if x_val is None else make_evaluate(model, cfg.model, x_val, norm),
+        flops_per_sample=record["flops_per_sample"], resume_keys=RESUME_KEYS), stop_at=stop_at, on_log=on_log)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -287,7 +288,7 @@ class TokenizerRun:
     model: Q.FSQTokenizer
     params: Any
     step: int
-    norm: Any  # NormStats ("ar")
+    norm: Any  # NormStats (NORM)
     record: dict
 
     tasks: tuple[str, ...] = ()  # a tokenizer does not generate from text
@@ -331,7 +332,7 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
     cfg = from_dict(TokenizerRunConfig, doc)
     params, step = load_params(run_dir, ema=ema)
     with np.load(run_dir / NORM_FILE) as z:
-        norm = rep.NormStats.from_npz_dict(dict(z), "ar")
+        norm = rep.NormStats.from_npz_dict(dict(z), NORM)
     return TokenizerRun(run_dir, cfg, Q.FSQTokenizer(cfg.model), params, step, norm, doc)
 
 

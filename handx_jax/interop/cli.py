@@ -35,7 +35,7 @@ def _import_evaluator(args: argparse.Namespace) -> int:
     c = s["config"]
     print(f"wrote {s['evaluator']}: official evaluator, latent {c['latent']}, {c['layers']} layers, {c['heads']} "
           f"heads, FF {c['ff']}, T5 from the checkpoint (sha256 {s['sha256'][:16]}…)")
-    print(f"score with it: handx eval run --evaluator {s['evaluator']} --generated G.npz --reference DATA")
+    print(f"score with it: handx eval run --evaluator {s['evaluator']} --generated G.npz --data DATA")
     return 0
 
 

@@ -115,14 +115,14 @@ def check_tables(sd: Mapping[str, Any], d: int, *, path=None) -> float:
 
 def t5_from_checkpoint(sd: Mapping[str, Any], encoder, *, path=None):
     """The checkpoint's T5 (``textencoder.text_model.*``) with ``encoder``'s config and tokenizer."""
-    from handx_jax.text.hf import _set, hf_param_names
+    from handx_jax.text.hf import hf_param_names, set_path
     from handx_jax.text.t5 import FrozenEncoder
 
     params: dict = {}
     for hf, p, transpose in hf_param_names(encoder.cfg, encoder_only=True):
         want = np.asarray(_get(encoder.params, p)).shape
         a = tl.tensor(sd, T5_PREFIX + hf, want[::-1] if transpose else want, path=path)
-        _set(params, p, np.ascontiguousarray(a.T if transpose else a))
+        set_path(params, p, np.ascontiguousarray(a.T if transpose else a))
     return FrozenEncoder(encoder.cfg, params, encoder.tokenizer)
 
 

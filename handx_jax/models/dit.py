@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from handx_jax.models.ladder import TABLE_B, table_b_name
 from handx_jax.models.layers import (REFERENCE_LINEAR_INIT, DecoderLayer, Dropout, packed_in_proj_init,
                                      sinusoidal_table, with_branch_token)
 from handx_jax.models.shape_cache import per_config
@@ -63,9 +64,7 @@ PRESETS = {
     "paper-4L": DiTConfig(layers=4, dim=256, heads=4, ff=1024),
     "paper-8L": DiTConfig(layers=8, dim=512, heads=8, ff=1024),
     "paper-12L": DiTConfig(layers=12, dim=512, heads=8, ff=1024),
-    **{f"L{L}-d{d}": DiTConfig(layers=L, dim=d, heads=H, ff=F)
-       for L, d, H, F in [(2, 256, 4, 1024), (4, 256, 4, 1024), (4, 384, 6, 1536), (8, 384, 6, 1536),
-                          (8, 512, 8, 2048), (12, 512, 8, 2048), (12, 768, 12, 3072)]},
+    **{table_b_name(L, d): DiTConfig(layers=L, dim=d, heads=H, ff=F) for L, d, H, F in TABLE_B},
 }
 SIZE_FIELDS = ("layers", "dim", "heads", "ff")
 

@@ -64,7 +64,8 @@ def _get(tree: Params, path: Sequence[str]):
     return tree
 
 
-def _set(tree: dict, path: Sequence[str], value) -> None:
+def set_path(tree: dict, path: Sequence[str], value) -> None:
+    """``tree[path[0]]…[path[-1]] = value``, creating the dicts on the way (a parameter tree from names)."""
     for p in path[:-1]:
         tree = tree.setdefault(p, {})
     tree[path[-1]] = value
@@ -210,7 +211,7 @@ def load_hf_t5_encoder(folder: str | os.PathLike) -> FrozenEncoder:
         if a.shape != want:
             raise DataError(f"tensor {hf!r} has shape {a.shape} (after transpose), config implies {want}",
                             path=tensors[hf].path)
-        _set(params, path, jnp.asarray(np.ascontiguousarray(a)))
+        set_path(params, path, jnp.asarray(np.ascontiguousarray(a)))
     return FrozenEncoder(cfg, params, tok, folder)
 
 

@@ -253,7 +253,7 @@ def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainC
     exported once all ``cfg.steps`` are done.
     """
     from handx_jax.data.dataset import Dataset
-    from handx_jax.train import TrainConfig, check_resume, train
+    from handx_jax.train import TrainConfig, TrainSpec, check_resume, train
 
     t_start = time.perf_counter()
     cfg = cfg.resolved()
@@ -324,9 +324,10 @@ def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainC
         if "eval_loss" in row:
             log(f"step {row['step']}: eval span-corruption loss {row['eval_loss']:.4f}")
 
-    res = train(out, init=init, loss=loss, get_step_batch=lambda step: batch_dict(stream.batch(step)), cfg=tcfg,
-                config=config, on_log=on_log, evaluate=evaluate, resume_keys=resume_keys,
-                optimizer=(make_optimizer(cfg), make_schedule(cfg)), stop_at=stop_at_step, save_at_stop=True)
+    spec = TrainSpec(init=init, loss=loss, cfg=tcfg, config=config,
+                     get_step_batch=lambda step: batch_dict(stream.batch(step)), evaluate=evaluate,
+                     optimizer=(make_optimizer(cfg), make_schedule(cfg)), resume_keys=resume_keys)
+    res = train(out, spec, on_log=on_log, stop_at=stop_at_step, save_at_stop=True)
     step = int(res["step"])
     if step < cfg.steps:
         log(f"stopped at step {step} of {cfg.steps} after {time.perf_counter() - t_start:.1f} s; rerun to resume")

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from typing import Any, Callable, Sequence
 
+from handx_jax.data.dataset import TEXT_FIELDS
 from handx_jax.io import DataError
 
 EMPTY_HELP = "must not be empty (an empty text is refused: no model was trained on one)"
@@ -29,7 +30,7 @@ def check_texts(texts: Sequence[str], what: str = "text") -> None:
                             "empty and guidance's 'no text' is a learned null embedding, not \"\"")
 
 
-FIELDS = ("left", "right", "interaction")
+FIELDS = TEXT_FIELDS  # the dataset's three text fields (data.dataset.TEXT_FIELDS)
 
 
 def typed_prompts(args) -> list:
@@ -48,7 +49,7 @@ def check_window(tokenizer, prompts: Sequence, max_len: int, *, joined: Callable
     AR family, reference §1.2) the cut falls on whatever comes last, so a long left-hand prompt silently
     removed the right-hand and interaction prompts (a 108k-character prompt gave the same motion whatever
     the other two said); a refusal names the field to shorten. The window is the run's text max_len, the
-    length its text cache was built with. Dataset captions (``--reference`` batch mode) are not checked:
+    length its text cache was built with. Dataset captions (``--data`` batch mode) are not checked:
     the cache cut them at the same window in training (in the tests' 32-clip corpus one clip's most
     detailed captions join to 767 tokens of the tiny fixture tokenizer, against a 128-token window), and
     generation cuts them the same way, so a model is scored on the prefixes it was trained on.

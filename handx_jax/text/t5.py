@@ -9,7 +9,7 @@ Architecture as Raffel et al. 2020 and Hugging Face's ``modeling_t5``:
 
 Pretrained weights are loaded intact and never re-initialised (the reference overwrote T5's linear
 layers by accident, reference §3.1/§9.7; that is deliberately not ported). Parameters are plain
-pytrees; ``hf_param_names`` is the one table between Hugging Face tensor names and our tree, used by
+pytrees; ``text.hf.hf_param_names`` is the one table between Hugging Face tensor names and our tree, used by
 both the loader and the exporter, so a folder we write is read back by the same code as a stock one.
 """
 
@@ -102,6 +102,15 @@ class T5Config:
         if extra:
             doc.update(extra)
         return doc
+
+
+# t5-base's encoder (the reference's text encoder, §3.1): what the FLOPs counts assume when no encoder
+# folder is given. The one definition (families.diffusion, families.ar and diffusion.flops read it).
+T5_BASE = dict(vocab_size=32128, d_model=768, d_kv=64, d_ff=3072, num_layers=12, num_heads=12)
+
+
+def t5_base() -> T5Config:
+    return T5Config(**T5_BASE)
 
 
 def count_params(params: Params) -> int:
@@ -370,14 +379,3 @@ class FrozenEncoder:
     def flops(self, length: int | np.ndarray):
         return encoder_flops(self.cfg, length)
 
-
-# The Hugging Face folder I/O lives in handx_jax.text.hf; these names stay importable from here.
-_HF_NAMES = ("load_hf_t5_encoder", "save_hf_t5_encoder", "hf_param_names", "as_encoder")
-
-
-def __getattr__(name: str):
-    if name in _HF_NAMES:
-        from handx_jax.text import hf
-
-        return getattr(hf, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -4,7 +4,7 @@
     handx tokenize --tokenizer TOK --data DIR                       # token cache
     handx text cache --data DIR --encoder ENC --joined              # the joined-prompt text cache
     handx train ar --data DIR --encoder ENC --tokenizer TOK --preset 8L-512 --out RUN
-    handx generate --run RUN --reference DIR --split test --out gen.npz
+    handx generate --run RUN --data DIR --split test --out gen.npz
 
 Training items are (clip, level) pairs of the train split's nested fraction. The prefix is the frozen
 text features of the clip's three prompts at that level, joined with separators (the text cache's
@@ -36,15 +36,15 @@ import numpy as np
 from handx_jax.families.ar import decode as AD
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
 from handx_jax.families import tokenizer as T
-from handx_jax.families import run_config
+from handx_jax.families import entry, run_config
 from handx_jax.io import DataError
 from handx_jax.models import prefix_lm as P
-from handx_jax.train import OptimConfig, TrainConfig
+from handx_jax.optim import OptimConfig
+from handx_jax.train import TrainConfig
 
 FAMILY = "ar"
 PRESETS = P.PRESETS
-TASKS = ("text2motion", "prediction")
-T5_BASE = dict(vocab_size=32128, d_model=768, d_kv=64, d_ff=3072, num_layers=12, num_heads=12)
+TASKS = entry(FAMILY).tasks  # declared in the registry (families.FAMILIES)
 
 
 @dataclass(frozen=True)
@@ -151,9 +151,9 @@ def _tokenizer_record(tokenizer_dir) -> dict:
 def numbers(cfg: ARRunConfig, *, text_len: int = 96, encoder_cfg=None) -> dict:
     """Params from shapes; analytic forward FLOPs per sample with a prefix of ``text_len`` joined-text
     tokens and 31 motion slots (30 codes + END); the frozen encoder over the joined text, apart."""
-    from handx_jax.text.t5 import T5Config, encoder_flops
+    from handx_jax.text.t5 import encoder_flops, t5_base
 
-    enc_cfg = encoder_cfg if encoder_cfg is not None else T5Config(**T5_BASE)
+    enc_cfg = encoder_cfg if encoder_cfg is not None else t5_base()
     return {**P.param_counts(cfg.model), "flops_per_sample": P.forward_flops(cfg.model, text_len),
             "text_flops_per_sample": int(encoder_flops(enc_cfg, text_len))}
 
@@ -296,11 +296,11 @@ def train(run_dir: str | os.PathLike, cfg: ARRunConfig, *, stop_at: int | None =
     model = P.PrefixLM(cfg.model)
     L = int(data.cache.meta["Lmax"])
     val = np.asarray(Dataset.open(cfg.data.path).split("val"))
-    return loop.train(run_dir, init=lambda rng: P.init_lm(cfg.model, rng, text_len=L)[1],
-                      loss=make_loss(model, cfg.data.text_drop),
-                      get_batch=data.batch, num_examples=data.num_items, cfg=cfg.train, config=record,
-                      stop_at=stop_at, on_log=on_log, flops_per_sample=record["flops_per_sample"],
-                      evaluate=make_evaluate(model, data, val) if len(val) else None, resume_keys=RESUME_KEYS)
+    return loop.train(run_dir, loop.TrainSpec(
+        init=lambda rng: P.init_lm(cfg.model, rng, text_len=L)[1], loss=make_loss(model, cfg.data.text_drop),
+        cfg=cfg.train, config=record, get_batch=data.batch, num_examples=data.num_items,
+        evaluate=make_evaluate(model, data, val) if len(val) else None,
+        flops_per_sample=record["flops_per_sample"], resume_keys=RESUME_KEYS), stop_at=stop_at, on_log=on_log)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -32,12 +32,14 @@ import numpy as np
 
 from handx_jax.families.diffusion import process as D
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
-from handx_jax.families import run_config
+from handx_jax.families import entry, run_config
 from handx_jax.io import DataError
 from handx_jax.models.dit import PRESETS, DiTConfig, TrebleDenoiser, forward_flops, init_denoiser, param_count, size_name
-from handx_jax.train import OptimConfig, TrainConfig
+from handx_jax.optim import OptimConfig
+from handx_jax.train import TrainConfig
 
 FAMILY = "diffusion"
+NORM = entry(FAMILY).norm_preset().name  # the stats.npz prefix its registry entry declares
 FIELDS = ("left", "right", "interaction")
 NORM_FILE = "norm_stats.npz"
 
@@ -59,7 +61,7 @@ class DataConfig:
 @dataclass(frozen=True)
 class SampleConfig:
     """Generation settings of the run: its defaults for ``handx generate`` and a sweep's generate stage,
-    changed like any other key (``--set sample.steps=25``; ``handx generate --sampler/--steps`` are the
+    changed like any other key (``--set sample.steps=25``; ``handx generate --sampler/--sample-steps`` are the
     same keys). The guidance scale is ``diffusion.guidance``."""
 
     sampler: str = "ddpm"  # "ddpm" (ancestral, all T steps, the reference) or "ddim"
@@ -192,7 +194,7 @@ def load_train_data(cfg: DiffusionRunConfig) -> TrainData:
     clips = np.asarray(ds.split("train", 1.0 if pairs else cfg.data.fraction))
     if not len(clips):
         raise DataError("the train split is empty", path=cfg.data.path)
-    norm = rep.NormStats.from_npz_dict(ds.stats, "diffusion")
+    norm = rep.NormStats.from_npz_dict(ds.stats, NORM)
     xs = [norm.normalize(rep.to_diffusion(np.asarray(ds.motion[clips[s:s + 1024]], np.float64)))
           for s in range(0, len(clips), 1024)]
     x = np.concatenate(xs).astype(np.float32)
@@ -271,16 +273,17 @@ def train(run_dir: str | os.PathLike, cfg: DiffusionRunConfig, *, stop_at: int |
     loop.check_resume(run_dir, {**record, "train": to_dict(cfg.train)}, RESUME_KEYS)
     run_dir.mkdir(parents=True, exist_ok=True)
     if jax.process_index() == 0:
-        np.savez(run_dir / NORM_FILE, **data.norm.to_npz_dict("diffusion"))
+        np.savez(run_dir / NORM_FILE, **data.norm.to_npz_dict(NORM))
     model = make_model(cfg.model, cfg.train.bf16)
     L = int(data.cache.meta["Lmax"])
 
     def init(rng):
         return init_denoiser(cfg.model, rng, text_len=L)[1]
 
-    return loop.train(run_dir, init=init, loss=make_loss(model, cfg.diffusion), get_batch=data.batch,
-                      num_examples=data.num_items, cfg=cfg.train, config=record, stop_at=stop_at, on_log=on_log,
-                      flops_per_sample=record["flops_per_sample"], resume_keys=RESUME_KEYS)
+    return loop.train(run_dir, loop.TrainSpec(
+        init=init, loss=make_loss(model, cfg.diffusion), cfg=cfg.train, config=record, get_batch=data.batch,
+        num_examples=data.num_items, flops_per_sample=record["flops_per_sample"], resume_keys=RESUME_KEYS),
+        stop_at=stop_at, on_log=on_log)
 
 
 
@@ -311,7 +314,7 @@ class DiffusionRun:
     # The family interface's run object: what ``handx generate`` calls.
     @property
     def tasks(self) -> tuple[str, ...]:
-        return D.TASKS
+        return entry(FAMILY).tasks  # declared in the registry; the sampler's masks are D.TASKS
 
     def generate(self, prompts, opts, *, samples: int = 1, task: str = "text2motion", sources=None,
                  keyframes: Sequence[int] = (30,), fixed_hand: str = "left") -> np.ndarray:
@@ -366,7 +369,7 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
                         f"({want})", path=enc.path or cfg.data.encoder)
     params, step = load_params(run_dir, ema=ema)
     with np.load(run_dir / NORM_FILE) as z:
-        norm = rep.NormStats.from_npz_dict(dict(z), "diffusion")
+        norm = rep.NormStats.from_npz_dict(dict(z), NORM)
     used_ema = bool(ema and cfg.train.ema_decay > 0)
     return DiffusionRun(run_dir, cfg, make_model(cfg.model), params, step, norm, enc, used_ema)
 
@@ -375,16 +378,15 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
 # ------------------------------------------------------------------------------------------------
 # Accounting and the command-line hooks of the family interface (handx_jax.families)
 
-T5_BASE = dict(vocab_size=32128, d_model=768, d_kv=64, d_ff=3072, num_layers=12, num_heads=12)
 
 
 def numbers(cfg: DiffusionRunConfig, *, text_len: int = 32, encoder_cfg=None) -> dict:
     """Parameters and analytic forward FLOPs per sample (2 per multiply-add; ``models.dit.forward_flops``)
     at ``text_len`` tokens per prompt; the frozen text encoder (``encoder_cfg``, default T5-base, the
     reference's encoder, §3.1) is counted apart, for three prompts."""
-    from handx_jax.text.t5 import T5Config, encoder_flops
+    from handx_jax.text.t5 import encoder_flops, t5_base
 
-    enc_cfg = encoder_cfg if encoder_cfg is not None else T5Config(**T5_BASE)
+    enc_cfg = encoder_cfg if encoder_cfg is not None else t5_base()
     return {"params": param_count(cfg.model), "params_non_embedding": params_non_embedding(cfg.model),
             "flops_per_sample": forward_flops(cfg.model, text_len),
             "text_flops_per_sample": 3 * int(encoder_flops(enc_cfg, text_len))}
@@ -447,7 +449,10 @@ def params_from_args(args: argparse.Namespace) -> tuple[str, dict]:
 
 def add_generate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sampler", choices=["ddpm", "ddim"], help="= --set sample.sampler=… (default: the run's, ddpm)")
-    p.add_argument("--steps", type=int, help="= --set sample.steps=N: DDIM steps (DDPM always uses all T steps)")
+    from handx_jax.cliargs import deprecated_flag
+
+    deprecated_flag(p, "--steps", p.add_argument(
+        "--sample-steps", type=int, help="= --set sample.steps=N: sampler steps of DDIM (DDPM always uses all T)"))
     p.add_argument("--guidance", type=float, help="= --set diffusion.guidance=X: CFG scale (default: the run's, 2.5)")
     p.add_argument("--contact", help="= --set sample.contact=SPEC: contact guidance (default off). 'caption' = the "
                                      "contact events of each prompt's record (prompts from a dataset), or a list "
@@ -467,7 +472,7 @@ def load_for_generate(args: argparse.Namespace, *, ema: bool, encoder, seed: int
     from handx_jax.families.diffusion.sampling import SampleOptions
     from handx_jax.text.prompts import typed_prompts
 
-    flags = [f"{k}={v}" for k, v in (("sample.sampler", args.sampler), ("sample.steps", args.steps),
+    flags = [f"{k}={v}" for k, v in (("sample.sampler", args.sampler), ("sample.steps", args.sample_steps),
                                      ("diffusion.guidance", args.guidance), ("sample.contact", args.contact),
                                      ("sample.contact_strength", args.contact_strength),
                                      ("sample.contact_schedule", args.contact_schedule)) if v is not None]

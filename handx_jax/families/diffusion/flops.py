@@ -38,7 +38,6 @@ from handx_jax.models.dit import NUM_BRANCHES, DiTConfig, forward_flops
 # The fitted token counts (module docstring): Table B's memory length and encoder tokens.
 PAPER_MEM_TOKENS = 63
 PAPER_ENCODER_TOKENS = 40
-T5_BASE = dict(vocab_size=32128, d_model=768, d_kv=64, d_ff=3072, num_layers=12, num_heads=12)
 CONVENTIONS = ("analytic", "paper")
 
 
@@ -63,9 +62,10 @@ def encoder_linear_macs(enc_cfg, tokens: int) -> int:
 
 
 def t5_base():
-    from handx_jax.text.t5 import T5Config
+    """T5-base's encoder config (``text.t5.T5_BASE``), imported on use: this module stays light."""
+    from handx_jax.text.t5 import t5_base as base
 
-    return T5Config(**T5_BASE)
+    return base()
 
 
 def paper_flops(cfg: DiTConfig, mem_tokens: int = PAPER_MEM_TOKENS, encoder_tokens: int = PAPER_ENCODER_TOKENS,

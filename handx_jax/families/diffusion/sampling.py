@@ -244,7 +244,7 @@ def contact_request(prompts: Sequence[Prompt], contact: str, frames: int) -> np.
         return G.request_from_spec(contact, len(prompts), frames)
     if any(p.record is None for p in prompts):
         raise ValueError("contact guidance from the caption needs each prompt's structured record: take the prompts "
-                         "from a dataset with events.jsonl (--reference DIR, or --source DIR --clip ID); typed "
+                         "from a dataset with events.jsonl (--data DIR, or --source DIR --clip ID); typed "
                          "prompts and .npz sources carry none")
     named = M.named_contacts([p.record for p in prompts])
     G.check_named(named, len(prompts))

@@ -1,0 +1,150 @@
+"""Rules that keep the package's shape (issue 42 item 4), checked on the source, not by importing it.
+
+- Family vocabulary lives in the registry: no module outside ``handx_jax/families/`` compares a value
+  to a registered family's name (``fam == "ar"``, ``name in ("diffusion", …)``, ``match … case "ar"``).
+  Shared code asks the registry entry (``families.entry(name)``) what a family declares instead.
+- The import graph of ``handx_jax``, ``sweeps`` and ``analysis`` has no cycle, counting imports inside
+  functions too (only ``if TYPE_CHECKING:`` blocks are left out: they never run).
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+from handx_jax.families import names
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("handx_jax", "sweeps", "analysis")
+REGISTRY_HOME = ROOT / "handx_jax" / "families"
+
+
+def sources():
+    for pkg in PACKAGES:
+        for f in sorted((ROOT / pkg).rglob("*.py")):
+            yield f
+
+
+def module_name(f: Path) -> str:
+    parts = f.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+# ---------------------------------------------------------------------------- family names
+
+
+def _strings(node) -> list[str]:
+    if isinstance(node, ast.Constant) and isinstance(node.value, str):
+        return [node.value]
+    if isinstance(node, (ast.Tuple, ast.List, ast.Set)):
+        return [s for e in node.elts for s in _strings(e)]
+    return []
+
+
+def family_comparisons(tree: ast.AST, families: set[str]) -> list[tuple[int, str]]:
+    """(line, name) of every comparison of a value with a family name in ``tree``."""
+    out = []
+    for n in ast.walk(tree):
+        if isinstance(n, ast.Compare):
+            for side in (n.left, *n.comparators):
+                out += [(n.lineno, s) for s in _strings(side) if s in families]
+        elif isinstance(n, ast.match_case):
+            out += [(n.pattern.lineno, s) for p in ast.walk(n.pattern) if isinstance(p, ast.MatchValue)
+                    for s in _strings(p.value) if s in families]
+    return out
+
+
+def test_no_module_outside_the_families_compares_with_a_family_name():
+    families = set(names())
+    found = [f"{f.relative_to(ROOT)}:{line}: compares with {name!r}"
+             for f in sources() if REGISTRY_HOME not in f.parents
+             for line, name in family_comparisons(ast.parse(f.read_text()), families)]
+    assert found == [], "ask the registry entry (families.entry) instead:\n" + "\n".join(found)
+
+
+def test_the_family_name_check_finds_comparisons():
+    src = ('if cfg["family"] == "ar": pass\n'
+           'ok = fam in ("diffusion", "other")\n'
+           'match kind:\n    case "tokenizer": pass\n'
+           'x = {"tokenizer": 1}["tokenizer"]  # a key, not a comparison\n')
+    assert family_comparisons(ast.parse(src), {"ar", "diffusion", "tokenizer"}) == [
+        (1, "ar"), (2, "diffusion"), (4, "tokenizer")]
+
+
+# ---------------------------------------------------------------------------- import cycles
+
+
+def _runs(tree: ast.Module):
+    """Every node of the module except those under ``if TYPE_CHECKING:``."""
+    todo = [tree]
+    while todo:
+        n = todo.pop()
+        if isinstance(n, ast.If) and "TYPE_CHECKING" in ast.unparse(n.test):
+            todo += n.orelse
+            continue
+        yield n
+        todo += list(ast.iter_child_nodes(n))
+
+
+def import_graph(files: dict[str, tuple[str, bool]]) -> dict[str, set[str]]:
+    """module → the package modules it imports; ``files``: module → (source, is a package)."""
+    graph = {m: set() for m in files}
+    for m, (src, is_pkg) in files.items():
+        for n in _runs(ast.parse(src)):
+            if isinstance(n, ast.Import):
+                targets = [a.name for a in n.names]
+            elif isinstance(n, ast.ImportFrom):
+                base = n.module or ""
+                if n.level:
+                    here = m.split(".") if is_pkg else m.split(".")[:-1]
+                    base = ".".join(here[:len(here) - n.level + 1] + ([base] if base else []))
+                # `from pkg import mod` depends on the module; `from pkg import name`, on the package
+                targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in files else base for a in n.names]
+            else:
+                continue
+            graph[m] |= {t for t in targets if t in files and t != m}
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan)."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_the_package_import_graph_has_no_cycle():
+    files = {module_name(f): (f.read_text(), f.name == "__init__.py") for f in sources()}
+    assert cycles(import_graph(files)) == []
+
+
+def test_the_cycle_check_finds_a_cycle_through_a_function_level_import():
+    files = {"p": ("", True), "p.a": ("from p.b import x\n", False),
+             "p.b": ("def f():\n    from p import a\n", False),
+             "p.c": ("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from p.d import D\n", False),
+             "p.d": ("from .c import y\n", False)}
+    assert cycles(import_graph(files)) == [["p.a", "p.b"]]
