@@ -43,6 +43,7 @@ GROUPS = (
     ("tokenize", "handx_jax.commands.tokenize"),
     ("sweep", "sweeps.cli"),
     ("standard", "handx_jax.standard"),
+    ("standard validity", "handx_jax.validity.cli"),  # adds `handx standard validity` to the group above
     ("import/export", "handx_jax.interop.cli"),
 )
 

@@ -683,9 +683,6 @@ def add_parser(subparsers) -> None:
     deprecated_positional(k, k.add_argument("--data", required=True, metavar="DIR", help="dataset directory"), "data")
     k.add_argument("--json", action="store_true")
     k.set_defaults(func=_check)
-    from handx_jax.validity.cli import add_parser as add_validity
-
-    add_validity(sub)
     g = sub.add_parser("package", help="(maintainers) copy a trained encoder + evaluator into the package assets")
     g.add_argument("--data", required=True, help="the standard corpus the evaluator was trained on")
     g.add_argument("--encoder", required=True, help="its T5 encoder folder")

@@ -33,7 +33,11 @@ def _run(a: argparse.Namespace) -> int:
     return 0
 
 
-def add_parser(sub) -> None:
+def add_parser(subparsers) -> None:
+    """Add ``validity`` to the ``handx standard`` group (``handx_jax.cli`` calls this after the group is
+    built): the suite scores with the standard evaluator, but ``standard`` must not import it back."""
+    group = subparsers.choices["standard"]
+    sub = next(a for a in group._actions if isinstance(a, argparse._SubParsersAction))
     v = sub.add_parser("validity", help="does the yardstick read what captions say? caption stability and the "
                                         "evaluator under perturbations of the ground truth (docs/validity.md)",
                        description=(__import__("handx_jax.validity.suite", fromlist=["x"]).__doc__ or "").split("\n\n")[0])

@@ -179,7 +179,7 @@ def markdown(r: dict) -> str:
         name = c.get("label") or f"tokenizer `{Path(c['tokenizer']).name}` (fingers {c['finger_error_mm']:.1f} mm)"
         if c.get("amplitude_mm"):
             name += f", {c['amplitude_mm']:g} mm"
-        kind = "" if "tokenizer" in c else ("keeps meaning" if c["preserving"] else "changes meaning")
+        kind = ("keeps meaning" if c["preserving"] else "changes meaning") if "kind" in c else ""
         cu = c["captions_unchanged"]
         line = (f"| {name} | {kind} | {c['mean_shift_mm']:.1f} | {c['events_unchanged']:.3f} / "
                 f"{c['events_exact_unchanged']:.3f} | {cu[0]:.3f} / {cu[1]:.3f} / {cu[4]:.3f} |")
