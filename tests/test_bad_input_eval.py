@@ -191,7 +191,7 @@ def nan_evaluator(tmp_path_factory):
 
 def test_eval_run_with_a_nan_evaluator_is_refused_naming_the_parameter(nan_evaluator, tmp_path, capsys):
     g = write_handx_npz(tmp_path / "gen.npz", _clips(-1, 1.0))
-    rc = main(["eval", "run", "--evaluator", str(nan_evaluator), "--generated", str(g), "--reference",
+    rc = main(["eval", "run", "--evaluator", str(nan_evaluator), "--generated", str(g), "--data",
                str(tmp_path / "ds"), "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and err == (f"handx: error: file {nan_evaluator / 'params.msgpack'}: parameter ['params']"
@@ -237,17 +237,18 @@ def test_the_reference_cache_holds_only_finite_values_and_a_nan_one_is_recompute
 
 
 def test_a_second_writer_of_one_evaluator_folder_is_refused(tmp_path, capsys):
-    """``handx eval train-evaluator --out EV`` holds EV's output lock (runlock.RunLock.for_output): here
+    """``handx train evaluator --out EV`` holds EV's output lock (runlock.RunLock.for_output): here
     held by a live process (pid 1), so a second trainer is refused at once, naming the holder."""
     import json
     import socket
     import time
 
     (tmp_path / ".EV.lock").write_text(json.dumps({"pid": 1, "host": socket.gethostname(), "started": time.time() - 5,
-                                                   "cmd": "handx eval train-evaluator --out EV"}))
-    rc = main(["eval", "train-evaluator", "--data", str(tmp_path / "data"), "--encoder",
+                                                   "cmd": "handx train evaluator --out EV"}))
+    (tmp_path / "data").mkdir()  # --data must exist to be parsed; the lock is refused before it is read
+    rc = main(["train", "evaluator", "--data", str(tmp_path / "data"), "--encoder",
                str(Path(__file__).parent / "fixtures" / "t5_tiny_gated"), "--out", str(tmp_path / "EV")])
     err = capsys.readouterr().err
     assert rc == 2 and err.count("\n") == 1
     assert err.startswith(f"handx: error: {tmp_path / 'EV'} is in use by pid 1 on ")
-    assert sorted(p.name for p in tmp_path.iterdir()) == [".EV.lock"]  # nothing written, the holder's lock kept
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".EV.lock", "data"]  # nothing written, the lock kept

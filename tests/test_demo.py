@@ -3,7 +3,8 @@
 
 import json
 
-from handx_jax.demo import STUDY, rises, verdict
+from handx_jax import standard
+from handx_jax.demo import committed_study, rises, verdict
 
 
 def _rows(top3, ci, flops=(1e11, 1e12, 1e13)):
@@ -30,8 +31,13 @@ def test_verdict_fits_the_sweep_and_shows_the_committed_study(tmp_path, capsys):
     assert "the demo's curve does NOT rise: slope -0.0200 per decade" in out and "r -1.000" in out
     assert "does not show the scaling" in out and "too noisy to pin the slope down" in out
     assert "about 9½ min with its install, measured" in out  # the measured time, said in the output
+    STUDY, version = committed_study()
     assert (STUDY / "fit.txt").read_text().splitlines()[1] in out  # the committed fit, line for line
     assert (tmp_path / "sweep-cpu-fit.png").read_bytes() == (STUDY / "fit.png").read_bytes()
+    # A study under another standard evaluator is said to be another yardstick, never "same evaluator".
+    assert ("same evaluator" in out) == (version == standard.VERSION)
+    if version != standard.VERSION:
+        assert f"NOT this demo's v{standard.VERSION}: another yardstick" in out
 
 
 def test_demo_preset_is_the_studys_sizes_with_data_seen_growing_with_size():

@@ -7,6 +7,7 @@ corpus with the packaged evaluator."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -186,7 +187,10 @@ def test_validity_command_on_a_standard_prefix(tmp_path, capsys):
     assert rc == 0
     rep = json.loads((out / "validity.json").read_text())
     assert (out / "validity.png").stat().st_size > 10_000 and "| perturbation |" in (out / "validity.md").read_text()
-    assert rep["test_clips"] == n_test and rep["annotation"] == "reference" and rep["wording"] == "shared"
+    from handx_jax.data.build import WORDING
+
+    reading = standard.STANDARD_ANNOTATION
+    assert rep["test_clips"] == n_test and rep["annotation"] == reading and rep["wording"] == WORDING[reading]
     assert rep["stored_captions_reproduced"] == 1.0  # the suite re-annotates exactly as the corpus was built
     gt = rep["ground_truth"]["rprec_top3"]
     assert gt > 0.9  # the packaged evaluator on its own test clips
@@ -241,3 +245,31 @@ def test_training_augmentation_is_finger_only_bounded_and_resumable():
     rms = np.sqrt(np.mean((a - x)[..., 1:, :] ** 2, axis=(1, 2, 3, 4)))
     # Per clip: white σ ≤ 1.5 mm and low-frequency RMS ≤ 3 mm, independent: RMS ≤ √(1.5² + 3²) mm.
     assert np.all(rms <= math.hypot(1.5, 3.0) * 1e-3 * 1.05) and np.all(rms > 0)
+
+
+def test_standard_evaluators_by_id_and_the_recipe_each_accepts(tmp_path):
+    """v5 is the packaged standard evaluator; v4 stays loadable as `standard-v4` (old numbers re-scored),
+    and each accepts only prefixes of its own recipe: v4 the reference reading, v5 the stable one."""
+    from handx_jax.io import DataError
+
+    assert standard.VERSION == 5 and standard.code_recipe().annotation == "stable"
+    v4 = standard.assets_for("standard-v4")
+    assert v4 == standard.archived(4) and standard.verify_assets(v4)["version"] == 4
+    assert standard.assets_for(None) == standard.assets_for("standard") == standard.assets_for("standard-v5") == standard.ASSETS
+    assert standard.assets_for(standard.evaluator_dir(v4)) == v4 and standard.is_standard("standard-v4")
+    assert standard.assets_for(tmp_path) is None
+    with pytest.raises(DataError, match="no such standard evaluator; this package has standard-v4, standard-v5"):
+        standard.assets_for("standard-v9")
+    assert standard.reference_cache_dir(v4).parent.name == "standard-v4"
+    assert standard.reference_cache_dir().parent.name == "standard-v5"
+    old = standard.Recipe(**standard.read_card(v4)["recipe"])
+    assert old.annotation == "reference"  # v4's card predates the field
+    p1 = standard.build_standard_corpus(tmp_path / "v1", 120, recipe=dataclasses.replace(old, clips=120000),
+                                        assets=tmp_path / "none", workers=1, progress=False)
+    p2 = standard.build_standard_corpus(tmp_path / "v2", 120, workers=1, progress=False)
+    d1, d2 = Dataset.open(p1), Dataset.open(p2)
+    assert standard.check_reference(d1, assets=v4)["prefix"] and standard.check_reference(d2)["prefix"]
+    with pytest.raises(DataError, match="build option"):
+        standard.check_reference(d1)  # a corpus-v1 prefix is not v5's recipe
+    with pytest.raises(DataError, match="build option"):
+        standard.check_reference(d2, assets=v4)
