@@ -237,18 +237,25 @@ def test_the_reference_cache_holds_only_finite_values_and_a_nan_one_is_recompute
 
 
 def test_a_second_writer_of_one_evaluator_folder_is_refused(tmp_path, capsys):
-    """``handx train evaluator --out EV`` holds EV's output lock (runlock.RunLock.for_output): here
-    held by a live process (pid 1), so a second trainer is refused at once, naming the holder."""
+    """``handx train evaluator --out EV`` holds EV's output lock (runlock.RunLock.for_output): here held by
+    a live process that is not ours (a sleeping child: pid 1 would count as our parent when the test
+    process is an orphan), so a second trainer is refused at once, naming the holder."""
     import json
     import socket
+    import subprocess
     import time
 
-    (tmp_path / ".EV.lock").write_text(json.dumps({"pid": 1, "host": socket.gethostname(), "started": time.time() - 5,
-                                                   "cmd": "handx train evaluator --out EV"}))
-    (tmp_path / "data").mkdir()  # --data must exist to be parsed; the lock is refused before it is read
-    rc = main(["train", "evaluator", "--data", str(tmp_path / "data"), "--encoder",
-               str(Path(__file__).parent / "fixtures" / "t5_tiny_gated"), "--out", str(tmp_path / "EV")])
+    holder = subprocess.Popen(["sleep", "60"])
+    try:
+        (tmp_path / ".EV.lock").write_text(json.dumps({"pid": holder.pid, "host": socket.gethostname(),
+                                                       "started": time.time(), "cmd": "handx train evaluator --out EV"}))
+        (tmp_path / "data").mkdir()  # --data must exist to be parsed; the lock is refused before it is read
+        rc = main(["train", "evaluator", "--data", str(tmp_path / "data"), "--encoder",
+                   str(Path(__file__).parent / "fixtures" / "t5_tiny_gated"), "--out", str(tmp_path / "EV")])
+    finally:
+        holder.kill()
+        holder.wait()
     err = capsys.readouterr().err
     assert rc == 2 and err.count("\n") == 1
-    assert err.startswith(f"handx: error: {tmp_path / 'EV'} is in use by pid 1 on ")
+    assert err.startswith(f"handx: error: {tmp_path / 'EV'} is in use by pid {holder.pid} on ")
     assert sorted(p.name for p in tmp_path.iterdir()) == [".EV.lock", "data"]  # nothing written, the lock kept
