@@ -52,8 +52,8 @@ import numpy as np
 from handx_jax.io import DataError, atomic_write_json, atomic_write_text, sha256_file, verify_checksum, \
     write_checksum
 
-VERSION = 4  # of the packaged assets; bumped whenever the recipe or any weight changes
-STANDARD_ANNOTATION = "reference"  # the standard corpus's annotation reading (Recipe.annotation; v1-v4 "reference")
+VERSION = 5  # of the packaged assets; bumped whenever the recipe or any weight changes
+STANDARD_ANNOTATION = "stable"  # the standard corpus's annotation reading (Recipe.annotation; v1-v4 "reference")
 ASSETS = Path(__file__).resolve().parent / "assets" / "standard"
 CARD_JSON, CARD_MD, MANIFEST = "card.json", "CARD.md", "test_manifest.npz"
 CARD_SHA = CARD_JSON + ".sha256"  # io.write_checksum's sidecar: the card's own checksum
@@ -150,11 +150,14 @@ def read_manifest(assets: Path | None = None) -> dict[str, np.ndarray]:
 def recipe_of(ds) -> tuple[Recipe | None, dict]:
     """(recipe, build options) from ``meta.json``'s ``recipe`` of a corpus built by the generator
     (``data synth`` / ``standard corpus``); (None, {}) for anything else (imports, older corpora)."""
+    from handx_jax.data.build import reading_of_options
+
     r = ds.meta.get("recipe") or {}
     if r.get("kind") != "synth":
         return None, {}
-    return (Recipe(clips=int(r["clips"]), seed=int(r["seed"]), generator=str(r["generator_version"])),
-            dict(r.get("options", {})))
+    opts = dict(r.get("options", {}))
+    return (Recipe(clips=int(r["clips"]), seed=int(r["seed"]), generator=str(r["generator_version"]),
+                   annotation=reading_of_options(opts) or "custom"), opts)
 
 
 def check_reference(ds, card: Mapping[str, Any] | None = None, assets: Path | None = None) -> dict:
@@ -514,6 +517,19 @@ def _ci_note(gt: Mapping[str, Any]) -> str:
     return f"± is a 95% interval (`ci_method` `{r.get('ci_method')}`, `handx_jax/metrics.py`)."
 
 
+def add_validity(assets: Path, report: Mapping[str, Any]) -> dict:
+    """Put a validity report's figures (``handx standard validity`` with this very evaluator, which
+    accepts prefixes of its corpus only once packaged) on an assets folder's card: card.json, its
+    checksum and CARD.md. The other files, and so their checksums, are untouched."""
+    assets = Path(assets)
+    card = verify_assets(assets)
+    card["validity"] = validity_summary(report)
+    atomic_write_json(assets / CARD_JSON, card)
+    write_checksum(assets / CARD_JSON)
+    atomic_write_text(assets / CARD_MD, card_markdown(card))
+    return card
+
+
 def validity_summary(report: Mapping[str, Any]) -> dict:
     """What the card keeps of a validity report (``handx standard validity``): per case, the top-3
     ratio to the ground truth's, FID and the level-0 captions left unchanged."""
@@ -544,7 +560,7 @@ def card_markdown(card: Mapping[str, Any]) -> str:
         "",
         f"- generator version **{rec['generator']}**, seed **{rec['seed']}**, **{rec['clips']:,}** clips, default "
         f"build options (`handx standard corpus --out DIR` = `handx data synth --clips {rec['clips']} --seed "
-        f"{rec['seed']}`)",
+        f"{rec['seed']} --annotation {rec.get('annotation', 'reference')}`)",
         f"- splits {c['split_sizes']}; content hash on the packaging machine `{c['fingerprint']}` (another "
         f"numpy/jax build may give other float bytes: the check compares ids, captions and motion within "
         f"{MOTION_ATOL:g} m instead)",
@@ -656,6 +672,15 @@ def _package(a: argparse.Namespace) -> int:
             validity = json.loads(Path(a.validity).read_text())
         except (OSError, json.JSONDecodeError) as e:
             return _usage_error(f"--validity {a.validity}: {e}")
+    if a.validity_only:  # the figures of an already packaged evaluator (the suite needs it packaged)
+        if validity is None:
+            return _usage_error("--validity-only needs --validity FILE")
+        add_validity(Path(a.out or ASSETS), validity)
+        print(f"wrote the validity figures on {Path(a.out or ASSETS) / CARD_JSON}")
+        return 0
+    missing = [f"--{k}" for k in ("data", "encoder", "evaluator") if not getattr(a, k)]
+    if missing:
+        return _usage_error(f"handx standard package needs {', '.join(missing)} (or --validity-only)")
     out = package(a.data, a.encoder, a.evaluator, a.out, training=training, replications=a.replications,
                   recipe=recipe, validity=validity)
     print(f"wrote {out}")
@@ -684,9 +709,9 @@ def add_parser(subparsers) -> None:
     k.add_argument("--json", action="store_true")
     k.set_defaults(func=_check)
     g = sub.add_parser("package", help="(maintainers) copy a trained encoder + evaluator into the package assets")
-    g.add_argument("--data", required=True, help="the standard corpus the evaluator was trained on")
-    g.add_argument("--encoder", required=True, help="its T5 encoder folder")
-    g.add_argument("--evaluator", required=True, help="its evaluator folder")
+    g.add_argument("--data", help="the standard corpus the evaluator was trained on (required but with --validity-only)")
+    g.add_argument("--encoder", help="its T5 encoder folder (required but with --validity-only)")
+    g.add_argument("--evaluator", help="its evaluator folder (required but with --validity-only)")
     g.add_argument("--out", help="assets folder (default: the package's)")
     g.add_argument("--replications", type=int, default=20)
     g.add_argument("--note", action="append", default=[], metavar="KEY=VALUE",
@@ -696,4 +721,6 @@ def add_parser(subparsers) -> None:
                         "whole standard corpus; needs --out")
     g.add_argument("--validity", metavar="FILE", help="a validity.json of this evaluator (handx standard validity): "
                                                       "its figures go on the card")
+    g.add_argument("--validity-only", action="store_true",
+                   help="only put --validity's figures on the card of the already packaged assets (--out)")
     g.set_defaults(func=_package)

@@ -55,20 +55,19 @@ t2=$(date +%s)
     --set data.augment_white_mm="$AUG_WHITE" --set data.augment_lowfreq_mm="$AUG_LOWFREQ" \
     --set model.mask_same_text="$MASK_SAME_TEXT" --set model.reverse_negative="$REVERSE_NEGATIVE"
 t3=$(date +%s)
-# The validity suite on a prefix, with the new evaluator folder (its figures go on the card).
-PREFIX=$WORK/prefix$VALIDITY_CLIPS
-[ -f "$PREFIX/meta.json" ] || "${H[@]}" data synth --clips "$VALIDITY_CLIPS" --seed "$SEED" --annotation "$ANNOTATION" \
-  --out "$PREFIX" --quiet
-[ -f "$WORK/validity/validity.json" ] || "${H[@]}" standard validity --data "$PREFIX" --evaluator "$WORK/evaluator" \
-  --out "$WORK/validity"
 # Keep the packaged evaluator being replaced loadable by its id (--evaluator standard-vN).
 OLD=$("$PY" -c "import json; from handx_jax import standard as s; print(json.loads((s.ASSETS / s.CARD_JSON).read_text())['version'])" 2>/dev/null || echo "")
 NEW=$("$PY" -c "from handx_jax import standard as s; print(s.VERSION)")
 ASSETS=$("$PY" -c "from handx_jax import standard as s; print(s.ASSETS)")
 if [ -n "$OLD" ] && [ "$OLD" != "$NEW" ] && [ ! -d "$ASSETS-v$OLD" ]; then cp -r "$ASSETS" "$ASSETS-v$OLD"; fi
 "${H[@]}" standard package --data "$DATA" --encoder "$WORK/t5/encoder" --evaluator "$WORK/evaluator" \
-  --validity "$WORK/validity/validity.json" \
   --note "corpus build=$((t1 - t0)) s" --note "tokenizer + tiny T5=$((t2 - t1)) s" \
   --note "text cache + evaluator training=$((t3 - t2)) s" \
   --note "command=STEPS=$STEPS BATCH=$BATCH LR=$LR WARMUP=$WARMUP DROPOUT=$DROPOUT PRESET=$PRESET AUG_WHITE=$AUG_WHITE AUG_LOWFREQ=$AUG_LOWFREQ MASK_SAME_TEXT=$MASK_SAME_TEXT REVERSE_NEGATIVE=$REVERSE_NEGATIVE${ENCODER:+ ENCODER=$ENCODER} scripts/build_standard.sh"
+# The validity suite on a prefix with the packaged evaluator (a plain evaluator folder refuses a prefix of its
+# corpus; the standard one accepts it), then its figures on the card.
+PREFIX=$WORK/prefix$VALIDITY_CLIPS
+[ -f "$PREFIX/meta.json" ] || "${H[@]}" standard corpus --clips "$VALIDITY_CLIPS" --out "$PREFIX" --quiet
+"${H[@]}" standard validity --data "$PREFIX" --out "$WORK/validity"
+"${H[@]}" standard package --validity-only --validity "$WORK/validity/validity.json"
 echo "done: $(( $(date +%s) - t0 )) s"

@@ -51,6 +51,20 @@ class BuildConfig:
 WORDING = {"reference": "shared", "stable": "per_fact"}
 
 
+def reading_of_options(options: dict) -> str | None:
+    """The named annotation reading a corpus's recipe options record (``meta.json`` ``recipe.options``),
+    or None when its annotation is none of them (a custom AnnotationConfig)."""
+    from handx_jax.data.events import ANNOTATIONS
+
+    ann = (options or {}).get("annotation")
+    for name, cfg in ANNOTATIONS.items():
+        probe = {"annotation": _jsonable(dataclasses.asdict(cfg))}
+        _drop_neutral(probe)
+        if probe["annotation"] == ann:
+            return name
+    return None
+
+
 def with_reading(cfg: BuildConfig, name: str) -> BuildConfig:
     """``cfg`` annotated and captioned with the named reading (``handx data synth --annotation``)."""
     from handx_jax.data.events import annotation_config

@@ -36,19 +36,10 @@ SCHEMA = 1
 def reading_of(ds) -> tuple[str, str]:
     """(annotation reading, captioner wording) a dataset was built with, from its recipe: a synthetic
     corpus records both; anything else (an imported release) is read with the reference reading."""
-    from handx_jax.data.build import _drop_neutral, _jsonable
-    from handx_jax.data.events import ANNOTATIONS
+    from handx_jax.data.build import reading_of_options
 
     opts = ((ds.meta.get("recipe") or {}).get("options") or {})
-    ann = opts.get("annotation")
-    wording = opts.get("wording", "shared")
-    if isinstance(ann, dict):
-        for name, cfg in ANNOTATIONS.items():
-            probe = {"annotation": _jsonable(dataclasses.asdict(cfg))}
-            _drop_neutral(probe)
-            if probe["annotation"] == ann:
-                return name, wording
-    return "reference", wording
+    return reading_of_options(opts) or "reference", opts.get("wording", "shared")
 
 
 def _caption_seed(ds) -> int:
