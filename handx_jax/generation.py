@@ -95,12 +95,12 @@ def split_prompts(ds, split: str, limit: int | None = None, level: int = -1):
 # Output
 
 
-def write_generated(out: str | Path, joints_NxTx2x21x3: np.ndarray, prompts: Sequence[Sequence[Prompt]], *,
-                    source_clips: Sequence[str | None] | None = None, groups: Sequence[int | None] | None = None):
-    """Write generated motion in the official layout (keys "0".."N−1"). ``prompts[i]`` is entry i's
-    list of prompts (one for a clip; one per segment for long-horizon motion), stored as the three
-    annotation lists. ``source_clips``/``groups`` fill the optional evaluation fields."""
-    from handx_jax.data.handx_npz import HandXClip, write_handx_npz
+def generated_entries(joints_NxTx2x21x3: np.ndarray, prompts: Sequence[Sequence[Prompt]], *,
+                      source_clips: Sequence[str | None] | None = None,
+                      groups: Sequence[int | None] | None = None) -> list:
+    """Generated motion as the official layout's entries (keys "0".."N−1"), what ``read_handx_npz`` of
+    :func:`write_generated`'s file returns: scored in memory (``evaluation.evaluate_generated``) or written."""
+    from handx_jax.data.handx_npz import HandXClip
 
     clips = []
     for i, (j, ps) in enumerate(zip(joints_NxTx2x21x3, prompts)):
@@ -111,4 +111,15 @@ def write_generated(out: str | Path, joints_NxTx2x21x3: np.ndarray, prompts: Seq
             extra["group"] = groups[i]
         clips.append(HandXClip(key=str(i), motion=np.asarray(j, np.float32), left=[p.left for p in ps],
                                right=[p.right for p in ps], interaction=[p.interaction for p in ps], **extra))
-    return write_handx_npz(out, clips, clip_len=None)
+    return clips
+
+
+def write_generated(out: str | Path, joints_NxTx2x21x3: np.ndarray, prompts: Sequence[Sequence[Prompt]], *,
+                    source_clips: Sequence[str | None] | None = None, groups: Sequence[int | None] | None = None):
+    """Write generated motion in the official layout (keys "0".."N−1"). ``prompts[i]`` is entry i's
+    list of prompts (one for a clip; one per segment for long-horizon motion), stored as the three
+    annotation lists. ``source_clips``/``groups`` fill the optional evaluation fields."""
+    from handx_jax.data.handx_npz import write_handx_npz
+
+    return write_handx_npz(out, generated_entries(joints_NxTx2x21x3, prompts, source_clips=source_clips,
+                                                  groups=groups), clip_len=None)

@@ -481,7 +481,7 @@ def _tmp_pattern(name: str) -> re.Pattern:
 
 
 def remove_stale_temporaries(path: str | os.PathLike) -> list[str]:
-    """Remove what killed writers of ``path`` left beside it (``.NAME.XXXXXXXX.tmp``, ``.NAME.old-PID``), and
+    """Remove what killed writers of ``path`` left beside it (``.NAME.<8 random chars>.tmp``, ``.NAME.old-PID``), and
     say so in one line on stderr. Call only while holding ``path``'s output lock (:func:`exclusive_output`):
     then no live writer owns them."""
     from handx_jax.runlock import pid_alive

@@ -134,13 +134,14 @@ def process_chunk(cfg: BuildConfig, chunk_index: int) -> ChunkResult:
     captioner = TemplateCaptioner(cfg.wording)
     texts = []
     for cid, rec in zip(ids, events):
-        levels = captioner.caption(rec, seed=_caption_seed(cfg.seed, cid))
+        levels = captioner.caption(rec, seed=caption_seed(cfg.seed, cid))
         texts.append({"id": cid, **{k: [lv[k] for lv in levels] for k in ("left", "right", "interaction")}})
     return ChunkResult(chunk_index, clips_a, ids, splits, texts, events,
                        np.concatenate(inten) if inten else np.zeros((0, 2), np.float32), report, programs)
 
 
-def _caption_seed(seed: int, clip_id: str) -> int:
+def caption_seed(seed: int, clip_id: str) -> int:
+    """The template captioner's seed for one clip of a corpus of ``seed`` (re-captioning reproduces it)."""
     return int.from_bytes(hashlib.blake2b(f"{seed}/{clip_id}".encode(), digest_size=4).digest(), "little")
 
 
@@ -228,7 +229,7 @@ def recipe(cfg: BuildConfig) -> dict:
 # change the content, so every earlier corpus (and its prefixes) keeps its identity.
 _NEUTRAL_OPTIONS = {"wording": "shared"}
 _NEUTRAL_ANNOTATION = {"smooth_sigma_frames": 0.0, "contact_hysteresis_m": 0.0, "contact_gap_frames": 0,
-                       "contact_min_frames": 1, "still_delta_per_s": 0.0, "segmentation": "greedy",
+                       "contact_min_frames": 1, "segmentation": "greedy",
                        "merge_gap_frames": 10, "state_delta": True}
 _NEUTRAL_SPEC = {"hysteresis": 0.0}
 _NEUTRAL_FEATURES = {"thumb_mcp": "reference", "dip_coupling": 0.0}

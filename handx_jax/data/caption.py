@@ -110,7 +110,6 @@ _GESTURE_WORDS = {"fist": "a fist", "thumbs-up": "a thumbs-up", "pointing": "a p
 class Captioner(Protocol):
     def caption(self, record: dict, *, seed: int) -> list[dict]:
         """Five levels (0 = one-line summary … 4 = comprehensive), each {left, right, interaction}."""
-        ...
 
 
 # ---------------------------------------------------------------------------------------------

@@ -157,9 +157,6 @@ class AnnotationConfig:
     contact_hysteresis_m: float = 0.0
     contact_gap_frames: int = 0
     contact_min_frames: int = 1
-    # Velocity dead zone of the sign test (our addition to ``ignore_still``): a frame counts as moving
-    # only above max(the "slow" speed edge, this share of delta per second). 0 = the speed edge alone.
-    still_delta_per_s: float = 0.0
     # "greedy": the reference's scan (§6.2) for every descriptor. "states": descriptors with states
     # are segmented by :func:`segment_states` (changes of the hysteretic state sequence; same-way
     # changes ≤ ``merge_gap_frames`` apart merge; ``state_delta`` keeps the delta test); the wrist,
@@ -173,8 +170,8 @@ class AnnotationConfig:
             raise ValueError(f"unknown segmentation {self.segmentation!r}; choose greedy or states")
         if not 0.5 < self.sign_ratio <= 1.0:
             raise ValueError("sign_ratio must lie in (0.5, 1]")
-        if self.smooth_sigma_frames < 0 or self.contact_hysteresis_m < 0 or self.still_delta_per_s < 0:
-            raise ValueError("smooth_sigma_frames, contact_hysteresis_m and still_delta_per_s must be ≥ 0")
+        if self.smooth_sigma_frames < 0 or self.contact_hysteresis_m < 0:
+            raise ValueError("smooth_sigma_frames and contact_hysteresis_m must be ≥ 0")
         if self.contact_gap_frames < 0 or self.contact_min_frames < 1:
             raise ValueError("contact_gap_frames must be ≥ 0 and contact_min_frames ≥ 1")
 
@@ -286,8 +283,7 @@ def _trim(x_SxT: np.ndarray, s_: np.ndarray, i_: np.ndarray, j_: np.ndarray,
 
 
 def segment(x_SxT: np.ndarray, spec: SegmentSpec, *, fps: int = sk.FPS, sign_ratio: float = 0.8,
-            block: int = 1024, trim_fraction: float = 0.0, ignore_still: bool = False,
-            still_delta_per_s: float = 0.0) -> _Events:
+            block: int = 1024, trim_fraction: float = 0.0, ignore_still: bool = False) -> _Events:
     """Greedy event segmentation of S series at once (module docstring, reference §6.2)."""
     x = np.asarray(x_SxT, dtype=np.float32)
     S, T = x.shape
@@ -295,11 +291,7 @@ def segment(x_SxT: np.ndarray, spec: SegmentSpec, *, fps: int = sk.FPS, sign_rat
     v = np.zeros_like(x)
     v[:, 1:] = np.diff(x, axis=1) * fps
     lab = _hysteresis_labels(x, spec.state_edges, spec.hysteresis) if spec.diff_state else None
-    still = None
-    if ignore_still:
-        still = spec.speed_edges[0]
-        if still_delta_per_s > 0 and spec.delta is not None:
-            still = max(still, still_delta_per_s * spec.delta)
+    still = spec.speed_edges[0] if ignore_still else None
     # Series that never move by delta cannot produce an event: skip their (i, j) tables.
     live = np.ones(S, bool) if spec.delta is None else (x.max(1) - x.min(1)) >= np.float32(spec.delta)
     live_idx = np.flatnonzero(live)
@@ -606,8 +598,7 @@ def annotate(joints_NxTx2x21x3: np.ndarray, cfg: AnnotationConfig = AnnotationCo
             return segment_states(arr, spec, fps=cfg.fps, merge_gap=cfg.merge_gap_frames,
                                   require_delta=cfg.state_delta)
         return segment(arr, spec, fps=cfg.fps, sign_ratio=cfg.sign_ratio, block=cfg.scan_block,
-                       trim_fraction=cfg.trim_fraction, ignore_still=cfg.ignore_still,
-                       still_delta_per_s=cfg.still_delta_per_s)
+                       trim_fraction=cfg.trim_fraction, ignore_still=cfg.ignore_still)
     runs = lambda arr: contact_runs(arr, cfg.tip_contact_m, hysteresis=cfg.contact_hysteresis_m,
                                     gap=cfg.contact_gap_frames, min_frames=cfg.contact_min_frames)
 

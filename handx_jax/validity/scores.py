@@ -11,8 +11,6 @@ FID is 0 by construction (it is its own reference set), so there is no ratio to 
 
 from __future__ import annotations
 
-import tempfile
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -28,21 +26,16 @@ class Scorer:
         self.ev, self.ds, self.clips, self.prompts = ev, ds, list(clips), list(prompts)
         self.cfg = MetricConfig(rprec_block=block)
         self.cache = cache if cache is not None else False
-        self._tmp = tempfile.TemporaryDirectory(prefix="handx-validity-")
 
     def score(self, joints_NxTx2x21x3: np.ndarray) -> dict:
-        from handx_jax.data.handx_npz import read_handx_npz
+        """``handx eval run`` of these joints as generated, in memory (no .npz written and read back)."""
         from handx_jax.evaluation import evaluate_generated
-        from handx_jax.generation import write_generated
+        from handx_jax.generation import generated_entries
 
-        path = Path(self._tmp.name) / "gen.npz"
-        write_generated(path, np.asarray(joints_NxTx2x21x3, np.float32), [[p] for p in self.prompts],
-                        source_clips=[self.ds.ids[c] for c in self.clips], groups=[0] * len(self.clips))
-        res = evaluate_generated(self.ev, read_handx_npz(path), self.ds, self.cfg, cache=self.cache).flat()
+        entries = generated_entries(np.asarray(joints_NxTx2x21x3, np.float32), [[p] for p in self.prompts],
+                                    source_clips=[self.ds.ids[c] for c in self.clips], groups=[0] * len(self.clips))
+        res = evaluate_generated(self.ev, entries, self.ds, self.cfg, cache=self.cache).flat()
         return {k: float(res[k]) for k in ("rprec_top1", "rprec_top3", "rprec_top3_ci", "fid") if k in res}
-
-    def close(self) -> None:
-        self._tmp.cleanup()
 
 
 def tokenizer_reconstruction(tok_dir: str, gt_NxTx2x21x3: np.ndarray) -> np.ndarray:

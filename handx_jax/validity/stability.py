@@ -16,11 +16,11 @@ and captioned with the same captioner and per-clip seed (the corpus's). Reported
 from __future__ import annotations
 
 import json
-from typing import Iterable, Sequence
+from typing import Sequence
 
 import numpy as np
 
-from handx_jax.data.build import _caption_seed
+from handx_jax.data.build import caption_seed
 from handx_jax.data.caption import LEVELS, TemplateCaptioner
 from handx_jax.data.events import AnnotationConfig, annotate
 
@@ -30,19 +30,20 @@ _FIELDS = ("left", "right", "interaction")
 _TIMING = ("start", "end", "displacement_m")
 
 
+def _event_lists(record: dict):
+    """(path, event list) of every descriptor of a record."""
+    for top, groups in record.items():
+        if isinstance(groups, dict):
+            for group, lists in groups.items():
+                for key, evs in lists.items():
+                    yield f"{top}/{group}/{key}", evs
+
+
 def descriptor_lists(record: dict, *, labels_only: bool = False) -> dict[str, str]:
     """Every descriptor's event list of a record, as canonical JSON keyed by its path; with
     ``labels_only`` each event keeps only its labels (states, speed, direction)."""
-    out: dict[str, str] = {}
-    for top, groups in record.items():
-        if not isinstance(groups, dict):
-            continue
-        for group, lists in groups.items():
-            for key, evs in lists.items():
-                if labels_only:
-                    evs = [{k: v for k, v in e.items() if k not in _TIMING} for e in evs]
-                out[f"{top}/{group}/{key}"] = json.dumps(evs, sort_keys=True)
-    return out
+    return {path: json.dumps([{k: v for k, v in e.items() if k not in _TIMING} for e in evs] if labels_only else evs,
+                             sort_keys=True) for path, evs in _event_lists(record)}
 
 
 def captions(records: Sequence[dict], ids: Sequence[str], seed: int, captioner=None) -> list[list[tuple]]:
@@ -50,7 +51,7 @@ def captions(records: Sequence[dict], ids: Sequence[str], seed: int, captioner=N
     cap = captioner or TemplateCaptioner()
     out = []
     for rec, cid in zip(records, ids):
-        lv = cap.caption(rec, seed=_caption_seed(seed, cid))
+        lv = cap.caption(rec, seed=caption_seed(seed, cid))
         out.append([tuple(l[f] for f in _FIELDS) for l in lv])
     return out
 
@@ -96,14 +97,9 @@ def variety(records: Sequence[dict], caps: Sequence[Sequence[tuple]]) -> dict:
     descriptor) and the share of distinct captions per level (over the three texts joined)."""
     n_ev = []
     for r in records:
-        k = 0
-        for evs in (json.loads(v) for v in descriptor_lists(r).values()):
-            k += sum(1 for e in evs if not ("state" in e and e.get("start") == 0 and e.get("end") == r["frame_count"]
-                                            and e["state"] != "contact"))
-        n_ev.append(k)
+        n_ev.append(sum(1 for _, evs in _event_lists(r) for e in evs
+                        if not ("state" in e and e.get("start") == 0 and e.get("end") == r["frame_count"]
+                                and e["state"] != "contact")))
     distinct = [len({c[l] for c in caps}) / max(len(caps), 1) for l in range(LEVELS)]
     return {"events_per_clip": float(np.mean(n_ev)) if n_ev else 0.0, "distinct_captions": distinct}
 
-
-def texts_of(caps: Iterable[Sequence[tuple]], level: int) -> list[tuple]:
-    return [c[level] for c in caps]

@@ -42,7 +42,7 @@ def reading_of(ds) -> tuple[str, str]:
     return reading_of_options(opts) or "reference", opts.get("wording", "shared")
 
 
-def _caption_seed(ds) -> int:
+def _corpus_seed(ds) -> int:
     rec = ds.meta.get("recipe") or {}
     return int(rec.get("seed", (ds.meta.get("source") or {}).get("seed", 0)))
 
@@ -68,7 +68,7 @@ def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: 
 
         wording = WORDING[reading]
     t0 = time.perf_counter()
-    ann = S.Annotator(gt, ids, _caption_seed(ds), annotation_config(reading), TemplateCaptioner(wording))
+    ann = S.Annotator(gt, ids, _corpus_seed(ds), annotation_config(reading), TemplateCaptioner(wording))
     stored = [tuple(ds.texts[c][f][0] for f in ("left", "right", "interaction")) for c in clips]
     reproduces = float(np.mean([s == c[0] for s, c in zip(stored, ann.clean_captions)]))
     report: dict = {
@@ -117,8 +117,6 @@ def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: 
             case.update(_eval_row(scorer.score(y), report["ground_truth"]))
         report["tokenizers"].append(case)
         log(f"tokenizer {tok}: {_line(case)}")
-    if scorer is not None:
-        scorer.close()
     report["seconds"] = round(time.perf_counter() - t0, 1)
     outp = Path(out)
     outp.mkdir(parents=True, exist_ok=True)
