@@ -202,6 +202,10 @@ def test_validity_command_on_a_standard_prefix(tmp_path, capsys):
     assert white[0]["captions_unchanged"][0] >= white[-1]["captions_unchanged"][0]
     assert white[-1]["top3_ratio"] < white[0]["top3_ratio"]
     assert cases[("other", 0.0)]["top3_ratio"] < 0.6
+    # The caption reader: unchanged captions read exactly as the clean ones; another clip's do not.
+    assert shift["caption_reader_ratio"] == 1.0 and cases[("other", 0.0)]["caption_reader_ratio"] < 0.6
+    order = rep["order"]
+    assert order["clips"] > 0 and 0 <= order["forward_picks_own"] <= 1 and "Order: order test on" in (out / "validity.md").read_text()
     (rec,) = rep["tokenizers"]
     # A 4-step tokenizer reconstructs poorly: centimetres off on the fingers, and the evaluator sees it.
     assert rec["finger_error_mm"] > 5 and rec["top3_ratio"] < shift["top3_ratio"]
@@ -229,6 +233,9 @@ def test_infonce_masks_identical_captions_and_takes_the_reversal_as_a_negative()
     assert float(infonce(m1, t1, 1.0, mu_m_rev=m1)) == pytest.approx(0.5 * math.log(2), rel=1e-5)
     far = float(infonce(m1, t1, 0.1, mu_m_rev=jnp.array([[0.0, 1.0]])))
     assert 0 < far < 0.5 * math.log(2) * 0.01
+    # A reversal that reads as the clip itself is no negative: left out, the loss is the plain pair's.
+    assert float(infonce(m1, t1, 1.0, mu_m_rev=m1, rev_same_B=jnp.array([True]))) == pytest.approx(0.0, abs=1e-6)
+    assert float(infonce(m1, t1, 1.0, mu_m_rev=m1, rev_same_B=jnp.array([False]))) == pytest.approx(0.5 * math.log(2), rel=1e-5)
 
 
 def test_training_augmentation_is_finger_only_bounded_and_resumable():
@@ -273,3 +280,37 @@ def test_standard_evaluators_by_id_and_the_recipe_each_accepts(tmp_path):
         standard.check_reference(d1)  # a corpus-v1 prefix is not v5's recipe
     with pytest.raises(DataError, match="build option"):
         standard.check_reference(d2, assets=v4)
+
+
+def test_order_test_scores_a_reader_of_order_one_and_a_blind_one_zero():
+    """validity.scores.order_test against stub evaluators whose embeddings are known: one that maps each clip
+    to its true caption reads order perfectly; one that maps a reversed clip to the forward clip's embedding
+    is blind to it. Clips whose reversal reads the same are left out."""
+    from handx_jax.validity.scores import order_test
+
+    caps = [("a", "b", "c"), ("d", "e", "f"), ("g", "h", "i")]
+    rcaps = [("a2", "b", "c"), ("d", "e", "f"), ("g", "h2", "i")]  # clip 1's reversal reads the same
+    vec = {t: np.eye(8)[k] for k, t in enumerate(["a", "a2", "d", "g", "h", "h2", "x", "y"])}
+
+    class Stub:
+        def __init__(self, blind):
+            self.blind = blind
+
+        def embed_text(self, left, right, inter):
+            return np.stack([vec[l] + vec.get(r, 0) for l, r in zip(left, right)])
+
+        def embed_motion(self, x):  # x[:, 0, 0, 0, 0] holds the clip index, negative when reversed
+            out = []
+            for v in x[:, 0, 0, 0, 0]:
+                i = int(abs(v)) - 1
+                c = rcaps[i] if v < 0 and not self.blind else caps[i]
+                out.append(self.embed_text([c[0]], [c[1]], [c[2]])[0])
+            return np.stack(out)
+
+    fwd = np.zeros((3, 60, 2, 21, 3))
+    fwd[:, 0, 0, 0, 0] = [1, 2, 3]
+    rev = -fwd
+    got = order_test(Stub(False), fwd, rev, caps, rcaps)
+    assert got == {"clips": 2, "forward_picks_own": 1.0, "reversed_picks_reversed": 1.0, "mean": 1.0}
+    got = order_test(Stub(True), fwd, rev, caps, rcaps)
+    assert got["forward_picks_own"] == 1.0 and got["reversed_picks_reversed"] == 0.0

@@ -77,8 +77,13 @@ def train_from_args(args: argparse.Namespace) -> int:
         return 0
     from handx_jax.runlock import RunLock
 
+    from handx_jax.config import ConfigError
+
     with RunLock.for_output(args.out):  # one writer per evaluator folder: a second is refused (issue 43)
-        train_evaluator(args.out, cfg, force=args.force)
+        try:
+            train_evaluator(args.out, cfg, force=args.force)
+        except ConfigError as e:  # found once the data is open (e.g. init_from's shape)
+            return fail("handx train evaluator", e)
     return 0
 
 

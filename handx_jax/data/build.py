@@ -65,6 +65,20 @@ def reading_of_options(options: dict) -> str | None:
     return None
 
 
+def reading_of(ds) -> tuple[str, str]:
+    """(annotation reading, captioner wording) a dataset was built with, from its recipe: a synthetic
+    corpus records both; anything else (an imported release) is read with the reference reading."""
+    opts = ((ds.meta.get("recipe") or {}).get("options") or {})
+    reading = reading_of_options(opts) or "reference"
+    return reading, opts.get("wording", WORDING[reading])
+
+
+def corpus_seed(ds) -> int:
+    """The seed a corpus's caption seeds derive from (:func:`caption_seed`)."""
+    rec = ds.meta.get("recipe") or {}
+    return int(rec.get("seed", (ds.meta.get("source") or {}).get("seed", 0)))
+
+
 def with_reading(cfg: BuildConfig, name: str) -> BuildConfig:
     """``cfg`` annotated and captioned with the named reading (``handx data synth --annotation``)."""
     from handx_jax.data.events import annotation_config

@@ -77,6 +77,19 @@ def add_parser(subparsers) -> None:
     s.add_argument("--split", choices=("all", "train", "val", "test"), default="all")
     s.set_defaults(func=_export)
 
+    s = sub.add_parser("reverse", help="a split's clips played backwards, annotated and captioned again",
+                       description="Write a dataset of DATA's clips time-reversed, annotated with DATA's own reading "
+                                   "and captioned with its wording and caption seeds, all in its train split: the "
+                                   "order of events as training pairs for the evaluator "
+                                   "(handx train evaluator --set data.reversed_path=OUT; docs/validity.md).")
+    _data_arg(s)
+    s.add_argument("--out", required=True, help="dataset directory to create")
+    s.add_argument("--split", choices=("train", "val", "test"), default="train", help="the split to reverse")
+    s.add_argument("--clips", type=int, default=None, help="at most this many clips, evenly spaced over the split")
+    s.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
+    s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
+    s.set_defaults(func=_reverse)
+
     s = sub.add_parser("verify", help="check a dataset's files against its recorded fingerprint")
     _data_arg(s)
     s.set_defaults(func=_verify)
@@ -109,6 +122,16 @@ def _synth(a: argparse.Namespace) -> int:
     print(f"cut: {c.get('windows', 0)} windows from {c.get('sequences', 0)} sequences; "
           f"defective frames {c.get('defective_frames', {})}; rejected by intensity {c.get('rejected_intensity', {})}")
     print(format_stats(dataset_stats(ds, workers=a.workers or os.cpu_count() or 1)))
+    return 0
+
+
+def _reverse(a: argparse.Namespace) -> int:
+    from handx_jax.data.reverse import build_reversed
+
+    if a.clips is not None and a.clips < 1:
+        raise SystemExit(f"handx: error: --clips is {a.clips}; it must be a whole number >= 1")
+    out = build_reversed(a.data, a.out, split=a.split, limit=a.clips, workers=a.workers, overwrite=a.force)
+    print(f"wrote {out}")
     return 0
 
 

@@ -3,6 +3,7 @@ and the (clip, level) training items (paper E.2; reference §5.1–§5.3)."""
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -85,15 +86,41 @@ def _level_index(level: int, levels: int) -> int:
     return level % levels
 
 
+def caption_ids(ds, clips: np.ndarray, levels: np.ndarray) -> np.ndarray:
+    """One int64 per (clip, level): equal ⟺ the three captions are identical (an 8-byte digest of them),
+    so identical captions are recognised across datasets (a corpus and its reversed copy)."""
+    out = np.empty(len(clips), np.int64)
+    for i, (c, lv) in enumerate(zip(np.asarray(clips).tolist(), np.asarray(levels).tolist())):
+        t = ds.texts[c]
+        key = "\x1f".join(t[f][lv] for f in ("left", "right", "interaction")).encode()
+        out[i] = int.from_bytes(hashlib.blake2b(key, digest_size=8).digest(), "little", signed=True)
+    return out
+
+
 class TrainingData:
-    """(clip, level) items of one split: motion from the dataset memmap, text from the joined cache."""
+    """(clip, level) items of one split: motion from the dataset memmap, text from the joined cache.
+
+    ``companion``: (dataset, its joined cache) of extra training pairs (``data.reverse``: the split's
+    clips played backwards with their own captions); each item is replaced by a random companion item
+    with probability ``companion_share`` (a pure function of (seed, the batch's indices): exact resume).
+    The companion's motion is normalised with this corpus's ``stats``."""
 
     def __init__(self, ds, cache, stats: rep.NormStats, clips: np.ndarray, levels: Sequence[int], seed: int,
                  text_bucket: int = 16, motion_input: str = "positions", *, augment_white_m: float = 0.0,
-                 augment_lowfreq_m: float = 0.0, reversed_copy: bool = False, text_ids: bool = False):
+                 augment_lowfreq_m: float = 0.0, reversed_copy: bool = False, text_ids: bool = False,
+                 companion: tuple | None = None, companion_share: float = 0.0):
         self.ds, self.cache, self.stats = ds, cache, stats
         self.augment_white_m, self.augment_lowfreq_m = float(augment_white_m), float(augment_lowfreq_m)
         self.reversed_copy, self.text_ids = bool(reversed_copy), bool(text_ids)
+        self.companion = companion if companion_share > 0 else None
+        self.companion_share = float(companion_share)
+        if self.companion is not None:  # which companion clip is which source clip's reversal
+            where = {cid: i for i, cid in enumerate(ds.ids)}
+            src = [where.get(cid.rsplit("~", 1)[0], -1) for cid in self.companion[0].ids]
+            self._comp_src = np.asarray(src, np.int64)
+            self._rev_of = np.full(len(ds), -1, np.int64)
+            ok = self._comp_src >= 0
+            self._rev_of[self._comp_src[ok]] = np.flatnonzero(ok)
         self.motion_input = motion_input
         self.clips = np.asarray(clips, np.int64)
         self.levels = np.asarray(levels, np.int64)
@@ -108,13 +135,22 @@ class TrainingData:
         rng = np.random.default_rng([self.seed, 0x1E7, *np.asarray(idx, np.int64).tolist()])
         return self.levels[rng.integers(0, len(self.levels), len(idx))]
 
+    @staticmethod
+    def _read(ds, cache, clips: np.ndarray, levels: np.ndarray):
+        order = np.argsort(clips, kind="stable")  # sorted memmap reads
+        joints = np.empty((len(clips),) + ds.motion.shape[1:], np.float32)
+        joints[order] = ds.motion[clips[order]]
+        h, m = cache.lookup(clips, JOINED, levels)
+        return joints, np.asarray(h), np.asarray(m)
+
     def batch(self, idx: np.ndarray, levels: np.ndarray | None = None) -> dict[str, np.ndarray]:
         clips = self.clips[np.asarray(idx)]
         levels = self.item_levels(idx) if levels is None else np.asarray(levels)
-        order = np.argsort(clips, kind="stable")  # sorted memmap reads
-        joints = np.empty((len(clips),) + self.ds.motion.shape[1:], np.float32)
-        joints[order] = self.ds.motion[clips[order]]
-        h, m = self.cache.lookup(clips, JOINED, levels)
+        joints, h, m = self._read(self.ds, self.cache, clips, levels)
+        ids = caption_ids(self.ds, clips, levels) if self.text_ids else None
+        from_comp = None
+        if self.companion is not None:
+            joints, h, m, ids, from_comp = self._mix(idx, levels, joints, h, m, ids)
         # Trim the text to the batch's longest caption, rounded up to a multiple of ``text_bucket`` tokens:
         # concise levels then cost a fraction of Lmax, and at most Lmax/bucket step shapes are compiled.
         # Masking makes the loss independent of the padding; on an accelerator, where each new shape
@@ -126,9 +162,50 @@ class TrainingData:
                "text_mask": np.asarray(m[:, :Lb], bool)}
         if self.reversed_copy:
             out["motion_rev"] = motion_features(np.ascontiguousarray(joints[:, ::-1]), self.stats, self.motion_input)
-        if self.text_ids:  # equal ids ⟺ identical captions (the cache stores each distinct caption once)
-            out["text_id"] = np.asarray(self.cache.row(clips, JOINED, levels), np.int64)
+            if from_comp is not None and ids is not None:
+                out["rev_same_text"] = self._reversal_reads_the_same(clips, levels, ids, from_comp)
+        if ids is not None:
+            out["text_id"] = ids
         return out
+
+    def _mix(self, idx, levels, joints, h, m, ids):
+        """Replace a ``companion_share`` of the batch's items by random companion items (same levels)."""
+        cds, ccache = self.companion
+        rng = np.random.default_rng([self.seed, 0xC0A, *np.asarray(idx, np.int64).tolist()])
+        take = np.flatnonzero(rng.random(len(idx)) < self.companion_share)
+        if not len(take):
+            return joints, h, m, ids, np.full(len(idx), -1, np.int64)
+        cclips = rng.integers(0, len(cds), len(take))
+        cj, ch, cm = self._read(cds, ccache, cclips, levels[take])
+        L = max(h.shape[1], ch.shape[1])  # the two caches' Lmax may differ: pad both to the longer
+        pad = lambda x, L: np.pad(x, [(0, 0), (0, L - x.shape[1])] + [(0, 0)] * (x.ndim - 2))  # noqa: E731
+        h, m, ch, cm = pad(h, L), pad(m, L), pad(ch, L), pad(cm, L)
+        joints[take], h[take], m[take] = cj, ch, cm
+        if ids is not None:
+            ids[take] = caption_ids(cds, cclips, levels[take])
+        from_comp = np.full(len(idx), -1, np.int64)
+        from_comp[take] = cclips
+        return joints, h, m, ids, from_comp
+
+    def _reversal_reads_the_same(self, clips, levels, ids, from_comp) -> np.ndarray:
+        """Per item: is its reversal's caption its own (then the reversal is no negative of its text)? A
+        forward clip's reversal is read from the companion, a companion clip's from its source clip; a
+        forward clip the companion does not hold counts as different (v5's assumption)."""
+        cds = self.companion[0]
+        same = np.zeros(len(clips), bool)
+        comp = from_comp >= 0
+        if comp.any():  # reversal of a reversed clip: the source clip, with the source's caption
+            src = self._comp_src[from_comp[comp]]
+            known = src >= 0
+            rid = caption_ids(self.ds, src[known], levels[comp][known])
+            same[np.flatnonzero(comp)[known]] = rid == ids[comp][known]
+        fwd = np.flatnonzero(~comp)
+        r = self._rev_of[clips[fwd]]
+        known = r >= 0
+        if known.any():
+            rid = caption_ids(cds, r[known], levels[fwd][known])
+            same[fwd[known]] = rid == ids[fwd][known]
+        return same
 
     def _augment(self, joints: np.ndarray, idx: np.ndarray) -> np.ndarray:
         """Caption-preserving noise on the finger joints (validity.perturb), per-clip amplitudes, drawn

@@ -44,6 +44,11 @@ class EvaluatorDataConfig:
     # [0, augment_lowfreq_mm] mm (validity.perturb's kinds, at amplitudes the validity suite measures).
     augment_white_mm: float = 0.0
     augment_lowfreq_mm: float = 0.0
+    # The order of events as data (issue 40; "" / 0 = off, v5): a ``handx data reverse`` dataset of this
+    # corpus's train clips played backwards with their own captions, and the share of each batch drawn
+    # from it (features.TrainingData). Normalised with this corpus's statistics.
+    reversed_path: str = ""
+    reversed_share: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -57,6 +62,9 @@ class EvaluatorRunConfig:
                                                        schedule="cosine"))
     data: EvaluatorDataConfig = field(default_factory=EvaluatorDataConfig)
     final_eval: bool = True  # score the Ground Truth row on the test split when training ends
+    # Fine-tuning: an evaluator folder whose weights and input statistics this run starts from ("" = a
+    # fresh initialisation). Its model must have this run's shape (the loss options may differ).
+    init_from: str = ""
     metrics: MetricConfig = MetricConfig()  # for that row
 
     def validate(self) -> None:
@@ -69,6 +77,11 @@ class EvaluatorRunConfig:
             raise ConfigError(f"text.max_len must be >= 2, got {self.text.max_len}")
         if self.data.augment_white_mm < 0 or self.data.augment_lowfreq_mm < 0:
             raise ConfigError("data.augment_white_mm and data.augment_lowfreq_mm must be >= 0 (mm)")
+        if not 0.0 <= self.data.reversed_share < 1.0:
+            raise ConfigError(f"data.reversed_share must be in [0, 1), got {self.data.reversed_share}")
+        if (self.data.reversed_share > 0) != bool(self.data.reversed_path):
+            raise ConfigError("data.reversed_path and data.reversed_share > 0 go together (a `handx data reverse` "
+                              "dataset and the share of each batch drawn from it)")
 
 
 def make_evaluator_config(preset: str = "small", overrides: Sequence[str] = (), *, data: str = "",
@@ -134,20 +147,31 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
     tcfg = cfg.train
     tcfg = dataclasses.replace(tcfg, optim=dataclasses.replace(
         tcfg.optim, warmup_steps=min(tcfg.optim.warmup_steps, tcfg.steps // 5)))
-    stats = evaluator_stats(ds, mcfg.motion_input, clips)
+    start = _start_from(cfg.init_from, mcfg, enc) if cfg.init_from else None
+    stats = start.stats if start is not None else evaluator_stats(ds, mcfg.motion_input, clips)
+    companion = _companion(cfg.data.reversed_path, ds, enc, policy, read, log) if cfg.data.reversed_share > 0 else None
     tdata = TrainingData(ds, cache, stats, clips, train_levels, tcfg.seed, cfg.data.text_bucket, mcfg.motion_input,
                          augment_white_m=cfg.data.augment_white_mm / 1000, augment_lowfreq_m=cfg.data.augment_lowfreq_mm / 1000,
-                         reversed_copy=mcfg.reverse_negative, text_ids=mcfg.mask_same_text)
+                         reversed_copy=mcfg.reverse_negative, text_ids=mcfg.mask_same_text,
+                         companion=companion, companion_share=cfg.data.reversed_share)
     model = Evaluator(mcfg)
     Lmax = int(cache.meta["Lmax"])
-    init = lambda rng: _init_params(mcfg, Lmax, rng)  # noqa: E731
+    if start is not None:
+        init = lambda rng: jax.tree_util.tree_map(jax.numpy.asarray, start.params)  # noqa: E731
+    else:
+        init = lambda rng: _init_params(mcfg, Lmax, rng)  # noqa: E731
     n_params = count_params(jax.eval_shape(init, jax.random.PRNGKey(0)))
     truncated = _truncation(cache, clips, train_levels)
     config = {"family": "evaluator", "run_id": out.name, "preset": cfg.preset, "model": dataclasses.asdict(mcfg),
               "layers": mcfg.layers, "dim": mcfg.latent, "heads": mcfg.heads, "ff": mcfg.ff, "params": n_params,
               "text": to_dict(policy), "train_levels": list(train_levels),
               "data": {"path": str(Path(data).absolute()), "fingerprint": ds.fingerprint,
-                       "text_bucket": cfg.data.text_bucket},
+                       "text_bucket": cfg.data.text_bucket,
+                       **({"reversed": {"path": str(Path(cfg.data.reversed_path).absolute()),
+                                        "fingerprint": companion[0].fingerprint, "share": cfg.data.reversed_share}}
+                          if companion else {})},
+              **({"init_from": {"path": str(Path(cfg.init_from).absolute()),
+                                "fingerprint": start.fingerprint}} if start else {}),
               "encoder": {"path": enc_path, "fingerprint": enc.fingerprint}}
     log(f"evaluator {cfg.preset}: {n_params:,} params, {len(clips)} train clips × levels {list(train_levels)}, "
         f"text Lmax {Lmax} ({100 * truncated:.1f}% of training captions truncated at {policy.max_len} tokens), "
@@ -189,6 +213,8 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
         "training": {"steps": int(res["step"]), "batch_size": tcfg.batch_size, "lr": o.lr, "warmup": o.warmup_steps,
                      "schedule": o.schedule, "weight_decay": o.weight_decay, "seed": tcfg.seed,
                      "wall_seconds_this_process": wall,
+                     **{k: config[k] for k in ("init_from",) if k in config},
+                     **({"reversed": config["data"]["reversed"]} if "reversed" in config["data"] else {}),
                      "final": {k: last.get(k) for k in ("loss", "infonce", "kl", "latent", "recon") if k in last}},
     }
     ev = TrainedEvaluator(cfg=mcfg, params=jax.device_get(res["params"]), stats=stats, encoder=enc, policy=policy,
@@ -200,6 +226,34 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
         write_eval_json(out / EVAL_FILE, result)
         log(format_table([("Ground Truth", result)], block=cfg.metrics.rprec_block))
     return out
+
+
+def _start_from(path: str, mcfg: EvaluatorConfig, enc):
+    """The evaluator a fine-tuning run starts from; its model must have ``mcfg``'s shape."""
+    from handx_jax.evaluation.checkpoint import load_evaluator
+
+    start = load_evaluator(path, encoder=enc)
+    shape = ("latent", "layers", "heads", "ff", "motion_input", "motion_patch", "text_dim", "frames", "recon")
+    diff = [f"{k} {getattr(start.cfg, k)!r} vs {getattr(mcfg, k)!r}" for k in shape
+            if getattr(start.cfg, k) != getattr(mcfg, k)]
+    if diff:
+        raise ConfigError(f"init_from {path}: its model differs from this run's ({'; '.join(diff)}); "
+                          "fine-tuning needs the same shape (pick its preset and overrides)")
+    return start
+
+
+def _companion(path: str, ds, enc, policy: TextPolicy, levels: Sequence[int], log):
+    """(dataset, joined cache) of the reversed copy ``path`` of ``ds`` (``handx data reverse``)."""
+    from handx_jax.data.dataset import Dataset
+    from handx_jax.text.cache import build_cache, open_cache
+
+    rds = Dataset.open(path)
+    src = rds.meta.get("source") or {}
+    if src.get("kind") != "reversed" or src.get("of_fingerprint") != ds.fingerprint:
+        raise DataError(f"data.reversed_path is not a `handx data reverse` copy of {ds.root} (its meta.json source "
+                        f"names {src.get('of') or 'no such dataset'})", path=Path(path) / "meta.json")
+    build_cache(path, enc, joined=True, max_len=policy.max_len, dtype=policy.cache_dtype, levels=levels, log=log)
+    return rds, open_cache(path, enc, joined=True, max_len=policy.max_len, dtype=policy.cache_dtype, levels=levels)
 
 
 def _truncation(cache, clips: np.ndarray, levels: Sequence[int]) -> float:

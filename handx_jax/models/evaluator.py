@@ -178,11 +178,12 @@ def _unit(x):
     return x / (jnp.linalg.norm(x, axis=-1, keepdims=True) + 1e-8)
 
 
-def infonce(mu_m, mu_t, temperature: float, *, same_text_BxB=None, mu_m_rev=None):
+def infonce(mu_m, mu_t, temperature: float, *, same_text_BxB=None, mu_m_rev=None, rev_same_B=None):
     """Symmetric InfoNCE on L2-normalised embeddings with cosine logits / τ (reference §5.2).
 
     ``same_text_BxB``: pairs (i, j ≠ i) with identical captions are dropped from each other's negatives.
-    ``mu_m_rev``: each clip played backwards, one extra negative column for its own text (text → motion)."""
+    ``mu_m_rev``: each clip played backwards, one extra negative column for its own text (text → motion);
+    ``rev_same_B``: items whose reversal reads the same as the clip (no negative of its text: left out)."""
     m, t = _unit(mu_m), _unit(mu_t)
     logits = m @ t.T / temperature
     B = m.shape[0]
@@ -192,6 +193,8 @@ def infonce(mu_m, mu_t, temperature: float, *, same_text_BxB=None, mu_m_rev=None
     t2m = logits.T
     if mu_m_rev is not None:
         rev = jnp.sum(t * _unit(mu_m_rev), axis=-1) / temperature
+        if rev_same_B is not None:
+            rev = jnp.where(rev_same_B, -1e9, rev)
         t2m = jnp.concatenate([t2m, rev[:, None]], axis=1)
     return 0.5 * (optax.softmax_cross_entropy_with_integer_labels(logits, labels).mean()
                   + optax.softmax_cross_entropy_with_integer_labels(t2m, labels).mean())
@@ -214,7 +217,8 @@ def evaluator_loss(model: Evaluator, params, batch, rng, train: bool):
     if c.reverse_negative and "motion_rev" in batch:
         mu_rev, _ = model.apply(params, batch["motion_rev"], deterministic=not train, method=Evaluator.encode_motion,
                                 rngs={"dropout": jax.random.fold_in(r_drop, 4)})
-    l_nce = infonce(mu_m, mu_t, c.temperature, same_text_BxB=same, mu_m_rev=mu_rev)
+    l_nce = infonce(mu_m, mu_t, c.temperature, same_text_BxB=same, mu_m_rev=mu_rev,
+                    rev_same_B=batch.get("rev_same_text") if mu_rev is not None else None)
     l_kl = _kl(mu_t, lv_t, mu_m, lv_m) + _kl(mu_m, lv_m, mu_t, lv_t)
     l_lat = optax.huber_loss(z_t, z_m, delta=1.0).mean()
     total = c.w_infonce * l_nce + c.w_kl * l_kl + c.w_latent * l_lat

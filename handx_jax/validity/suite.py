@@ -28,23 +28,10 @@ import numpy as np
 from handx_jax.io import atomic_write_text
 from handx_jax.validity import perturb as P
 from handx_jax.validity import stability as S
-from handx_jax.validity.scores import Scorer
+from handx_jax.data.build import corpus_seed, reading_of
+from handx_jax.validity.scores import Scorer, caption_reader_top3, order_test
 
 SCHEMA = 1
-
-
-def reading_of(ds) -> tuple[str, str]:
-    """(annotation reading, captioner wording) a dataset was built with, from its recipe: a synthetic
-    corpus records both; anything else (an imported release) is read with the reference reading."""
-    from handx_jax.data.build import reading_of_options
-
-    opts = ((ds.meta.get("recipe") or {}).get("options") or {})
-    return reading_of_options(opts) or "reference", opts.get("wording", "shared")
-
-
-def _corpus_seed(ds) -> int:
-    rec = ds.meta.get("recipe") or {}
-    return int(rec.get("seed", (ds.meta.get("source") or {}).get("seed", 0)))
 
 
 def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: Sequence[str] = (),
@@ -68,7 +55,7 @@ def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: 
 
         wording = WORDING[reading]
     t0 = time.perf_counter()
-    ann = S.Annotator(gt, ids, _corpus_seed(ds), annotation_config(reading), TemplateCaptioner(wording))
+    ann = S.Annotator(gt, ids, corpus_seed(ds), annotation_config(reading), TemplateCaptioner(wording))
     stored = [tuple(ds.texts[c][f][0] for f in ("left", "right", "interaction")) for c in clips]
     reproduces = float(np.mean([s == c[0] for s, c in zip(stored, ann.clean_captions)]))
     report: dict = {
@@ -94,16 +81,24 @@ def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: 
             report["evaluator"] = {"name": str(evaluator)}
         scorer = Scorer(ev, ds, clips, prompts, block=block, cache=cache)
         report["ground_truth"] = scorer.score(gt)
+        clean0 = [c[0] for c in ann.clean_captions]
+        report["ground_truth"]["caption_reader_top3"] = caption_reader_top3(scorer.ev, clean0, clean0, block=block)
         log(f"ground truth: top-3 {report['ground_truth']['rprec_top3']:.3f}")
     names = list(kinds) if kinds else list(P.KINDS)
     for name in names:
         kind = P.KINDS[name]
         for amp in kind.amplitudes_m:
             y = P.apply(name, gt, amp, seed)
+            recs, caps = ann.records_and_captions(y)
             case = {"kind": name, "label": kind.label, "preserving": kind.preserving, "amplitude_mm": amp * 1000,
-                    "mean_shift_mm": P.mean_shift_mm(gt, y), **S_row(ann, y)}
+                    "mean_shift_mm": P.mean_shift_mm(gt, y),
+                    **S.compare(ann.clean_records, recs, ann.clean_captions, caps)}
             if scorer is not None:
                 case.update(_eval_row(scorer.score(y), report["ground_truth"]))
+                case.update(_reader_row(scorer.ev, ann, caps, report["ground_truth"], block))
+                if name == "reverse":
+                    report["order"] = order_test(scorer.ev, gt, y, clean0, [c[0] for c in caps])
+                    log(_order_line(report["order"]))
             report["cases"].append(case)
             log(_line(case))
     report["tokenizers"] = []
@@ -111,10 +106,12 @@ def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: 
         from handx_jax.validity.scores import finger_error_mm, tokenizer_reconstruction
 
         y = tokenizer_reconstruction(tok, gt)
+        recs, caps = ann.records_and_captions(y)
         case = {"tokenizer": str(tok), "mean_shift_mm": P.mean_shift_mm(gt, y), "finger_error_mm": finger_error_mm(gt, y),
-                **S_row(ann, y)}
+                **S.compare(ann.clean_records, recs, ann.clean_captions, caps)}
         if scorer is not None:
             case.update(_eval_row(scorer.score(y), report["ground_truth"]))
+            case.update(_reader_row(scorer.ev, ann, caps, report["ground_truth"], block))
         report["tokenizers"].append(case)
         log(f"tokenizer {tok}: {_line(case)}")
     report["seconds"] = round(time.perf_counter() - t0, 1)
@@ -126,9 +123,17 @@ def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: 
     return report
 
 
-def S_row(ann: S.Annotator, y: np.ndarray) -> dict:
-    recs, caps = ann.records_and_captions(y)
-    return S.compare(ann.clean_records, recs, ann.clean_captions, caps)
+def _reader_row(ev, ann: S.Annotator, caps, gt: dict, block: int) -> dict:
+    top3 = caption_reader_top3(ev, [c[0] for c in ann.clean_captions], [c[0] for c in caps], block=block)
+    return {"caption_reader_top3": top3, "caption_reader_ratio": top3 / gt["caption_reader_top3"]}
+
+
+def _order_line(o: dict) -> str:
+    if not o.get("clips"):
+        return "order test: no clip's reversal reads differently"
+    return (f"order test on {o['clips']} clips whose reversal reads differently (chance 0.5): forward clip nearer "
+            f"its caption {o['forward_picks_own']:.3f}, reversed clip nearer the reversed caption "
+            f"{o['reversed_picks_reversed']:.3f}")
 
 
 def _eval_row(res: dict, gt: dict) -> dict:
@@ -160,8 +165,8 @@ def markdown(r: dict) -> str:
     hdr = "| perturbation | kind | mean shift (mm) | event lists unchanged (labels / with frames) | captions unchanged L0 / L1 / L4 |"
     sep = "|---|---|---:|---:|---:|"
     if ev:
-        hdr += " top-3 | × GT | FID |"
-        sep += "---:|---:|---:|"
+        hdr += " top-3 | × GT | caption reader × | FID |"
+        sep += "---:|---:|---:|---:|"
     lines += [hdr, sep]
     rows = list(r["cases"]) + list(r.get("tokenizers", []))
     for c in rows:
@@ -173,8 +178,15 @@ def markdown(r: dict) -> str:
         line = (f"| {name} | {kind} | {c['mean_shift_mm']:.1f} | {c['events_unchanged']:.3f} / "
                 f"{c['events_exact_unchanged']:.3f} | {cu[0]:.3f} / {cu[1]:.3f} / {cu[4]:.3f} |")
         if ev:
-            line += f" {c['eval_rprec_top3']:.3f} | {c['top3_ratio']:.2f} | {c['eval_fid']:.2f} |"
+            reader = f"{c['caption_reader_ratio']:.2f}" if "caption_reader_ratio" in c else ""
+            line += f" {c['eval_rprec_top3']:.3f} | {c['top3_ratio']:.2f} | {reader} | {c['eval_fid']:.2f} |"
         lines.append(line)
+    if r.get("order"):
+        lines += ["", f"Order: {_order_line(r['order'])}."]
+    if ev:
+        lines += ["", "Caption reader ×: the top-3 a reader of the perturbed clips' own captions would get (their "
+                  "level-0 captions through the evaluator's text side, ranked against the clean ones), over the "
+                  "same reader's on the clean captions."]
     lines += ["", "How to read it: docs/validity.md.", ""]
     return "\n".join(lines)
 
