@@ -579,8 +579,8 @@ def penetration_stats(depth_NxT, threshold_m: float = 0.01) -> tuple[np.ndarray,
 
 
 # Contact feasibility: the contacts a clip's interaction caption and hand captions name are the contact
-# events of its structured record (data/events.py; the captioner never leaves out a contact, caption.py
-# _InterFacts / _contact_facts). Each is one channel of a per-frame distance and a half-open frame range;
+# events of its structured record (data/events.py; the captioner never leaves out a contact, data/caption
+# inter.py, hand.py). Each is one channel of a per-frame distance and a half-open frame range;
 # a named contact is realised when the generated motion brings the pair within the project's contact
 # threshold in at least one frame of that range (BimArt §4 "Con" asks the same of hand–object contact).
 # Channels: 8 intra-hand thumb-tip pairs, 25 left × right tip pairs, 10 tip → other palm (mean of the
@@ -613,8 +613,8 @@ class NamedContacts:
 def named_contacts(records) -> NamedContacts:
     """The contact events of each clip's record (events.annotate layout, reference §6.3): tip–tip runs
     within and across hands, and the "contact" periods of the finger–palm series (the captioner's own
-    reading, caption._contact_periods). Palm–palm contact is not a tip contact and is not counted."""
-    from handx_jax.data.caption import _contact_periods
+    reading, caption.inter.contact_periods). Palm–palm contact is not a tip contact and is not counted."""
+    from handx_jax.data.caption.inter import contact_periods
 
     rows = []
     for n, rec in enumerate(records):
@@ -626,7 +626,7 @@ def named_contacts(records) -> NamedContacts:
         for key, runs in rel.get("finger_tip_contact", {}).items():
             rows += [(n, CONTACT_CHANNELS[("finger_tip_contact", key)], e["start"], e["end"]) for e in runs]
         for key, evs in rel.get("finger_palm_distance", {}).items():
-            rows += [(n, CONTACT_CHANNELS[("finger_palm_distance", key)], s, e) for s, e in _contact_periods(evs, T)]
+            rows += [(n, CONTACT_CHANNELS[("finger_palm_distance", key)], s, e) for s, e in contact_periods(evs, T)]
     a = np.asarray(rows, np.int64).reshape(-1, 4)
     return NamedContacts(a[:, 0], a[:, 1], a[:, 2], a[:, 3])
 
