@@ -9,7 +9,7 @@
     handx sweep ...     launch sweeps locally or on SLURM, resumable             (sweeps.cli)
     handx analyze ...   scaling fits, tables and plots                           (analysis.cli)
     handx tokenize ...  FSQ motion tokens of a dataset, for the AR family         (handx_jax.commands.tokenize)
-    handx standard ...  the packaged standard evaluator and its corpus           (handx_jax.standard)
+    handx standard ...  the packaged standard evaluator and its corpus           (handx_jax.standard.cli)
     handx import ...    the released HandX weights → run / evaluator folders      (handx_jax.interop.cli)
     handx export ...    a diffusion run → the released HandX checkpoint format    (handx_jax.interop.cli)
 
@@ -42,7 +42,7 @@ GROUPS = (
     ("params", "handx_jax.commands.params"),
     ("tokenize", "handx_jax.commands.tokenize"),
     ("sweep", "sweeps.cli"),
-    ("standard", "handx_jax.standard"),
+    ("standard", "handx_jax.standard.cli"),
     ("standard validity", "handx_jax.validity.cli"),  # adds `handx standard validity` to the group above
     ("import/export", "handx_jax.interop.cli"),
 )

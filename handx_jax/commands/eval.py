@@ -113,7 +113,7 @@ def _run(args: argparse.Namespace) -> int:
             raise DataError(str(e), path=args.generated) from None
     from handx_jax import standard
 
-    if standard.is_standard(args.evaluator):  # the packaged standard evaluator (handx_jax/standard.py)
+    if standard.is_standard(args.evaluator):  # the packaged standard evaluator (handx_jax/standard/)
         if args.encoder:
             raise SystemExit("handx: error: --encoder applies to --evaluator E; the standard evaluator carries its own")
         assets = standard.assets_for(args.evaluator)

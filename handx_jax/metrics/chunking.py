@@ -7,7 +7,6 @@ import jax
 import jax.numpy as jnp
 
 
-
 MOTION_CHUNK = 50  # clips per lax.map step of the per-frame Procrustes, penetration and contact scans
 
 

@@ -6,8 +6,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 
-
-
 @dataclass(frozen=True)
 class MetricConfig:
     rprec_block: int = 32  # 32 in Table 2; 16 in Table B / Fig. 4

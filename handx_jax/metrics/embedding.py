@@ -14,7 +14,6 @@ import jax.numpy as jnp
 import numpy as np
 
 
-
 @jax.jit
 def pairwise_dist(a_NxD: jax.Array, b_MxD: jax.Array) -> jax.Array:
     """Euclidean distance matrix (N, M), computed stably in the expanded form."""
@@ -204,7 +203,6 @@ def diversity_indices(n: int, pairs: int, seed: int) -> tuple[np.ndarray, np.nda
 def multimodality(emb_NxGxD: jax.Array, g1: jax.Array, g2: jax.Array) -> jax.Array:
     """Mean distance between generations of the same prompt (groups g1 vs g2)."""
     return jnp.mean(jnp.linalg.norm(emb_NxGxD[:, g1] - emb_NxGxD[:, g2], axis=-1))
-
 
 
 @partial(jax.jit, static_argnames=("block",))

@@ -56,9 +56,6 @@ def procrustes_align(x_BxJx3: jax.Array, y_BxJx3: jax.Array) -> jax.Array:
     return s[..., None, None] * jnp.einsum("...ij,...kj->...ki", R, xc) + my
 
 
-
-
-
 @jax.jit
 def mpjpe_pa_mm(pred_NxTx2x21x3: jax.Array, gt_NxTx2x21x3: jax.Array) -> jax.Array:
     """MPJPE-PA per clip and hand (N, 2), mm: each hand of each frame aligned to the GT's by its own
