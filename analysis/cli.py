@@ -374,7 +374,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Register ``analyze`` and its sub-commands on the ``handx`` command's sub-parsers."""
     p = subparsers.add_parser(
         "analyze", help="scaling fits, paper tables and plots from results files",
-        description="Scaling-law analysis of results tables (see analysis/schema.py for the format). "
+        description="Scaling-law analysis of results tables (see analysis/schema/ for the format). "
                     "RESULTS may be .jsonl/.csv tables, run folders, sweep folders, or paper:2, paper:3, "
                     "paper:B for the HandX paper's own tables.")
     p.set_defaults(func=lambda a: p.print_help() or 0, analyze_command=None)

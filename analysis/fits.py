@@ -26,7 +26,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from scipy.stats import norm as normal, t as student_t
 
-from analysis.schema import COLUMN_BY_NAME, GROUND_TRUTH, NUMERIC_COLUMNS, config_label
+from analysis.schema import GROUND_TRUTH, column_by_name, config_label, numeric_columns
 
 # ----------------------------------------------------------------------------------------------
 # Column selection
@@ -66,12 +66,13 @@ def resolve_column(name: str, rows: Sequence[Mapping[str, Any]] | None = None) -
         runs = [r for r in rows if r.get("family") != GROUND_TRUTH]
         if runs and all(r.get("flops_per_sample_paper") is not None for r in runs):
             col = "flops_per_sample_paper"
-    if rows is not None and col not in COLUMN_BY_NAME and any(
+    by_name = column_by_name()
+    if rows is not None and col not in by_name and any(
             isinstance(r.get(col), (int, float)) and not isinstance(r.get(col), bool) for r in rows):
         return col
-    if col not in COLUMN_BY_NAME or COLUMN_BY_NAME[col].kind is str:
+    if col not in by_name or by_name[col].kind is str:
         raise ValueError(f"unknown column {name!r}; use one of {', '.join(sorted(X_ALIASES))} or a numeric "
-                         f"column: {', '.join(NUMERIC_COLUMNS)}")
+                         f"column: {', '.join(numeric_columns())}")
     return col
 
 

@@ -27,7 +27,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from analysis.fits import Extrapolation, LogLinearFit, chance_level, fit_log_linear, resolve_column, select_xy
-from analysis.schema import COLUMN_BY_NAME, GROUND_TRUTH, LOWER_IS_BETTER, METRICS, column, config_label
+from analysis.schema import GROUND_TRUTH, LOWER_IS_BETTER, METRICS, column, column_by_name, config_label
 from analysis.tables import best_rows
 from handx_jax.io import atomic_write_bytes
 
@@ -135,7 +135,7 @@ def _draw_chance(ax: Any, y: str, rows: Sequence[Mapping[str, Any]], block: int 
 
 def _ci(rows: Sequence[Mapping[str, Any]], y: str) -> np.ndarray | None:
     """The rows' ± values of ``y`` for error bars (None when no row has one)."""
-    if not rows or (f"{y}_ci" not in COLUMN_BY_NAME and not any(r.get(f"{y}_ci") is not None for r in rows)):
+    if not rows or (f"{y}_ci" not in column_by_name() and not any(r.get(f"{y}_ci") is not None for r in rows)):
         return None
     ci = column(rows, f"{y}_ci")
     return None if np.all(np.isnan(ci)) else np.nan_to_num(ci)

@@ -309,7 +309,7 @@ def test_cli_run_json_keys_and_eval_json(setup, tmp_path, capsys):
     assert evaluator_id(tmp_path / "E_copy") != evaluator_id(E)
     between = {"multimodality", "apd_left", "apd_right"}  # one value per prompt, not per group
     assert ev_json["_meta"]["ci_method"] == {k: ("bootstrap_prompts" if k in between else "groups") for k in base}
-    from analysis.schema import _eval_values
+    from analysis.schema.run_folder import _eval_values
 
     assert set(_eval_values(ev_json, tmp_path / "run" / "eval.json")) == set(out)
     rc = main(["eval", "run", "--evaluator", str(E), "--ground-truth", "--data", str(data),

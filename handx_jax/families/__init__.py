@@ -50,12 +50,15 @@ from types import ModuleType
 class Axis:
     """A sweep axis a family adds to the shared ones (layers, dim, heads, ff, data fraction): the results
     column ``name``, the config key a sweep point sets it with (``axes_of`` reads it from the point's
-    overrides), its letter in run ids (``run_id``) and its table header (``analysis.tables``)."""
+    overrides), its letter in run ids (``run_id``) and display labels (``analysis.schema.config_label``), its
+    table header (``analysis.tables``) and the type of its values (a positive number; the results schema's
+    column, ``analysis.schema.family_columns``)."""
 
     name: str
     key: str
     short: str
     header: str
+    kind: type = int
 
 
 @dataclass(frozen=True)
