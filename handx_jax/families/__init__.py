@@ -105,12 +105,12 @@ class Family:
 
 FAMILIES: dict[str, Family] = {
     "diffusion": Family("handx_jax.families.diffusion", "the treble-residual diffusion model (paper §5.1)",
-                        norm="handx_jax.representation:DIFFUSION_NORM", encoder=True, flops="handx_jax.families.diffusion.flops:from_config",
+                        norm="handx_jax.representation.diffusion:DIFFUSION_NORM", encoder=True, flops="handx_jax.families.diffusion.flops:from_config",
                         # DDIM-50: what every diffusion sweep has generated with (DDPM takes all 1,000 steps)
                         sweep_sample=("sample.sampler=ddim", "sample.steps=50"),
                         tasks=("text2motion", "inbetween", "keyframes", "wrist", "reaction", "long", "prediction")),
     "tokenizer": Family("handx_jax.families.tokenizer", "the FSQ motion tokenizer of the AR family (paper §5.2)",
-                        norm="handx_jax.representation:AR_NORM", results=False, tasks=(),
+                        norm="handx_jax.representation.ar:AR_NORM", results=False, tasks=(),
                         after_train=(("handx", "tokenize", "--tokenizer", "{out}", "--data", "{data}"),)),
     "ar": Family("handx_jax.families.ar", "the text-prefix LM over FSQ motion tokens (paper §5.2)",
                  encoder=True, needs=("tokenizer",), table="table3", tasks=("text2motion", "prediction"),
@@ -127,7 +127,7 @@ TRAINABLES: dict[str, str] = {
 
 # The normalisation statistics a dataset's stats.npz holds besides the families' (``Family.norm``): those
 # of the trainables that read the dataset's motion (the evaluator's).
-TRAINABLE_NORMS: tuple[str, ...] = ("handx_jax.representation:EVALUATOR_NORM",)
+TRAINABLE_NORMS: tuple[str, ...] = ("handx_jax.representation.evaluator:EVALUATOR_NORM",)
 
 # Families registered from outside the package (``register``), as NAME=MODULE pairs: children of this
 # process (the sweep launcher's ``handx`` stages) find them here. MODULE holds ``REGISTRY: Family``.
