@@ -22,8 +22,8 @@ from handx_jax.metrics.chunking import map_chunks
 def _contact_channels() -> dict[tuple[str, str], int]:
     from handx_jax.data import events as evm
 
-    keys = [(h, k) for h in ("left_hand_events", "right_hand_events") for k in evm._INTRA_KEYS]
-    keys += [("finger_tip_contact", k) for k in evm._INTER_KEYS] + [("finger_palm_distance", k) for k in evm._FP_KEYS]
+    keys = [(h, k) for h in ("left_hand_events", "right_hand_events") for k in evm.INTRA_KEYS]
+    keys += [("finger_tip_contact", k) for k in evm.INTER_KEYS] + [("finger_palm_distance", k) for k in evm.FP_KEYS]
     return {k: i for i, k in enumerate(keys)}
 
 
