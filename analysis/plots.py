@@ -26,8 +26,9 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from analysis.fits import Extrapolation, LogLinearFit, chance_level, fit_log_linear, resolve_column, select_xy
+from analysis.fits import Extrapolation, LogLinearFit, chance_level, fit_log_linear
 from analysis.schema import GROUND_TRUTH, LOWER_IS_BETTER, METRICS, column, column_by_name, config_label
+from analysis.selection import resolve_column, select_xy
 from analysis.tables import best_rows
 from handx_jax.io import atomic_write_bytes
 
@@ -72,7 +73,7 @@ LABELS: dict[str, str] = {
     "contact_precision_inter": "Inter-hand $C_\\mathrm{prec}$",
     "contact_recall_inter": "Inter-hand $C_\\mathrm{rec}$",
     "contact_f1_inter": "Inter-hand $C_\\mathrm{F1}$",
-    # Either family's count (fits.FLOPS_CONVENTIONS): the denoiser's, or the LM's over its prefix and motion slots.
+    # Either family's count (selection.FLOPS_CONVENTIONS): the denoiser's, or the LM's over its prefix and motion slots.
     "flops_per_sample": "FLOPs per sample (analytic: 2/MAC, trainable model)",
     "flops_per_sample_paper": "FLOPs per sample (paper convention: MACs + text encoder)",
     "train_flops": "Training compute (FLOPs)",

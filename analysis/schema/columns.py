@@ -247,7 +247,7 @@ def validate_row(raw: Mapping[str, Any], *, path: Any = None, row: Any = None) -
                      column="data_fraction")
     for m in METRICS:
         # A NaN value is not a missing one: it is there but unusable, which the analysis that reads the row
-        # reports or drops (fits.unusable_values, fits.select_rows), naming the cell.
+        # reports or drops (selection.unusable_values, selection.select_rows), naming the cell.
         if out[f"{m}_ci"] is not None and out[m] is None and not _is_nan(raw.get(m)):
             raise cell_error(f"{m}_ci is given but {m} is not", path=path, row=row, column=f"{m}_ci")
     return out
