@@ -17,6 +17,10 @@ Generation decodes greedily by default (the paper), in one jitted loop with a KV
 (``families.ar.decode``), then tokens → FSQ decoder → de-normalised 288-d → global joints. Tasks:
 ``text2motion`` and ``prediction`` (the first ``--observed-frames`` frames of ``--source`` are
 encoded and prefilled; the rest is generated).
+
+One concern: the AR family's side of the registry contract (its config and presets, training, loading,
+generation and command-line hooks, ``families/__init__.py``), in the one module the registry names;
+decoding is ``decode.py``'s.
 """
 
 from __future__ import annotations
