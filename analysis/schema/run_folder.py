@@ -7,7 +7,8 @@ The training loop writes, and :func:`row_from_run_dir` reads, a folder holding:
     level, then in the sub-objects ``"model"`` and ``"data"`` (so a config composed from parts
     works); the same key with two different values is an error. Keys that are not schema columns
     (learning rate, seed, ...) are ignored: this is the training config, not a results row.
-    ``family`` is required. ``run_id`` defaults to the folder name.
+    ``family`` is required, or ``trainable`` naming a row kind (``ROW_KINDS``: the evaluator's runs).
+    ``run_id`` defaults to the folder name.
 ``metrics.jsonl`` (required)
     One JSON object per logged step, each with an integer ``"step"``; any other keys. The row takes
     ``steps``, ``samples_seen`` and ``train_flops`` from the last line (highest step) that has
@@ -31,7 +32,7 @@ import os
 from pathlib import Path
 from typing import Any, Mapping
 
-from analysis.schema.columns import METRICS, Row, validate_row
+from analysis.schema.columns import METRICS, ROW_KINDS, Row, validate_row
 from handx_jax.families import family_axes
 from handx_jax.io import DataError, read_jsonl
 
@@ -128,6 +129,9 @@ def row_from_run_dir(run_dir: str | os.PathLike) -> dict[str, Any]:
     if isinstance(seed, int) and not isinstance(seed, bool):
         values["seed"] = seed
     values.setdefault("run_id", run_dir.name)
+    if "family" not in values and config.get("trainable") in ROW_KINDS:
+        # the evaluator's runs name their trainable, not a family (issue 42); their rows are of its kind
+        values["family"] = config["trainable"]
     if "family" not in values:
         raise DataError("required key is missing", path=cfg_path, field="family")
 
