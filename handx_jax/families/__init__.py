@@ -111,7 +111,7 @@ FAMILIES: dict[str, Family] = {
                         tasks=("text2motion", "inbetween", "keyframes", "wrist", "reaction", "long", "prediction")),
     "tokenizer": Family("handx_jax.families.tokenizer", "the FSQ motion tokenizer of the AR family (paper §5.2)",
                         norm="handx_jax.representation.ar:AR_NORM", results=False, tasks=(),
-                        after_train=(("handx", "tokenize", "--tokenizer", "{out}", "--data", "{data}"),)),
+                        after_train=(("handx", "data", "tokens", "--tokenizer", "{out}", "--data", "{data}"),)),
     "ar": Family("handx_jax.families.ar", "the text-prefix LM over FSQ motion tokens (paper §5.2)",
                  encoder=True, needs=("tokenizer",), table="table3", tasks=("text2motion", "prediction"),
                  # the FSQ codebook of the tokenizer it is trained from (its runs record it as "codebook")

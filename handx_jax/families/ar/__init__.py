@@ -1,7 +1,7 @@
 """The autoregressive family: a text-prefix LM over FSQ motion tokens (paper §5.2; reference §4.5–4.8).
 
     handx train tokenizer --data DIR --set model.codebook=4096 --out TOK   # one per (dataset, codebook)
-    handx tokenize --tokenizer TOK --data DIR                       # token cache
+    handx data tokens --tokenizer TOK --data DIR                    # token cache
     handx text cache --data DIR --encoder ENC --joined              # the joined-prompt text cache
     handx train ar --data DIR --encoder ENC --tokenizer TOK --preset 8L-512 --out RUN
     handx generate --run RUN --data DIR --split test --out gen.npz
