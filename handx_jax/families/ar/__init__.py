@@ -6,6 +6,10 @@
     handx train ar --data DIR --encoder ENC --tokenizer TOK --preset 8L-512 --out RUN
     handx generate --run RUN --data DIR --split test --out gen.npz
 
+One concern: the AR family's side of the registry contract (its config and presets, training, loading,
+generation and command-line hooks, ``families/__init__.py``), in the one module the registry names;
+decoding is ``decode.py``'s.
+
 Training items are (clip, level) pairs of the train split's nested fraction. The prefix is the frozen
 text features of the clip's three prompts at that level, joined with separators (the text cache's
 joined mode); the same text mode is used at generation (the reference trains on the full prefix and
@@ -17,10 +21,6 @@ Generation decodes greedily by default (the paper), in one jitted loop with a KV
 (``families.ar.decode``), then tokens → FSQ decoder → de-normalised 288-d → global joints. Tasks:
 ``text2motion`` and ``prediction`` (the first ``--observed-frames`` frames of ``--source`` are
 encoded and prefilled; the rest is generated).
-
-One concern: the AR family's side of the registry contract (its config and presets, training, loading,
-generation and command-line hooks, ``families/__init__.py``), in the one module the registry names;
-decoding is ``decode.py``'s.
 """
 
 from __future__ import annotations
