@@ -62,7 +62,7 @@ def load_inputs(specs: Sequence[str], family: str | None = None, strict: bool = 
 
 
 def _left_out(args: argparse.Namespace, dropped: Sequence[Any]) -> None:
-    """Name every row an analysis leaves out (``fits.Dropped``: where, which column, why) on stderr. A run
+    """Name every row an analysis leaves out (``selection.Dropped``: where, which column, why) on stderr. A run
     with no score yet (a sweep in progress, a failed run) is named and skipped; a score or x that is there
     but unusable (NaN, inf, text, x <= 0 on a log axis) is a broken table, refused (exit 1) unless the
     analyst asks to drop such rows (``--drop-bad-rows``), so a fit never quietly runs on n = 5 of 6."""
@@ -97,7 +97,8 @@ def _guard(fn):
 
 def _cmd_paper(args: argparse.Namespace) -> int:
     from analysis import paper
-    from analysis.fits import compare_models, select_xy
+    from analysis.fits import compare_models
+    from analysis.selection import select_xy
 
     rows = paper.load_table("B")
     fits = {y: paper.fig4_fit(y, n_boot=args.n_boot, seed=args.seed, level=args.confidence)
@@ -186,7 +187,8 @@ def _one_block(rows: Sequence[dict[str, Any]], y: str) -> None:
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
-    from analysis.fits import FLOPS_CONVENTIONS, compare_models, dropped_rows, fit_rows, resolve_column, select_xy
+    from analysis.fits import compare_models, fit_rows
+    from analysis.selection import FLOPS_CONVENTIONS, dropped_rows, resolve_column, select_xy
 
     rows = load_inputs(args.results, args.family, strict=False)
     if not args.mixed_evaluators:
@@ -217,7 +219,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 def _cmd_fig4(args: argparse.Namespace) -> int:
     from analysis import paper
     from analysis.fig4 import compare_with_fig4
-    from analysis.fits import dropped_rows
+    from analysis.selection import dropped_rows
 
     rows = load_inputs(args.results, args.family, strict=False)
     if not args.mixed_evaluators:
@@ -243,7 +245,7 @@ def _cmd_fig4(args: argparse.Namespace) -> int:
 
 def _cmd_factors(args: argparse.Namespace) -> int:
     from analysis.factors import fit_factors
-    from analysis.fits import resolve_column, select_rows
+    from analysis.selection import resolve_column, select_rows
 
     rows = load_inputs(args.results, args.family, strict=False)
     if not args.mixed_evaluators:
@@ -262,7 +264,7 @@ def _cmd_factors(args: argparse.Namespace) -> int:
 
 
 def _same_row(row, dropped) -> bool:
-    """Whether ``dropped`` (fits.Dropped) names ``row``: the same file and line, or the same run id."""
+    """Whether ``dropped`` (selection.Dropped) names ``row``: the same file and line, or the same run id."""
     if getattr(row, "file", None) is not None and dropped.file is not None:
         return row.file == dropped.file and getattr(row, "line", None) == dropped.row
     return dropped.run is not None and row.get("run_id") == dropped.run
@@ -271,7 +273,7 @@ def _same_row(row, dropped) -> bool:
 def _cmd_table(args: argparse.Namespace) -> int:
     from analysis.tables import render_table
 
-    from analysis.fits import unusable_values
+    from analysis.selection import unusable_values
     from analysis.schema import METRICS
 
     rows = load_inputs(args.results, args.family)
@@ -298,7 +300,8 @@ def _cmd_table(args: argparse.Namespace) -> int:
 
 
 def _cmd_extrapolate(args: argparse.Namespace) -> int:
-    from analysis.fits import dropped_rows, extrapolate
+    from analysis.fits import extrapolate
+    from analysis.selection import dropped_rows
 
     rows = load_inputs(args.results, args.family, strict=False)
     _one_block(rows, args.y)
@@ -318,7 +321,7 @@ def _cmd_extrapolate(args: argparse.Namespace) -> int:
 
 def _cmd_plot(args: argparse.Namespace) -> int:
     from analysis import plots
-    from analysis.fits import resolve_column, select_rows
+    from analysis.selection import resolve_column, select_rows
 
     rows = load_inputs(args.results, args.family, strict=False)
     if args.kind == "scaling":
@@ -374,7 +377,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Register ``analyze`` and its sub-commands on the ``handx`` command's sub-parsers."""
     p = subparsers.add_parser(
         "analyze", help="scaling fits, paper tables and plots from results files",
-        description="Scaling-law analysis of results tables (see analysis/schema.py for the format). "
+        description="Scaling-law analysis of results tables (see analysis/schema/ for the format). "
                     "RESULTS may be .jsonl/.csv tables, run folders, sweep folders, or paper:2, paper:3, "
                     "paper:B for the HandX paper's own tables.")
     p.set_defaults(func=lambda a: p.print_help() or 0, analyze_command=None)

@@ -25,8 +25,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from scipy.stats import f as f_dist, t as student_t
 
-from analysis.fits import resolve_column, select_rows
 from analysis.schema import GROUND_TRUTH
+from analysis.selection import resolve_column, select_rows
 
 DEFAULT_FACTORS = ("flops_analytic", "samples")
 

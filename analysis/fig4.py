@@ -24,8 +24,9 @@ import numpy as np
 from scipy.stats import norm
 
 from analysis import paper
-from analysis.fits import Extrapolation, LogLinearFit, extrapolate, fit_rows, select_xy
+from analysis.fits import Extrapolation, LogLinearFit, extrapolate, fit_rows
 from analysis.schema import GROUND_TRUTH, DataError
+from analysis.selection import select_xy
 
 FIG4_BLOCK = 16
 FIG4_FRACTION = 0.05

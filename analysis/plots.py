@@ -26,8 +26,9 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from analysis.fits import Extrapolation, LogLinearFit, chance_level, fit_log_linear, resolve_column, select_xy
-from analysis.schema import COLUMN_BY_NAME, GROUND_TRUTH, LOWER_IS_BETTER, METRICS, column, config_label
+from analysis.fits import Extrapolation, LogLinearFit, chance_level, fit_log_linear
+from analysis.schema import GROUND_TRUTH, LOWER_IS_BETTER, METRICS, column, column_by_name, config_label
+from analysis.selection import resolve_column, select_xy
 from analysis.tables import best_rows
 from handx_jax.io import atomic_write_bytes
 
@@ -72,7 +73,7 @@ LABELS: dict[str, str] = {
     "contact_precision_inter": "Inter-hand $C_\\mathrm{prec}$",
     "contact_recall_inter": "Inter-hand $C_\\mathrm{rec}$",
     "contact_f1_inter": "Inter-hand $C_\\mathrm{F1}$",
-    # Either family's count (fits.FLOPS_CONVENTIONS): the denoiser's, or the LM's over its prefix and motion slots.
+    # Either family's count (selection.FLOPS_CONVENTIONS): the denoiser's, or the LM's over its prefix and motion slots.
     "flops_per_sample": "FLOPs per sample (analytic: 2/MAC, trainable model)",
     "flops_per_sample_paper": "FLOPs per sample (paper convention: MACs + text encoder)",
     "train_flops": "Training compute (FLOPs)",
@@ -135,7 +136,7 @@ def _draw_chance(ax: Any, y: str, rows: Sequence[Mapping[str, Any]], block: int 
 
 def _ci(rows: Sequence[Mapping[str, Any]], y: str) -> np.ndarray | None:
     """The rows' ± values of ``y`` for error bars (None when no row has one)."""
-    if not rows or (f"{y}_ci" not in COLUMN_BY_NAME and not any(r.get(f"{y}_ci") is not None for r in rows)):
+    if not rows or (f"{y}_ci" not in column_by_name() and not any(r.get(f"{y}_ci") is not None for r in rows)):
         return None
     ci = column(rows, f"{y}_ci")
     return None if np.all(np.isnan(ci)) else np.nan_to_num(ci)

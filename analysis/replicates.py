@@ -3,7 +3,7 @@
 A single training run is one draw: on the CPU study, two seeds of the same six configurations gave
 top-3 R-Precision up to 0.04 apart and fits with r 0.87 and 0.46 (docs/results/cpu_study). Fitting the
 mean over seeds of each configuration is the usual remedy; :func:`mean_replicates` groups rows by every
-column that defines a configuration (:data:`CONFIG_COLUMNS`) and returns one row per group whose metrics
+column that defines a configuration (:func:`config_columns`) and returns one row per group whose metrics
 are the means over its replicates, each with a Student-t 95% half-width over the replicates as its
 ``<metric>_ci`` (none for a single run, whose own ``_ci`` is kept).
 """
@@ -16,10 +16,14 @@ import numpy as np
 from scipy.stats import t as student_t
 
 from analysis.schema import METRICS
+from handx_jax.families import family_axes
 
-# What makes two rows the same configuration (seed, run id, wall time and provenance do not).
-CONFIG_COLUMNS = ("family", "layers", "dim", "heads", "ff", "codebook", "data_fraction", "data_sampling", "steps",
-                  "samples_seen", "flops_per_sample", "rprec_block", "evaluator_id")
+
+def config_columns() -> tuple[str, ...]:
+    """What makes two rows the same configuration (seed, run id, wall time and provenance do not): the shared
+    axes, each registered family's own (``Family.axes``: the AR codebook), and what was trained and scored."""
+    return ("family", "layers", "dim", "heads", "ff", *family_axes(), "data_fraction", "data_sampling", "steps",
+            "samples_seen", "flops_per_sample", "rprec_block", "evaluator_id")
 
 
 def mean_replicates(rows: Sequence[Mapping[str, Any]], level: float = 0.95) -> list[dict[str, Any]]:
@@ -29,8 +33,9 @@ def mean_replicates(rows: Sequence[Mapping[str, Any]], level: float = 0.95) -> l
     and ``replicate_run_ids``, and, for every metric some replicate has, the mean over the replicates
     that have it with ``<metric>_ci`` = t(level, n−1) · sd / √n (n ≥ 2)."""
     groups: dict[tuple, list[Mapping[str, Any]]] = {}
+    keys = config_columns()
     for r in rows:
-        groups.setdefault(tuple(r.get(c) for c in CONFIG_COLUMNS), []).append(r)
+        groups.setdefault(tuple(r.get(c) for c in keys), []).append(r)
     out = []
     for members in groups.values():
         first = dict(members[0])

@@ -1,6 +1,7 @@
 """The ``handx`` command. Each area registers its own subcommand group from its ``cli`` module.
 
-    handx data ...      corpus synthesis, import/export, statistics, rendering   (handx_jax.data.cli)
+    handx data ...      corpus synthesis, import/export, statistics, rendering   (handx_jax.data.cli);
+                        ``handx data tokens``: FSQ motion tokens, for the AR family (handx_jax.commands.tokens)
     handx text ...      SentencePiece model, T5 encoding, embedding cache         (handx_jax.text.cli)
     handx train ...     train a family, the evaluator or a T5 (families registry) (handx_jax.commands.train)
     handx generate ...  sample motion from text, with masked-constraint tasks    (handx_jax.commands.generate)
@@ -8,14 +9,14 @@
     handx params ...    parameter counts and analytic FLOPs                      (handx_jax.commands.params)
     handx sweep ...     launch sweeps locally or on SLURM, resumable             (sweeps.cli)
     handx analyze ...   scaling fits, tables and plots                           (analysis.cli)
-    handx tokenize ...  FSQ motion tokens of a dataset, for the AR family         (handx_jax.commands.tokenize)
-    handx standard ...  the packaged standard evaluator and its corpus           (handx_jax.standard)
+    handx standard ...  the packaged standard evaluator and its corpus           (handx_jax.standard.cli)
     handx import ...    the released HandX weights → run / evaluator folders      (handx_jax.interop.cli)
     handx export ...    a diffusion run → the released HandX checkpoint format    (handx_jax.interop.cli)
 
 Every command spells a concept one way (``handx_jax/cliargs.py``: ``--data``, ``--out``, ``--block``,
 ``--level``, ``--confidence``, ``--steps``, ``--sample-steps``, ``--encoder``); the spellings of the
-release before still work and print one line naming the new one.
+release before still work and print one line naming the new one (``handx tokenize`` →
+``handx data tokens``, ``handx text pretrain`` → ``handx train t5``, …).
 
 Subcommand modules import heavy dependencies (jax, matplotlib) inside their handlers, so ``--help``
 stays fast.
@@ -40,9 +41,9 @@ GROUPS = (
     ("train", "handx_jax.commands.train"),
     ("generate", "handx_jax.commands.generate"),
     ("params", "handx_jax.commands.params"),
-    ("tokenize", "handx_jax.commands.tokenize"),
+    ("data tokens", "handx_jax.commands.tokens"),  # `handx data tokens` (and the old `handx tokenize`)
     ("sweep", "sweeps.cli"),
-    ("standard", "handx_jax.standard"),
+    ("standard", "handx_jax.standard.cli"),
     ("standard validity", "handx_jax.validity.cli"),  # adds `handx standard validity` to the group above
     ("import/export", "handx_jax.interop.cli"),
 )

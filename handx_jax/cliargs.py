@@ -79,6 +79,12 @@ def deprecated_command(func, old: str, new: str):
     return run
 
 
+def subcommands(subparsers, group: str) -> argparse._SubParsersAction:
+    """The subcommands of the ``handx GROUP`` parser already added to ``subparsers``, for a module that adds a
+    subcommand to another module's group (``handx data tokens``: the data package knows no models)."""
+    return next(a for a in subparsers.choices[group]._actions if isinstance(a, argparse._SubParsersAction))
+
+
 class Parser(argparse.ArgumentParser):
     """argparse, plus required flags that may instead be given by their deprecated spelling: when
     neither was given the error is argparse's own "the following arguments are required"."""

@@ -4,7 +4,7 @@ with .venv built; ≈ 1 min more to install).
 1. Build the first ``--clips`` clips of the standard corpus (``handx standard corpus --clips N``: synthesis
    → clips + intensity filter → annotation → captions), print its statistics and render one clip with
    its texts as a GIF. Being a prefix of the standard corpus, its test split is the first test clips of
-   the standard one and its train split holds no standard test clip (``handx_jax/standard.py``).
+   the standard one and its train split holds no standard test clip (``handx_jax/standard/``).
 2. Text side: the packaged tokenizer and tiny T5 (``handx standard info``) encode every caption once.
 3. Score the test split's ground truth with the packaged standard evaluator (no evaluator is trained).
 4. A mini scaling sweep (``handx sweep run``, the ``demo`` preset of ``sweeps/diffusion_cpu_study.py``,

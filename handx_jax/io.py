@@ -4,6 +4,10 @@ Every file the project writes goes through here: write to a temporary sibling, f
 ``os.replace``. A killed process therefore leaves either the old file or the new one, never half of
 one. Directories are built the same way (``atomic_dir``): filled under a temporary name and renamed
 into place only when complete.
+
+One concern: a file reaches the disk whole or not at all and comes back checked. Atomic writes, exclusive
+outputs, checksums, parameter files and the errors that name a bad or full file all serve it, and every
+writer in the package goes through them.
 """
 
 from __future__ import annotations

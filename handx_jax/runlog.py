@@ -1,6 +1,7 @@
 """The run folder's plain files: ``config.json`` (with the software versions that ran it) and
 ``metrics.jsonl`` (one fsynced JSON line per log), mirrored to wandb (offline by default; WANDB_MODE
-overrides), written by process 0 only. ``handx_jax.train`` logs through :class:`RunLogger`.
+overrides), written by process 0 only. ``handx_jax.train`` logs through :class:`RunLogger`. How an older
+config.json reads today, for the resume check: :func:`trainable_renamed`.
 """
 
 from __future__ import annotations
@@ -8,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import Callable
 
 import jax
 
@@ -79,3 +81,17 @@ class RunLogger:
 
 def read_config(run_dir: str | os.PathLike) -> dict:
     return json.loads((Path(run_dir) / "config.json").read_text())
+
+
+def trainable_renamed(old_family: str, trainable: str) -> Callable[[dict], dict]:
+    """How a run folder of a trainable (``families.TRAINABLES``: the evaluator, T5 pretraining) written before
+    issue 42 reads today: it named what trained it as a model family (``"family": old_family``), where a
+    run of a trainable now says ``"trainable": NAME`` and leaves ``family`` to the registry's families. A
+    ``train.TrainSpec``'s ``upgrade_config``; the resumed run rewrites config.json with the new key."""
+
+    def upgrade(old: dict) -> dict:
+        if old.get("family") != old_family or "trainable" in old:
+            return old
+        return {**{k: v for k, v in old.items() if k != "family"}, "trainable": trainable}
+
+    return upgrade

@@ -173,9 +173,11 @@ def _host_batches(get_batch: Callable[[np.ndarray], Any] | None, steps: range, n
 _ADDED_TRAIN_FIELDS = {"microbatch": TrainConfig.microbatch}
 
 
-def check_resume(run_dir: str | os.PathLike, config: dict, keys: Sequence[str] | None = None) -> None:
+def check_resume(run_dir: str | os.PathLike, config: dict, keys: Sequence[str] | None = None,
+                 upgrade: Callable[[dict], dict] | None = None) -> None:
     """Re-running on an existing run folder resumes it, but only with the same configuration: the
-    ``keys`` of ``config`` (all of them by default) must equal those in the folder's config.json."""
+    ``keys`` of ``config`` (all of them by default) must equal those in the folder's config.json, read
+    as ``upgrade`` says an older one reads today (``runlog.trainable_renamed``)."""
     from handx_jax.config import diff_keys
 
     p = Path(run_dir) / "config.json"
@@ -186,6 +188,8 @@ def check_resume(run_dir: str | os.PathLike, config: dict, keys: Sequence[str] |
     except json.JSONDecodeError as e:
         raise DataError(f"config.json is not valid JSON ({e}); move the folder away or use a new --out",
                         path=p) from None
+    if upgrade is not None:
+        old = upgrade(old)
     if isinstance(old.get("train"), dict) and isinstance(config.get("train"), dict):
         # a run written before a TrainConfig field existed ran with that field's default
         old = {**old, "train": {**_ADDED_TRAIN_FIELDS, **old["train"]}}
@@ -232,7 +236,8 @@ class TrainSpec:
     recipe, e.g. T5 pretraining). ``flops_per_sample`` (forward FLOPs of the trainable model per
     sample) makes every log line carry the cumulative ``train_flops`` = 3 × forward × samples seen.
     ``resume_keys``: the keys of ``config`` (+ ``train``) a resumed run must share with the folder's
-    config.json (default: all).
+    config.json (default: all); ``upgrade_config``: how an older config.json reads today (renamed keys,
+    :func:`check_resume`).
     """
 
     init: Callable[[jax.Array], Any]
@@ -246,6 +251,7 @@ class TrainSpec:
     optimizer: tuple[optax.GradientTransformation, Callable] | None = None
     flops_per_sample: float | None = None
     resume_keys: Sequence[str] | None = None
+    upgrade_config: Callable[[dict], dict] | None = None
 
 
 def train(run_dir: str | os.PathLike, spec: TrainSpec, *, stop_at: int | None = None,
@@ -264,7 +270,7 @@ def train(run_dir: str | os.PathLike, spec: TrainSpec, *, stop_at: int | None = 
 
     run_dir = Path(run_dir).absolute()
     doc = {**config, "train": dataclasses.asdict(cfg)}
-    check_resume(run_dir, doc, spec.resume_keys)
+    check_resume(run_dir, doc, spec.resume_keys, spec.upgrade_config)
     # The run-folder lock (handx_jax.runlock.RunLock, issue 14.8) is taken by `handx train` around the
     # whole family run, before the family writes its first file; library callers take it themselves.
     logger = RunLogger(run_dir, doc, cfg.wandb)

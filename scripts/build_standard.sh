@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Rebuild the packaged standard evaluator from nothing (handx_jax/standard.py, issue 13 item 1):
+# Rebuild the packaged standard evaluator from nothing (handx_jax/standard/, issue 13 item 1):
 # the standard corpus -> SentencePiece tokenizer -> tiny T5 -> joined text cache -> evaluator -> package
 # (copies the weights into handx_jax/assets/standard/, scores the Ground Truth rows at blocks 32 and 16 on the
 # full test split, writes test_manifest.npz, card.json and CARD.md).

@@ -7,7 +7,7 @@ prompt text cache the LM reads is one more shared step:
 
     handx text cache --data DATA --encoder ENC --joined                              (step text-joined)
     handx train tokenizer --data DATA --preset P --set model.codebook=N --out STEP   (step tokenizer-KN)
-    handx tokenize --tokenizer STEP --data DATA
+    handx data tokens --tokenizer STEP --data DATA
     handx train ar --data DATA --encoder ENC --preset LM --tokenizer STEP --set ... --out RUN
 
 The codebook size is the tokenizer's config (``model.codebook``), written once: the step is keyed by it

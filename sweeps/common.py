@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from handx_jax.models.ladder import TABLE_B  # noqa: F401 (Table B (L, d, H, FFN): the one definition)
+from handx_jax.models.ladder import TABLE_B, size_preset  # noqa: F401 (TABLE_B: (L, d, H, FFN), for the sweep files)
 
 # Table C's diffusion sizes by depth (L -> d, FFN); heads are not printed: d / 64 as in Table B.
 TABLE_C = {4: (256, 1024), 8: (512, 1024), 12: (512, 1024), 16: (768, 3072)}
@@ -21,6 +21,17 @@ PAPER_SIZED = ("paper", "short")
 
 def model(L: int, d: int, H: int, F: int) -> tuple[str, ...]:
     return (f"model.layers={L}", f"model.dim={d}", f"model.heads={H}", f"model.ff={F}")
+
+
+def diffusion_preset(preset: str, L: int, d: int, H: int, F: int) -> str:
+    """The diffusion ``--preset`` of a sweep point of size (L, d, H, F), which ``model()`` also sets: ``tiny``
+    under the CPU sweep presets; for the paper-sized ones the name ``models/ladder.py`` gives the size (a
+    Table B point or one of the reference's configs), and for a size it does not name the reference's
+    smallest config, ``paper-4L``, as the base the overrides resize. A run records the size it has either
+    way (``dit.size_name``: the same name for a named size, ``L{L}-d{d}-H{H}-F{F}`` for another)."""
+    if preset not in PAPER_SIZED:
+        return "tiny"
+    return size_preset(L, d, H, F) or "paper-4L"
 
 
 def budget(preset: str, steps: int | None, batch: int | None = None) -> tuple[str, ...]:

@@ -12,7 +12,8 @@ items as the reference's loader does (reference §1.2), so a clip may appear wit
 
 from __future__ import annotations
 
-from sweeps.common import FRACTIONS, PAPER_SIZED, RESOURCES, TABLE_C, budget, data, model  # noqa: F401 (RESOURCES)
+from sweeps.common import (FRACTIONS, PAPER_SIZED, RESOURCES, TABLE_C, budget, data,  # noqa: F401 (RESOURCES)
+                           diffusion_preset, model)
 from sweeps.launcher import RunSpec, axes_of, run_id
 
 TINY_DEPTHS = {1: (32, 64), 2: (32, 64), 3: (32, 64), 4: (32, 64)}
@@ -27,6 +28,6 @@ def runs(preset: str = "tiny", steps: int | None = None, sampling: str = "clips"
             H = max(d // 64, 4)
             ov = (*model(L, d, H, F), *data(frac, sampling), *budget(preset, steps))
             axes = axes_of(ov, "layers", "dim", "data_fraction")
-            out.append(RunSpec(run_id(axes, ov), "diffusion", preset="tiny" if preset == "tiny" else "paper-4L",
+            out.append(RunSpec(run_id(axes, ov), "diffusion", preset=diffusion_preset(preset, L, d, H, F),
                                overrides=ov, axes=axes))
     return out

@@ -9,7 +9,8 @@ shape (depth and width grow in turn), for checking train → evaluate → fit en
 
 from __future__ import annotations
 
-from sweeps.common import PAPER_SIZED, RESOURCES, TABLE_B, budget, data, model  # noqa: F401 (RESOURCES)
+from sweeps.common import (PAPER_SIZED, RESOURCES, TABLE_B, budget, data,  # noqa: F401 (RESOURCES)
+                           diffusion_preset, model)
 from sweeps.launcher import RunSpec, axes_of, run_id
 
 # Table B and Fig. 4 report R-Precision at block 16 (Tables 2-5: 32); the paper's slope 0.4391 is in those units.
@@ -36,6 +37,6 @@ def runs(preset: str = "tiny", steps: int | None = None, fraction: float = 0.05,
         ov = (*model(L, d, H, F), *data(fraction, sampling), *budget(preset, steps),
               *(() if lr is None else (f"train.optim.lr={float(lr):g}",)))
         axes = axes_of(ov, "layers", "dim", "heads", "ff", "data_fraction")
-        out.append(RunSpec(run_id(axes, ov), "diffusion", preset="tiny" if preset == "tiny" else "paper-4L",
+        out.append(RunSpec(run_id(axes, ov), "diffusion", preset=diffusion_preset(preset, L, d, H, F),
                            overrides=ov, axes=axes))
     return out

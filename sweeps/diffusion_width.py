@@ -6,7 +6,7 @@ d ∈ {16, 32, 64, 128}.
 
 from __future__ import annotations
 
-from sweeps.common import PAPER_SIZED, RESOURCES, budget, data, model  # noqa: F401 (RESOURCES)
+from sweeps.common import PAPER_SIZED, RESOURCES, budget, data, diffusion_preset, model  # noqa: F401 (RESOURCES)
 from sweeps.launcher import RunSpec, axes_of, run_id
 
 
@@ -20,6 +20,6 @@ def runs(preset: str = "tiny", steps: int | None = None, layers: int | None = No
         H = max(d // 64, 4) if big else 4
         ov = (*model(L, d, H, 4 * d), *data(fraction, sampling), *budget(preset, steps))
         axes = axes_of(ov, "layers", "dim", "data_fraction")
-        out.append(RunSpec(run_id(axes, ov), "diffusion", preset="tiny" if preset == "tiny" else "paper-4L",
+        out.append(RunSpec(run_id(axes, ov), "diffusion", preset=diffusion_preset(preset, L, d, H, 4 * d),
                            overrides=ov, axes=axes))
     return out

@@ -49,7 +49,7 @@ def run_status(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | 
 
 
 def result_row(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | None = None) -> dict:
-    from analysis.schema import COLUMN_BY_NAME, row_from_run_dir, validate_row
+    from analysis.schema import column_by_name, row_from_run_dir, validate_row
 
     d = run_dir(cfg, spec)
     status, error = run_status(out, cfg, spec, slurm_active)
@@ -65,8 +65,9 @@ def result_row(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | 
     else:
         row = {"run_id": spec.name, "family": spec.family}
     row["run_id"] = spec.name
+    known = column_by_name()
     for k, v in spec.axes.items():
-        if k in COLUMN_BY_NAME:
+        if k in known:
             row.setdefault(k, v)
     prov = read_json_or_empty(d / "provenance.json")
     secs = sum(s.get("seconds", 0.0) for s in prov.get("stages", {}).values())

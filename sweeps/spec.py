@@ -31,6 +31,19 @@ def check_name(name: str, what: str = "run") -> str:
     return name
 
 
+# Commands renamed since steps were first hashed (issue 42), today's spelling → the one the key hashes: a
+# step's key names what it computes, so a finished step, and every run named after it (the AR LMs' ids
+# carry their tokenizer step's key), is found again after a rename instead of recomputed.
+_FIRST_SPELLING: dict[tuple[str, ...], tuple[str, ...]] = {("handx", "data", "tokens"): ("handx", "tokenize")}
+
+
+def _as_first_spelled(cmd: Sequence[str]) -> list[str]:
+    for new, old in _FIRST_SPELLING.items():
+        if tuple(cmd[:len(new)]) == new:
+            return [*old, *cmd[len(new):]]
+    return list(cmd)
+
+
 @dataclass(frozen=True)
 class Step:
     """A shared step (marin's ExecutorStep): ``commands`` run in order into one folder named from
@@ -47,8 +60,8 @@ class Step:
 
     @property
     def key(self) -> str:
-        doc = json.dumps({"name": self.name, "commands": [list(c) for c in self.commands], "version": self.version},
-                         sort_keys=True)
+        doc = json.dumps({"name": self.name, "commands": [_as_first_spelled(c) for c in self.commands],
+                          "version": self.version}, sort_keys=True)
         return f"{self.name}-{hashlib.sha256(doc.encode()).hexdigest()[:12]}"
 
 

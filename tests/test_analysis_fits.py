@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from analysis import fits
+from analysis import fits, selection
 from analysis.schema import make_row
 
 # Student-t and normal quantiles from standard tables (Abramowitz & Stegun Table 26.10 / 26.1), used
@@ -165,7 +165,7 @@ def test_extrapolation_on_synthetic_data():
 
 def test_select_xy_aliases_and_errors():
     rows = _rows([1e9, 2e9, 4e9], [0.1, 0.2, 0.3]) + [make_row(run_id="gt", family="ground_truth", rprec_top3=0.9)]
-    xs, ys, used = fits.select_xy(rows, "flops", "rprec_top3")
+    xs, ys, used = selection.select_xy(rows, "flops", "rprec_top3")
     assert xs.tolist() == [1e9, 2e9, 4e9] and len(used) == 3
     with pytest.raises(ValueError, match="unknown column"):
-        fits.select_xy(rows, "flop", "rprec_top3")
+        selection.select_xy(rows, "flop", "rprec_top3")

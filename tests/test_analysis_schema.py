@@ -137,3 +137,26 @@ def test_column_and_label():
     assert schema.config_label(rows[1]) == "AR 8L" and schema.config_label(rows[2]) == "GT"
     with pytest.raises(KeyError):
         schema.column(rows, "family")
+
+
+def test_a_family_axis_is_a_column_while_its_family_is_registered(tmp_path):
+    """The schema's family columns are the registry's (``Family.axes``), read when a row is checked: a family
+    registered later adds its axis to rows, run folders and labels, and the axis is no column without it."""
+    from handx_jax.families import Axis, Family, register
+
+    toy = Family("tests.not_imported", "a toy family", axes=(Axis("width_mult", "model.width_mult", "W", "Width ×"),))
+    assert "width_mult" not in schema.column_by_name()
+    with register("toy-axes", toy):
+        row = schema.make_row(run_id="a", family="toy-axes", layers=2, width_mult=3)
+        assert row["width_mult"] == 3 and schema.config_label(row) == "L2 W3"
+        names = list(schema.column_by_name())  # the families' axes sit between the shared ones, in registry order
+        assert names.index("ff") < names.index("width_mult") < names.index("data_fraction")
+        with pytest.raises(DataError, match="must be > 0"):
+            schema.make_row(run_id="b", family="toy-axes", width_mult=0)
+        run = tmp_path / "run"
+        run.mkdir()
+        (run / "config.json").write_text(json.dumps({"family": "toy-axes", "model": {"width_mult": 4}}))
+        (run / "metrics.jsonl").write_text('{"step": 1}\n')
+        assert schema.row_from_run_dir(run)["width_mult"] == 4
+    with pytest.raises(DataError, match="unknown column"):
+        schema.make_row(run_id="a", family="diffusion", width_mult=3)

@@ -1,4 +1,4 @@
-"""AR family end to end on a 32-clip corpus: `handx train tokenizer`, `handx tokenize`, `handx train ar`,
+"""AR family end to end on a 32-clip corpus: `handx train tokenizer`, `handx data tokens`, `handx train ar`,
 `handx generate` (official .npz layout, text2motion and prediction), `handx params ar` (Table C)."""
 
 import json
@@ -27,7 +27,7 @@ def built(tmp_path_factory):
     assert main(["train", "tokenizer", "--data", str(data), "--set", "model.codebook=256", "--set", "model.depth=1",
                  "--set", "data.window=20", "--preset", "tiny", "--quiet",
                  "--set", "train.steps=4", "--set", "train.eval_every=2", *LOOP, "--out", str(tok)]) == 0
-    assert main(["tokenize", "--tokenizer", str(tok), "--data", str(data)]) == 0
+    assert main(["data", "tokens", "--tokenizer", str(tok), "--data", str(data)]) == 0
     assert main(["train", "ar", "--data", str(data), "--encoder", str(ENCODER), "--tokenizer", str(tok),
                  "--preset", "tiny", "--quiet", "--set", "train.steps=8", *LOOP, "--set", "train.ckpt_every=8",
                  "--set", "model.layers=1", "--set", "model.dim=32", "--set", "model.heads=2",  # test_ar_sweep's 1L-32
@@ -54,7 +54,7 @@ def test_token_cache_holds_every_clip_and_matches_the_encoder(built):
     ds = Dataset.open(data)
     assert cache.codes.shape == (len(ds), 30) and cache.codes.min() >= 0 and cache.codes.max() < 240
     run = T.load(tok)
-    # every clip, as `handx tokenize` encoded them: the same encoding program (one batch of 32)
+    # every clip, as `handx data tokens` encoded them: the same encoding program (one batch of 32)
     np.testing.assert_array_equal(run.encode_clips(np.asarray(ds.motion)), cache.codes)
     assert cache.meta["tokenizer_fingerprint"] == run.fingerprint and cache.meta["nb_code"] == 240
 

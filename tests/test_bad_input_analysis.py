@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from analysis import fits, paper, plots
+from analysis import fits, paper, plots, selection
 from analysis.schema import load_results
 from handx_jax.cli import main
 
@@ -44,7 +44,7 @@ def test_plain_table_b_csv_fits_through_its_own_flops_column(tmp_path, capsys):
     assert out["x_column"] == "flops" and out["n"] == 7
     assert round(out["slope"], 4) == 0.4391 and round(out["intercept"], 4) == -3.8707 and round(out["r"], 3) == 0.960
     # The alias still means the schema's FLOPs column in a table that has no column of that name.
-    assert fits.resolve_column("flops", paper.load_table("B")) == "flops_per_sample_paper"
+    assert selection.resolve_column("flops", paper.load_table("B")) == "flops_per_sample_paper"
 
 
 SCHEMA_HEADER = "run_id,family,flops_per_sample,rprec_top3"
@@ -160,9 +160,9 @@ def test_left_out_rows_from_a_loaded_table_keep_their_source(tmp_path):
     jl = tmp_path / "r.jsonl"
     jl.write_text(json.dumps({"run_id": "a", "family": "diffusion", "fid": 1.0}) + "\n")
     rows = load_results(jl)
-    (d,) = fits.select_rows(rows, ("flops_per_sample", "fid"))[1]
+    (d,) = selection.select_rows(rows, ("flops_per_sample", "fid"))[1]
     assert (d.kind, d.file, d.row, d.run, d.column, d.unscored) == (
-        fits.DropKind.NO_COLUMN, str(jl), 1, "a", "flops_per_sample", True)
+        selection.DropKind.NO_COLUMN, str(jl), 1, "a", "flops_per_sample", True)
     assert str(d) == f"file {jl}, row 1 (run 'a'), column 'flops_per_sample': no such column"
 
 
@@ -171,13 +171,13 @@ def test_dropped_rows_say_their_kind_without_parsing_the_message():
             {"run_id": "b", "family": "diffusion", "flops_per_sample": 1e9, "fid": float("inf")},
             {"run_id": "c", "family": "diffusion", "flops_per_sample": 1e9, "fid": "x"},
             {"run_id": "d", "family": "diffusion", "flops_per_sample": 1e9}]
-    used, dropped = fits.select_rows(rows, ("flops_per_sample", "fid"), log_axis=("flops_per_sample",))
+    used, dropped = selection.select_rows(rows, ("flops_per_sample", "fid"), log_axis=("flops_per_sample",))
     assert used == []
     assert [(d.kind, d.row, d.run, d.column, d.unscored) for d in dropped] == [
-        (fits.DropKind.NOT_POSITIVE, 1, "a", "flops_per_sample", False),
-        (fits.DropKind.NOT_FINITE, 2, "b", "fid", False),
-        (fits.DropKind.TEXT, 3, "c", "fid", False),
-        (fits.DropKind.NO_VALUE, 4, "d", "fid", True)]
+        (selection.DropKind.NOT_POSITIVE, 1, "a", "flops_per_sample", False),
+        (selection.DropKind.NOT_FINITE, 2, "b", "fid", False),
+        (selection.DropKind.TEXT, 3, "c", "fid", False),
+        (selection.DropKind.NO_VALUE, 4, "d", "fid", True)]
     assert [d.reason for d in dropped] == ["0 is not > 0, which log10 needs", "not finite (inf)",
                                            "not a number ('x')", "no value"]
     assert str(dropped[0]) == "run 'a' (row 1 of the input), column 'flops_per_sample': 0 is not > 0, which log10 needs"

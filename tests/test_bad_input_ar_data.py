@@ -46,7 +46,7 @@ def test_codes_outside_the_codebook_are_refused_naming_file_clip_and_token(tmp_p
     with pytest.raises(DataError) as e:
         TokenCache.open(root)
     assert str(e.value) == (f"file {root / 'codes.npy'}: 2 codes outside the codebook [0, 240) of tokenizer tok123, "
-                            f"{where}; rebuild it with `handx tokenize`")
+                            f"{where}; rebuild it with `handx data tokens`")
 
 
 def test_a_truncated_cache_names_its_file(tmp_path):
@@ -54,7 +54,7 @@ def test_a_truncated_cache_names_its_file(tmp_path):
     data = (root / "codes.npy").read_bytes()
     (root / "codes.npy").write_bytes(data[:len(data) // 2])
     with pytest.raises(DataError, match=r"^file .*/cache/codes\.npy: unreadable or truncated token cache \(.*\); "
-                                        r"rebuild it with `handx tokenize`$"):
+                                        r"rebuild it with `handx data tokens`$"):
         TokenCache.open(root)
 
 

@@ -113,10 +113,10 @@ def test_a_missing_card_checksum_is_refused(assets_copy):
 
 
 def test_eval_run_refuses_a_changed_standard_evaluator_in_one_line(assets_copy, monkeypatch, tmp_path, capsys):
-    from handx_jax import standard
+    from handx_jax.standard import assets as standard_assets
 
     _flip(assets_copy / "evaluator" / "params.msgpack")
-    monkeypatch.setattr(standard, "ASSETS", assets_copy)
+    monkeypatch.setattr(standard_assets, "ASSETS", assets_copy)
     rc = main(["eval", "run", "--ground-truth", "--data", str(tmp_path / "ds"), "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and err == (f"handx: error: file {assets_copy / 'evaluator' / 'params.msgpack'}: standard evaluator "

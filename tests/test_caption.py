@@ -1,4 +1,4 @@
-"""Tests for the captioners and the LLM prompt (handx_jax/data/caption.py)."""
+"""Tests for the captioners and the LLM prompt (handx_jax/data/caption/)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from handx_jax.data import caption as cap
+from handx_jax.data.caption.hand import finger_moves
 from handx_jax.data import events as ev
 from handx_jax.data import synth
 from handx_jax.io import DataError
@@ -183,7 +184,7 @@ def test_fingers_doing_the_same_thing_are_grouped():
 def test_repetitions_are_summarised():
     wave = lambda t: 80.0 * (0.5 - 0.5 * np.cos(2 * np.pi * 3 * t / 60))     # three bends
     rec = _bend_record(lambda t: {("index", l): wave(t) for l in (1, 2, 3)})
-    moves, _, _ = cap._finger_moves(rec["right_hand_events"]["finger_flexing"], "index")
+    moves, _, _ = finger_moves(rec["right_hand_events"]["finger_flexing"], "index")
     assert len(moves) >= 5 and all(a["dir"] != b["dir"] for a, b in zip(moves, moves[1:]))
     out = cap.TemplateCaptioner().caption(rec, seed=0)
     for lv in out:
@@ -203,7 +204,7 @@ def test_one_joint_never_straightens_twice_in_a_row():
         pip = 90.0 - min(max(t - 25, 0) * 9.0, 90.0)
         return {("index", 1): mcp, ("index", 2): pip, ("index", 3): pip * 0.7}
     rec = _bend_record(bends)
-    moves, _, _ = cap._finger_moves(rec["right_hand_events"]["finger_flexing"], "index")
+    moves, _, _ = finger_moves(rec["right_hand_events"]["finger_flexing"], "index")
     assert len(moves) == 1 and moves[0]["dir"] == -1 and moves[0]["to"] == "straight"
     out = cap.TemplateCaptioner().caption(rec, seed=0)
     for lv in out[1:]:  # (level 0 may say only "the hand opens out flat")

@@ -153,3 +153,7 @@ def test_one_training_verb_and_the_old_ones(tmp_path, capsys):
     text = next(a for a in sub.choices["text"]._actions if isinstance(a, argparse._SubParsersAction))
     assert text.choices["tokenizer"].get_default("func").deprecated == ("handx text tokenizer",
                                                                         "handx text sentencepiece")
+    # the token cache is a dataset's derived cache: `handx data tokens`; `handx tokenize` is its old spelling
+    assert sub.choices["tokenize"].get_default("func").deprecated == ("handx tokenize", "handx data tokens")
+    data = next(a for a in sub.choices["data"]._actions if isinstance(a, argparse._SubParsersAction))
+    assert "tokens" in data.choices and not hasattr(data.choices["tokens"].get_default("func"), "deprecated")

@@ -309,7 +309,7 @@ def test_cli_run_json_keys_and_eval_json(setup, tmp_path, capsys):
     assert evaluator_id(tmp_path / "E_copy") != evaluator_id(E)
     between = {"multimodality", "apd_left", "apd_right"}  # one value per prompt, not per group
     assert ev_json["_meta"]["ci_method"] == {k: ("bootstrap_prompts" if k in between else "groups") for k in base}
-    from analysis.schema import _eval_values
+    from analysis.schema.run_folder import _eval_values
 
     assert set(_eval_values(ev_json, tmp_path / "run" / "eval.json")) == set(out)
     rc = main(["eval", "run", "--evaluator", str(E), "--ground-truth", "--data", str(data),
@@ -384,6 +384,15 @@ def test_resuming_with_a_different_config_is_refused(setup, tmp_path, monkeypatc
         train_evaluator(E, tiny_evaluator(data, "train.optim.lr=2e-3"), log=lambda s: None)
     with pytest.raises(ValueError, match="did you mean 'train.optim.lr'"):
         tiny_evaluator(data, "train.optim.lrr=1")
+    # The evaluator is a trainable, not a model family: its config.json says "trainable". A run written
+    # before issue 42 said "family": "evaluator"; it resumes, and its config.json is rewritten.
+    doc = json.loads((E / "config.json").read_text())
+    assert doc["trainable"] == "evaluator" and "family" not in doc
+    doc["family"] = doc.pop("trainable")
+    (E / "config.json").write_text(json.dumps(doc))
+    train_evaluator(E, tiny_evaluator(data), log=lambda s: None)
+    doc = json.loads((E / "config.json").read_text())
+    assert doc["trainable"] == "evaluator" and "family" not in doc and (E / "evaluator.json").exists()
 
 
 def test_item_levels_are_a_function_of_the_batch(setup):

@@ -21,7 +21,7 @@ from handx_jax.train import TrainConfig
 # The registry line (registered for the test's duration: handx_jax.families.register; the module by its
 # import path from the repository root, which the launcher's stages have on PYTHONPATH).
 REGISTRY = Family(module="tests.test_family_registry", help="a mean-pose toy family (tests only)",
-                  norm="handx_jax.representation:DIFFUSION_NORM")
+                  norm="handx_jax.representation.diffusion:DIFFUSION_NORM")
 
 FAMILY = "toy"
 PRESETS = {"tiny": None}

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from handx_jax.data import features as ft
-from handx_jax.data.events import FLEXING, _labels
+from handx_jax.data.events import FLEXING
+from handx_jax.data.segment import _labels
 from handmade_hands import clip, mirror, pair, right_hand, still
 
 FLEX = {n: i for i, n in enumerate(ft.FLEX_JOINTS)}

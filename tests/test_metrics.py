@@ -6,6 +6,8 @@ import pytest
 
 from handx_jax import metrics as M
 from handx_jax import skeleton as sk
+from handx_jax.metrics import embedding, motion
+from handx_jax.metrics.intervals import resample_counts
 
 
 def test_fid_zero_for_same_set_and_monotone_in_shift():
@@ -55,7 +57,7 @@ def test_fid_bootstrap_equals_fid_of_each_explicit_resample():
     a = 2.0 + rng.normal(size=(n, d)) @ rng.normal(size=(d, d))
     b = a + 0.5 * rng.normal(size=(n, d)) + 0.1
     idx = M.bootstrap_indices(n, M.MetricConfig(bootstrap=25))
-    counts = M._counts(idx, n)
+    counts = resample_counts(idx, n)
     mu, cov = M.resampled_moments(a, counts)
     np.testing.assert_allclose(mu, np.stack([a[i].mean(0) for i in idx]), rtol=1e-12, atol=1e-12)
     # The Gram correction is a float32 matmul on top of the exact float64 full-sample Gram (metrics.py):
@@ -73,11 +75,11 @@ def test_fid_bootstrap_equals_fid_of_each_explicit_resample():
 
 
 def test_blas_single_thread_restores_the_thread_count():
-    fns = M._openblas_threads()
+    fns = embedding._openblas_threads()
     if fns is None:
         pytest.skip("no bundled OpenBLAS found")  # the context manager is then a no-op
     before = fns[0]()
-    with M._blas_single_thread():
+    with embedding._blas_single_thread():
         assert fns[0]() == 1
     assert fns[0]() == before
 
@@ -176,7 +178,7 @@ def test_contact_scan_matches_direct_norm_form():
         return jnp.stack(d, axis=2)
 
     want = np.asarray(direct(jnp.asarray(x), W))
-    got = np.asarray(jax.jit(M._chunked_tip_palm_min_dist)(jnp.asarray(x), W))
+    got = np.asarray(jax.jit(motion._chunked_tip_palm_min_dist)(jnp.asarray(x), W))
     np.testing.assert_array_max_ulp(got, want, maxulp=1)
     _, inter = M.contact_labels(jnp.asarray(x), W)
     labels = np.any(want < 0.025, axis=1).reshape(n, 10)

@@ -5,6 +5,8 @@
   Shared code asks the registry entry (``families.entry(name)``) what a family declares instead.
 - The import graph of ``handx_jax``, ``sweeps`` and ``analysis`` has no cycle, counting imports inside
   functions too (only ``if TYPE_CHECKING:`` blocks are left out: they never run).
+- Rooms stay small: a module of more than ``MAX_LINES`` lines says in its docstring why it is one concern
+  (a sentence starting "One concern:"), or it is split.
 """
 
 from __future__ import annotations
@@ -148,3 +150,33 @@ def test_the_cycle_check_finds_a_cycle_through_a_function_level_import():
              "p.c": ("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from p.d import D\n", False),
              "p.d": ("from .c import y\n", False)}
     assert cycles(import_graph(files)) == [["p.a", "p.b"]]
+
+
+# ---------------------------------------------------------------------------- room size
+
+MAX_LINES = 500
+ONE_CONCERN = "One concern:"
+
+
+def long_without_reason(files: dict[str, str]) -> list[tuple[str, int]]:
+    """(name, lines) of every source in ``files`` (name → text) longer than ``MAX_LINES`` lines whose module
+    docstring does not say why it is one concern."""
+    out = []
+    for name, src in files.items():
+        n = src.count("\n") + (not src.endswith("\n") and bool(src))
+        if n > MAX_LINES and ONE_CONCERN not in (ast.get_docstring(ast.parse(src)) or ""):
+            out.append((name, n))
+    return out
+
+
+def test_no_module_is_over_500_lines_unless_its_docstring_says_why_it_is_one_concern():
+    found = long_without_reason({str(f.relative_to(ROOT)): f.read_text() for f in sources()})
+    assert found == [], (f"split these, or say in the module docstring why each is one concern "
+                         f"({ONE_CONCERN!r} …):\n" + "\n".join(f"{f}: {n} lines" for f, n in found))
+
+
+def test_the_room_size_check_finds_a_long_module_without_a_reason():
+    body = "x = 1\n" * MAX_LINES
+    files = {"long.py": '"""Two things."""\n' + body, "reasoned.py": f'"""{ONE_CONCERN} one thing."""\n' + body,
+             "short.py": '"""Two things."""\n' + body[:-6], "comment.py": f'"""Two things."""\n# {ONE_CONCERN} no\n' + body}
+    assert long_without_reason(files) == [("long.py", MAX_LINES + 1), ("comment.py", MAX_LINES + 2)]

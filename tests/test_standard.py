@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from handx_jax import standard
+from handx_jax.standard import assets as standard_assets
 from handx_jax.data.dataset import Dataset
 from handx_jax.evaluation import evaluate_ground_truth, make_evaluator_config, train_evaluator
 from handx_jax.io import DataError, sha256_file, write_checksum
@@ -132,7 +133,7 @@ def test_eval_run_without_evaluator_uses_the_standard_one(std, monkeypatch, tmp_
     from handx_jax.cli import main
 
     root, full, prefix, assets = std
-    monkeypatch.setattr(standard, "ASSETS", assets)
+    monkeypatch.setattr(standard_assets, "ASSETS", assets)
     monkeypatch.setenv("HANDX_CACHE_DIR", str(tmp_path / "cache"))
     assert main(["eval", "run", "--ground-truth", "--data", str(prefix.root), "--block", "2",
                  "--replications", "3", "--json"]) == 0

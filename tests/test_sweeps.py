@@ -110,6 +110,28 @@ def test_sweep_files_define_the_grids(tmp_path):
         load_sweep(bad)
 
 
+def test_a_paper_sized_point_names_its_size():
+    """The sweep files pass the preset that names a point's size (models/ladder.py), not a placeholder."""
+    ladder = load_sweep("sweeps/diffusion_flops_ladder.py", preset="paper")
+    assert [s.preset for s in ladder] == ["L2-d256", "paper-4L", "L4-d384", "L8-d384", "L8-d512", "L12-d512",
+                                          "L12-d768"]
+    depth = {s.axes["layers"]: s.preset for s in load_sweep("sweeps/diffusion_depth_data.py", preset="paper")}
+    assert depth == {4: "paper-4L", 8: "paper-8L", 12: "paper-12L", 16: "paper-4L"}  # 16 layers: no name, a base
+    assert {s.preset for s in load_sweep("sweeps/diffusion_width.py", preset="tiny")} == {"tiny"}
+
+
+def test_a_renamed_command_keeps_its_steps_key():
+    """A step's key names what it computes: the tokenizer step runs `handx data tokens` since issue 42 (was
+    `handx tokenize`) and keeps the key it had (the AR LMs' run ids carry it), pinned here from before."""
+    from sweeps.spec import Step, family_step
+
+    tok = family_step("tokenizer", "tokenizer-K256", "small", ("model.codebook=256",))
+    assert tok.commands[1][:3] == ("handx", "data", "tokens")
+    assert tok.key == "tokenizer-K256-f365810f4f32"
+    old = Step(tok.name, (tok.commands[0], ("handx", "tokenize", *tok.commands[1][3:])), family=tok.family)
+    assert old.key == tok.key and Step(tok.name, tok.commands[:1]).key != tok.key
+
+
 def test_cpu_study_presets_fix_epochs_and_match_steps_to_size():
     """``cpu``: every size takes the same steps, a fraction f takes f of them (fixed epochs). ``matched``: the
     same grid, steps ×0.5 / ×1 / ×2 over the three sizes; the middle size's runs are the same runs (ids)."""

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from handx_jax import skeleton as sk
-from handx_jax.data import clips, synth
+from handx_jax.data import clips, synth, synth_programs
 from handx_jax.data import synth_hand as H
 
 SMALL = synth.SynthConfig(chunk_size=16)
@@ -211,7 +211,7 @@ def test_intensity_top_up_is_one_coordinated_gesture():
     cfg = synth.SynthConfig(chunk_size=6, segments_per_sequence=1)
     N, L = cfg.chunk_size, cfg.segment_len
     acts = np.array([synth.ACTIONS.index(a) for a in ("ok_sign", "pinch_ring", "fist", "ok_sign", "point", "claw")])
-    prog = synth._Programs(idle_NxS=np.zeros((N, 1), bool), inter_NxS=np.full((N, 1), -1),
+    prog = synth_programs.Programs(idle_NxS=np.zeros((N, 1), bool), inter_NxS=np.full((N, 1), -1),
                            act_NxSx2=np.repeat(acts[:, None, None], 2, 2), pairing_NxS=np.zeros((N, 1), np.int64),
                            offset_NxS=np.zeros((N, 1)), flat_NxS=np.zeros((N, 1), bool))
     pose = np.broadcast_to(H.RELAXED, (N, 1, L, 2, H.NUM_CHANNELS)).copy()          # a still hand
@@ -221,8 +221,8 @@ def test_intensity_top_up_is_one_coordinated_gesture():
     delta = (out - pose)[:, 0, :, :, H.MCP]                                           # (N, L, 2, 4)
     assert np.abs(delta[:, [0, -1]]).max() < 1.0                                      # zero at both ends
     for n, a in enumerate(synth.ACTIONS[i] for i in acts):
-        free = np.flatnonzero(synth._FREE_4[a])
-        fixed = np.flatnonzero(~synth._FREE_4[a])
+        free = np.flatnonzero(synth_programs.FREE_FINGERS[a])
+        fixed = np.flatnonzero(~synth_programs.FREE_FINGERS[a])
         assert not fixed.size or np.abs(delta[n][..., fixed]).max() == 0.0                # the pinch keeps its contact
         for h in range(2):
             d = delta[n, :, h][:, free]

@@ -93,6 +93,18 @@ def test_pretrain_lowers_loss_and_resumes_exactly(data, tmp_path):
     assert sorted(p.name for p in (tmp_path / "b" / "checkpoints").iterdir() if not p.name.startswith(".")) \
         == ["16", "24"]
 
+    # T5 pretraining is a trainable, not a model family: config.json says "trainable". A run written before
+    # issue 42 said "family": "t5-pretrain"; it resumes to the same numbers, and its config.json is rewritten.
+    assert cfg["trainable"] == "t5" and "family" not in cfg
+    assert pretrain(data, tmp_path / "d", CFG, log=lambda s: None, stop_at_step=12) is None
+    doc = json.loads((tmp_path / "d" / "config.json").read_text())
+    doc.pop("trainable")
+    (tmp_path / "d" / "config.json").write_text(json.dumps({"family": "t5-pretrain", **doc}))
+    assert pretrain(data, tmp_path / "d", CFG, log=lambda s: None)["resumed_from"] == 12
+    assert [r.get("loss") for r in read_jsonl(tmp_path / "d" / "metrics.jsonl")] == [r.get("loss") for r in rows_c]
+    doc = json.loads((tmp_path / "d" / "config.json").read_text())
+    assert doc["trainable"] == "t5" and "family" not in doc
+
     # a different config cannot resume into the same folder
     with pytest.raises(DataError, match=r"different configuration \(pretrain differ\)"):
         pretrain(data, tmp_path / "c", PretrainConfig(**{**CFG.__dict__, "lr": 1e-3}), log=lambda s: None)

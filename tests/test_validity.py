@@ -17,6 +17,7 @@ import pytest
 from handx_jax import standard
 from handx_jax.cli import main as handx
 from handx_jax.data import events as ev
+from handx_jax.data import segment as seg
 from handx_jax.data.caption import TemplateCaptioner
 from handx_jax.data.dataset import Dataset
 from handx_jax.validity import perturb as P
@@ -29,15 +30,15 @@ def test_hysteresis_labels_hold_at_an_edge_and_follow_a_clear_crossing():
     # starts in its first clearly-entered state (1.5 at frame 5: state 1), not in the plain label of an
     # ambiguous first frame, so the hovering start is no transition.
     x = np.array([[-0.2, 0.3, -0.4, 0.2, -0.1, 1.5, 0.6, -0.5, 0.4, -2.0, -0.9]])
-    plain = ev._labels(x, edges)[0].tolist()
-    hyst = ev._hysteresis_labels(x, edges, 1.0)[0].tolist()
+    plain = seg._labels(x, edges)[0].tolist()
+    hyst = seg._hysteresis_labels(x, edges, 1.0)[0].tolist()
     assert plain == [0, 1, 0, 1, 0, 1, 1, 0, 1, 0, 0]
     assert hyst == [1, 1, 1, 1, 1, 1, 1, 1, 1, 0, 0]
     clear_start = np.array([[-1.5, 0.3, -0.4, 1.2, 0.2]])  # starts clearly in 0, crosses at frame 3
-    assert ev._hysteresis_labels(clear_start, edges, 1.0)[0].tolist() == [0, 0, 0, 1, 1]
+    assert seg._hysteresis_labels(clear_start, edges, 1.0)[0].tolist() == [0, 0, 0, 1, 1]
     # h = 0 is the plain look-up; several edges: a jump over two states lands in the far one.
-    assert ev._hysteresis_labels(x, edges, 0.0).tolist() == ev._labels(x, edges).tolist()
-    assert ev._hysteresis_labels(np.array([[0.0, 5.0, 2.1]]), (1.0, 2.0), 0.5)[0].tolist() == [0, 2, 2]
+    assert seg._hysteresis_labels(x, edges, 0.0).tolist() == seg._labels(x, edges).tolist()
+    assert seg._hysteresis_labels(np.array([[0.0, 5.0, 2.1]]), (1.0, 2.0), 0.5)[0].tolist() == [0, 2, 2]
 
 
 def test_contact_runs_hysteresis_gap_and_graze():

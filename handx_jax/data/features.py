@@ -27,6 +27,9 @@ Palm clouds (§5.4 "contact metrics", paper App. B): ``P`` points sampled in the
 from an unseeded RNG, §9.17).
 
 Angles are in radians; the state intervals of Table A are applied in ``events.py``.
+
+One concern: the six descriptors and the palm clouds two of them share, computed in one float64 pass over
+the same joints.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Procedural two-hand motion corpus: FK hands (synth_hand.py) driven by motion programs.
+"""Procedural two-hand motion corpus: FK hands (synth_hand.py) driven by motion programs (synth_programs.py).
 
 A sequence is ``segments_per_sequence`` segments of 60 frames. Each segment runs one program: an
 action for each hand (ACTIONS) and optionally a bimanual interaction (INTERACTIONS), or it is a
@@ -13,6 +13,9 @@ programs → action channels → neighbour coupling → transitions → intensit
 and wrist rotation → translations (placement, wrist noise, contact alignment, transitions) → global
 pose → defects. The tracking-like noise is in the joint angles (before FK) and the wrist translation,
 so bones stay rigid (issue 14.4).
+
+One concern: a chunk's motion from its programs, stage by stage in the order above (one rng stream, so
+the order is part of the generator's output and of GENERATOR_VERSION).
 """
 
 from __future__ import annotations
@@ -20,13 +23,14 @@ from __future__ import annotations
 import copy
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Callable
 
 import numpy as np
 
 from handx_jax import skeleton as sk
 from handx_jax.data import clips
 from handx_jax.data import synth_hand as H
+from handx_jax.data.synth_programs import (ACTION_FNS, ACTIONS, FREE_FINGERS, INTERACTION_SPECS, INTERACTIONS,
+                                          NATURAL_ORIENTATION, ActionContext, Programs, sample_programs, smoothstep)
 
 
 # Bumped whenever the same (seed, SynthConfig) would give different motion; part of a corpus's recipe
@@ -72,306 +76,6 @@ class SynthChunk:
     programs: list[list[dict]]      # per sequence, per segment: left, right, interaction, idle
 
 
-# ---- time profiles ---------------------------------------------------------------------------
-def _smoothstep(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
-
-
-def _plateau(t: np.ndarray, f: np.ndarray, phase: np.ndarray, sharp: float = 2.0) -> np.ndarray:
-    """A 0..1 oscillation that dwells at both ends (holds a pose) and moves briskly in between."""
-    return 0.5 + 0.5 * np.tanh(sharp * np.sin(2 * np.pi * f * t + phase)) / np.tanh(sharp)
-
-
-class _Ctx:
-    """Random draws for n action instances evaluated on the time grid t (n, L) in seconds."""
-
-    def __init__(self, rng: np.random.Generator, t_nxL: np.ndarray, cfg: SynthConfig):
-        self.rng, self.t, self.n, self.cfg = rng, t_nxL, t_nxL.shape[0], cfg
-
-    def u(self, lo: float, hi: float, shape: tuple = ()) -> np.ndarray:
-        return self.rng.uniform(lo, hi, (self.n,) + shape)
-
-    def freq(self, lo: float, hi: float) -> np.ndarray:
-        return (self.u(lo, hi) * self.u(*self.cfg.speed_range))[:, None]
-
-    def phase(self) -> np.ndarray:
-        return self.u(0, 2 * np.pi)[:, None]
-
-    def amp(self) -> np.ndarray:
-        return self.u(*self.cfg.amplitude_range)[:, None, None]
-
-    def jitter(self, pose_16: np.ndarray, deg: float = 6.0) -> np.ndarray:
-        """Per-instance variation of a reference pose; abduction varies less than flexion."""
-        scale = np.full(H.NUM_CHANNELS, deg)
-        scale[H.ABD] = deg / 3
-        return pose_16 + self.rng.normal(0, 1, (self.n, H.NUM_CHANNELS)) * scale
-
-    def hyperextend(self, pose_nx16: np.ndarray) -> np.ndarray:
-        """Bend a random non-empty subset of fingers back past −20° at the MCP in some instances."""
-        hit = self.rng.random(self.n) < self.cfg.hyperextension_prob
-        fingers = self.rng.random((self.n, 4)) < 0.5
-        fingers[np.arange(self.n), self.rng.integers(0, 4, self.n)] = True
-        angle = self.u(-38, -23, (4,))
-        out = pose_nx16.copy()
-        out[:, H.MCP] = np.where(hit[:, None] & fingers, angle, out[:, H.MCP])
-        return out
-
-    def zeros(self) -> tuple[np.ndarray, np.ndarray]:
-        z = np.zeros((self.n, self.t.shape[1], 3))
-        return z, z.copy()
-
-    def between(self, a_nx16: np.ndarray, b_nx16: np.ndarray, fr: tuple[float, float] = (0.5, 1.1),
-                sharp: float = 2.0) -> np.ndarray:
-        """Go back and forth between two poses with random rate, phase and amplitude."""
-        s = _plateau(self.t, self.freq(*fr), self.phase(), sharp)[..., None] * self.amp()
-        return a_nx16[:, None] + s * (b_nx16 - a_nx16)[:, None]
-
-
-ActionOut = tuple[np.ndarray, np.ndarray, np.ndarray]  # pose (n,L,16) deg, rot (n,L,3) deg, pos (n,L,3) m
-
-
-def _two_pose(a: Callable[[_Ctx], np.ndarray], b: Callable[[_Ctx], np.ndarray],
-              fr: tuple[float, float] = (0.5, 1.1), sharp: float = 2.0) -> Callable[[_Ctx], ActionOut]:
-    def action(c: _Ctx) -> ActionOut:
-        return (c.between(a(c), b(c), fr, sharp), *c.zeros())
-    return action
-
-
-def _point_pose(c: _Ctx) -> np.ndarray:
-    p = c.jitter(H.FIST, 5)
-    p[:, 0], p[:, 4] = c.u(-8, 8), c.u(0, 10)  # index straight
-    p[:, H.ABD.start] = H.ABD_CLOSED_4[0] + 6
-    return p
-
-
-def _thumbs_up_pose(c: _Ctx) -> np.ndarray:
-    p = c.jitter(H.FIST, 5)
-    p[:, H.T_CMC_FLEX:] = np.array([-12.0, 5.0, 0.0, -10.0]) + c.rng.normal(0, 4, (c.n, 4))
-    return p
-
-
-def _pinch(finger: int, others_flat: bool = False) -> Callable[[_Ctx], ActionOut]:
-    """Open hand ↔ thumb-tip on finger-tip; the contact channels are not jittered (geometry)."""
-    def action(c: _Ctx) -> ActionOut:
-        target = np.array(H.pinch_pose(finger, others_flat))
-        b = c.jitter(target, 5)
-        keep = [finger, 4 + finger, 8 + finger, H.T_CMC_FLEX, H.T_CMC_ABD, H.T_MCP, H.T_IP]
-        b[:, keep] = target[keep]
-        a = c.hyperextend(c.jitter(H.SPREAD if others_flat else H.FLAT, 6))
-        if others_flat:  # the OK sign keeps the other fingers up; only index and thumb travel
-            a[:, [1, 2, 3, 5, 6, 7]] = b[:, [1, 2, 3, 5, 6, 7]]
-        return (c.between(a, b, (0.5, 1.0), 2.5), *c.zeros())
-    return action
-
-
-def _act_finger_tap(c: _Ctx) -> ActionOut:
-    """Sequential tapping (index → pinky or back), like drumming on a table."""
-    base = c.jitter(H.RELAXED, 5)
-    period = 1.0 / c.freq(0.6, 1.2)                                        # (n, 1) seconds per sweep
-    order = np.where(c.rng.random(c.n) < 0.5, 1.0, -1.0)[:, None, None] * np.arange(4) / 4
-    ph = (c.t[..., None] / period[..., None] + order + c.u(0, 1)[:, None, None]) % 1.0   # (n, L, 4)
-    pulse = np.sin(np.pi * np.clip(ph * 4.0, 0, 1)) ** 2                   # one tap per quarter sweep
-    pose = np.repeat(base[:, None], c.t.shape[1], 1)
-    pose[..., H.MCP] += pulse * c.u(30, 50, (1, 1)) * c.amp()
-    pose[..., H.PIP] += pulse * c.u(15, 30, (1, 1))
-    return (pose, *c.zeros())
-
-
-def _act_count(c: _Ctx) -> ActionOut:
-    """Fingers extend one at a time from a fist (thumb or index first), then fold back."""
-    fist = c.jitter(H.FIST, 4)
-    open_ = c.jitter(H.SPREAD, 4)
-    L = c.t.shape[1]
-    start = c.u(0.05, 0.3)[:, None]
-    step = c.u(0.15, 0.3)[:, None] / c.u(*c.cfg.speed_range)[:, None]
-    thumb_first = c.rng.random(c.n) < 0.5
-    rank = np.where(thumb_first[:, None], np.arange(5), np.array([4, 0, 1, 2, 3]))   # thumb, index..pinky
-    t = c.t[..., None]
-    ramp = step[..., None] * 0.8
-    up = _smoothstep((t - start[..., None] - rank[:, None] * step[..., None]) / ramp)
-    back = _smoothstep((t - (L / c.cfg.fps - 0.45)) / 0.35)             # fold back near the end
-    s = up * (1 - back)                                                    # (n, L, 5) extended 0..1
-    pose = np.repeat(fist[:, None], L, 1)
-    fingers = s[..., 1:]
-    for blk in (H.MCP, H.PIP, H.ABD):
-        pose[..., blk] = fist[:, None, blk] + fingers * (open_ - fist)[:, None, blk]
-    pose[..., H.T_CMC_FLEX:] = fist[:, None, H.T_CMC_FLEX:] + s[..., :1] * (open_ - fist)[:, None, H.T_CMC_FLEX:]
-    return pose, *c.zeros()
-
-
-def _act_wave(c: _Ctx) -> ActionOut:
-    """Waving: side-to-side wrist swing with the fingers fluttering open and closed."""
-    f, ph = c.freq(1.3, 2.2), c.phase()
-    pose = c.between(c.jitter(H.SPREAD, 5), c.jitter(H.RELAXED, 5), (1.3, 2.2), 1.0)
-    rot, pos = c.zeros()
-    rot[..., 0] = c.u(18, 35)[:, None] * np.sin(2 * np.pi * f * c.t + ph)
-    rot[..., 1] = c.u(20, 45)[:, None]                                       # hand raised
-    pos[..., 0] = c.u(0.005, 0.02)[:, None] * np.sin(2 * np.pi * f * c.t + ph)
-    return pose, rot, pos
-
-
-def _act_wrist_roll(c: _Ctx) -> ActionOut:
-    """Pronation/supination; the fingers open as the palm turns up (a natural presenting gesture)."""
-    f, ph = c.freq(0.5, 1.1), c.phase()
-    s = 0.5 - 0.5 * np.cos(2 * np.pi * f * c.t + ph)
-    a, b = c.jitter(H.RELAXED, 5), c.hyperextend(c.jitter(H.FLAT, 5))
-    pose = a[:, None] + (s[..., None] * c.amp()) * (b - a)[:, None]
-    rot, pos = c.zeros()
-    rot[..., 2] = c.u(50, 110)[:, None] * s
-    return pose, rot, pos
-
-
-def _act_wrist_flex(c: _Ctx) -> ActionOut:
-    """Wrist flexion/extension with tenodesis: the fingers curl as the wrist extends."""
-    f, ph = c.freq(0.5, 1.2), c.phase()
-    w = np.sin(2 * np.pi * f * c.t + ph)
-    a, b = c.jitter(H.FLAT, 5), c.jitter(H.base_pose(45, 55, 0.0, (20, 25, 15, 20)), 5)
-    pose = a[:, None] + (0.5 + 0.5 * w)[..., None] * (b - a)[:, None]
-    rot, pos = c.zeros()
-    rot[..., 1] = c.u(25, 50)[:, None] * w
-    return pose, rot, pos
-
-
-def _act_finger_wiggle(c: _Ctx) -> ActionOut:
-    """Independent finger flutter (piano fingers), each finger at its own rate."""
-    base = c.jitter(H.RELAXED, 6)
-    f = c.u(1.2, 2.6, (5,))[:, None] * c.u(*c.cfg.speed_range)[:, None, None]
-    ph = c.u(0, 2 * np.pi, (5,))[:, None]
-    w = np.sin(2 * np.pi * f * c.t[..., None] + ph)                          # (n, L, 5)
-    pose = np.repeat(base[:, None], c.t.shape[1], 1)
-    pose[..., H.MCP] += c.u(15, 30, (1, 4)) * w[..., :4]
-    pose[..., H.PIP] += c.u(10, 25, (1, 4)) * w[..., :4]
-    pose[..., H.T_MCP] += 15 * w[..., 4]
-    return pose, *c.zeros()
-
-
-def _hyper_pose(c: _Ctx) -> np.ndarray:
-    p = c.jitter(H.FLAT, 3)
-    p[:, H.MCP] = c.u(-38, -22, (4,))
-    p[:, H.PIP] = c.u(0, 6, (4,))
-    return p
-
-
-ACTION_FNS: dict[str, Callable[[_Ctx], ActionOut]] = {
-    "fist": _two_pose(lambda c: c.jitter(H.RELAXED), lambda c: c.jitter(H.FIST, 4)),
-    "open_spread": _two_pose(lambda c: c.jitter(H.FIST), lambda c: c.hyperextend(c.jitter(H.SPREAD, 4))),
-    "point": _two_pose(lambda c: c.jitter(H.RELAXED), _point_pose, (0.4, 0.9), 2.5),
-    "pinch_index": _pinch(0),
-    "pinch_middle": _pinch(1),
-    "pinch_ring": _pinch(2),
-    "pinch_pinky": _pinch(3),
-    "spread_close": _two_pose(lambda c: c.jitter(H.base_pose(20, 20, 0.0, (5, 15, 5, 5))),
-                              lambda c: c.hyperextend(c.jitter(H.SPREAD, 4)), (0.7, 1.5)),
-    "wave": _act_wave,
-    "finger_tap": _act_finger_tap,
-    "count": _act_count,
-    "wrist_roll": _act_wrist_roll,
-    "wrist_flex": _act_wrist_flex,
-    "grasp": _two_pose(lambda c: c.jitter(H.SPREAD), lambda c: c.jitter(H.GRASP, 5), (0.4, 0.9), 3.0),
-    "thumbs_up": _two_pose(lambda c: c.jitter(H.RELAXED), _thumbs_up_pose, (0.4, 0.9), 2.5),
-    "ok_sign": _pinch(0, others_flat=True),
-    "claw": _two_pose(lambda c: c.jitter(H.FLAT), lambda c: c.jitter(H.CLAW, 5), (0.6, 1.2)),
-    "finger_wiggle": _act_finger_wiggle,
-    "hyperextend": _two_pose(lambda c: c.jitter(H.RELAXED), _hyper_pose, (0.5, 1.0)),
-}
-ACTIONS: tuple[str, ...] = tuple(ACTION_FNS)
-# Fingers (0 = index … 3 = pinky) an action leaves free, which the intensity floor may move.
-_FIXED_FINGERS = {"pinch_index": (0,), "pinch_middle": (1,), "pinch_ring": (2,), "pinch_pinky": (3,),
-                  "ok_sign": (0,), "point": (0,)}
-_FREE_4 = {a: np.array([f not in _FIXED_FINGERS.get(a, ()) for f in range(4)]) for a in ACTIONS}
-_FINGER_ONLY = tuple(a for a in ACTIONS if a not in ("wave", "wrist_roll", "wrist_flex"))
-
-
-# ---- interactions ------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class _Interaction:
-    right_actions: tuple[str, ...]
-    left_actions: tuple[str, ...] | None     # None: the left hand repeats the right hand's action
-    pairing: str                              # "mirror", "alternate" or "independent"
-    orient_right: tuple[tuple[float, float], ...]  # (yaw, pitch, roll) ranges, degrees, symmetric frame
-    orient_left: tuple[tuple[float, float], ...] | None  # None: mirror of the right hand's sample
-    contact: str | None = None                # contact geometry (see _contact_points)
-    gap: str | None = None                    # gap schedule (see _gap_schedule)
-    half_sep: tuple[float, float] = (0.06, 0.12)
-    flat_fingers: bool = False                # palms meet: fingers may spread or bend back, not curl
-
-
-_NATURAL = ((-20.0, 25.0), (-20.0, 20.0), (-10.0, 60.0))
-INTERACTION_SPECS: dict[str, _Interaction] = {
-    "fingertip_touch": _Interaction(("point",), None, "mirror", ((75, 100), (-10, 15), (-20, 40)), None,
-                                    "index_tips", "touch"),
-    "palm_press": _Interaction(("spread_close", "finger_wiggle", "hyperextend"), None, "mirror",
-                               ((-10, 15), (50, 85), (80, 95)), None, "palms", "touch", flat_fingers=True),
-    "clap": _Interaction(("spread_close", "finger_wiggle", "hyperextend"), None, "mirror",
-                         ((-5, 20), (15, 60), (80, 95)), None, "palms", "clap", (0.10, 0.16), flat_fingers=True),
-    "tap_palm": _Interaction(("finger_tap", "finger_wiggle"), ("spread_close", "finger_wiggle", "hyperextend"),
-                             "independent", ((-15, 15), (-40, -20), (-10, 10)),
-                             ((-10, 15), (-5, 15), (160, 185)), "tips_on_palm", "tap"),
-    "interlock": _Interaction(("grasp", "fist", "claw"), None, "mirror", ((5, 30), (20, 50), (82, 95)), None,
-                              "interlock", "grip"),
-    "grip_finger": _Interaction(("point",), ("grasp", "fist"), "independent", ((75, 100), (-10, 10), (-15, 25)),
-                                ((-15, 15), (-5, 15), (-10, 15)), "finger_in_hand", "grip"),
-    "grip_wrist": _Interaction(("grasp", "fist"), _FINGER_ONLY, "independent", ((75, 100), (-15, 5), (-10, 10)),
-                               ((-15, 15), (-10, 20), (-10, 30)), "wrist_in_hand", "grip"),
-    "steeple": _Interaction(("claw", "spread_close", "finger_wiggle"), None, "mirror",
-                            ((-5, 15), (55, 85), (65, 85)), None, "all_tips", "touch"),
-    "fist_bump": _Interaction(("fist", "thumbs_up"), None, "mirror", ((80, 100), (-10, 10), (-10, 30)), None,
-                              "knuckles", "touch"),
-    "circle": _Interaction(_FINGER_ONLY, _FINGER_ONLY, "independent", _NATURAL, _NATURAL, None, None, (0.07, 0.12)),
-    "mirrored": _Interaction(ACTIONS, None, "mirror", _NATURAL, None),
-    "alternating": _Interaction(ACTIONS, None, "alternate", _NATURAL, None),
-}
-INTERACTIONS: tuple[str, ...] = tuple(INTERACTION_SPECS)
-_PAIRING = {"independent": 0, "mirror": 1, "alternate": 2}
-
-
-# ---- programs ----------------------------------------------------------------------------------
-@dataclass
-class _Programs:
-    idle_NxS: np.ndarray      # bool
-    inter_NxS: np.ndarray     # index into INTERACTIONS, −1 for none
-    act_NxSx2: np.ndarray     # index into ACTIONS per hand (left, right), −1 when idle
-    pairing_NxS: np.ndarray   # _PAIRING code: left hand shares the right hand's action parameters
-    offset_NxS: np.ndarray    # time offset (s) of the left hand in "alternate" pairing
-    flat_NxS: np.ndarray      # bool: fingers must stay straight or bend back (palm contact)
-
-    def to_dicts(self) -> list[list[dict]]:
-        out = []
-        for n in range(self.idle_NxS.shape[0]):
-            row = []
-            for s in range(self.idle_NxS.shape[1]):
-                idle, i = bool(self.idle_NxS[n, s]), int(self.inter_NxS[n, s])
-                left, right = (ACTIONS[a] if a >= 0 else "idle" for a in self.act_NxSx2[n, s])
-                row.append({"left": left, "right": right, "interaction": INTERACTIONS[i] if i >= 0 else None,
-                            "idle": idle})
-            out.append(row)
-        return out
-
-
-def _sample_programs(rng: np.random.Generator, cfg: SynthConfig) -> _Programs:
-    N, S = cfg.chunk_size, cfg.segments_per_sequence
-    idle = rng.random((N, S)) < cfg.idle_prob
-    inter = np.where(rng.random((N, S)) < cfg.interaction_prob, rng.integers(0, len(INTERACTIONS), (N, S)), -1)
-    inter[idle] = -1
-    act = rng.integers(0, len(ACTIONS), (N, S, 2))
-    pairing = np.zeros((N, S), np.int64)
-    for i, name in enumerate(INTERACTIONS):
-        spec, m = INTERACTION_SPECS[name], inter == i
-        k = int(m.sum())
-        right = np.array([ACTIONS.index(a) for a in spec.right_actions])
-        act[..., 1][m] = right[rng.integers(0, len(right), k)]
-        if spec.left_actions is None:
-            act[..., 0][m] = act[..., 1][m]
-        else:
-            left = np.array([ACTIONS.index(a) for a in spec.left_actions])
-            act[..., 0][m] = left[rng.integers(0, len(left), k)]
-        pairing[m] = _PAIRING[spec.pairing]
-    act[idle] = -1
-    offset = np.where(pairing == _PAIRING["alternate"], rng.uniform(0.25, 0.6, (N, S)), 0.0)
-    flat_ids = [i for i, n in enumerate(INTERACTIONS) if INTERACTION_SPECS[n].flat_fingers]
-    return _Programs(idle, inter, act, pairing, offset, np.isin(inter, flat_ids))
-
 
 # ---- per-segment channels ----------------------------------------------------------------------
 def _sample_orientation(rng: np.random.Generator, ranges: tuple, n: int) -> np.ndarray:
@@ -379,7 +83,7 @@ def _sample_orientation(rng: np.random.Generator, ranges: tuple, n: int) -> np.n
     return rng.uniform(lo, hi, (n, 3))
 
 
-def _segment_channels(rng: np.random.Generator, prog: _Programs, cfg: SynthConfig):
+def _segment_channels(rng: np.random.Generator, prog: Programs, cfg: SynthConfig):
     """Pose (N,S,L,2,16) and wrist rotation (N,S,L,2,3, degrees) and symmetric-frame position
     (N,S,L,2,3, metres) of every segment, before transitions. The left hand's channels are given in
     the mirrored frame, so equal channels mean mirror-symmetric hands."""
@@ -399,10 +103,10 @@ def _segment_channels(rng: np.random.Generator, prog: _Programs, cfg: SynthConfi
             sec = (hand == 1) & paired[seq]
             state = copy.deepcopy(rng) if sec.any() else None
             tt = np.broadcast_to(t_L, (seq.size, L))
-            for arr, o in zip((pose, rot, pos), ACTION_FNS[name](_Ctx(rng, tt, cfg))):
+            for arr, o in zip((pose, rot, pos), ACTION_FNS[name](ActionContext(rng, tt, cfg))):
                 arr[seq, s, :, hand] = o
             if state is not None:  # same parameters, optionally shifted in time (alternating)
-                out = ACTION_FNS[name](_Ctx(state, tt + prog.offset_NxS[seq, s][:, None], cfg))
+                out = ACTION_FNS[name](ActionContext(state, tt + prog.offset_NxS[seq, s][:, None], cfg))
                 for arr, o in zip((pose, rot, pos), out):
                     arr[seq[sec], s, :, 0] = o[sec]
         _fill_idle(rng, prog, pose, s, cfg)
@@ -419,7 +123,7 @@ def _segment_channels(rng: np.random.Generator, prog: _Programs, cfg: SynthConfi
     return pose, rot, pos
 
 
-def _fill_idle(rng: np.random.Generator, prog: _Programs, pose: np.ndarray, s: int, cfg: SynthConfig) -> None:
+def _fill_idle(rng: np.random.Generator, prog: Programs, pose: np.ndarray, s: int, cfg: SynthConfig) -> None:
     """Near-static segments: hold a relaxed pose (or the previous idle hold) with a slight drift."""
     seq = np.flatnonzero(prog.idle_NxS[:, s])
     if seq.size == 0:
@@ -435,10 +139,10 @@ def _fill_idle(rng: np.random.Generator, prog: _Programs, pose: np.ndarray, s: i
     pose[seq, s] = hold[:, None] + drift
 
 
-def _segment_placement(rng: np.random.Generator, prog: _Programs, cfg: SynthConfig):
+def _segment_placement(rng: np.random.Generator, prog: Programs, cfg: SynthConfig):
     """Wrist orientation (N,S,2,3) and symmetric-frame position (N,S,2,3) held through a segment."""
     N, S = cfg.chunk_size, cfg.segments_per_sequence
-    rot = _sample_orientation(rng, _NATURAL, N * S * 2).reshape(N, S, 2, 3)
+    rot = _sample_orientation(rng, NATURAL_ORIENTATION, N * S * 2).reshape(N, S, 2, 3)
     half = 0.5 * rng.uniform(*cfg.hand_separation_m, (N, S, 1)) + rng.uniform(-0.01, 0.01, (N, S, 2))
     pos = np.stack([half, rng.uniform(0.25, 0.40, (N, S, 2)), rng.uniform(-0.05, 0.08, (N, S, 2))], -1)
     for i, name in enumerate(INTERACTIONS):
@@ -458,7 +162,7 @@ def _segment_placement(rng: np.random.Generator, prog: _Programs, cfg: SynthConf
     return rot, pos
 
 
-def _add_circling(rng: np.random.Generator, prog: _Programs, pos: np.ndarray, cfg: SynthConfig) -> None:
+def _add_circling(rng: np.random.Generator, prog: Programs, pos: np.ndarray, cfg: SynthConfig) -> None:
     """The "circle" interaction: the wrists orbit in the sagittal plane in antiphase (hands rolling over each other)."""
     n_idx, s_idx = np.nonzero(prog.inter_NxS == INTERACTIONS.index("circle"))
     if n_idx.size == 0:
@@ -481,8 +185,8 @@ def _blend_boundaries(x_NxSxLxD: np.ndarray, idle_NxS: np.ndarray, ramp: int) ->
     x = x_NxSxLxD.copy()
     S, L = x.shape[1], x.shape[2]
     i = np.arange(ramp)
-    up = _smoothstep((i + 1) / ramp)[:, None]             # prev segment: 0 → 1 at its last frame
-    down = 1.0 - _smoothstep(i / ramp)[:, None]           # next segment: 1 at its first frame → 0
+    up = smoothstep((i + 1) / ramp)[:, None]             # prev segment: 0 → 1 at its last frame
+    down = 1.0 - smoothstep(i / ramp)[:, None]           # next segment: 1 at its first frame → 0
     for s in range(1, S):
         prev, nxt = x[:, s - 1], x[:, s]
         v = 0.5 * ((prev[:, -1] - prev[:, -2]) + (nxt[:, 1] - nxt[:, 0]))
@@ -500,7 +204,7 @@ def _hand_intensity_from_pose(pose_NxSxLx2x16: np.ndarray, fps: int) -> np.ndarr
     return (np.abs(np.diff(ang, axis=2)) * fps * lam).sum(-1).mean(2) / lam.sum()
 
 
-def _raise_intensity(rng: np.random.Generator, pose: np.ndarray, prog: _Programs, cfg: SynthConfig) -> np.ndarray:
+def _raise_intensity(rng: np.random.Generator, pose: np.ndarray, prog: Programs, cfg: SynthConfig) -> np.ndarray:
     """Top up a hand whose fingers move too little in a non-idle segment.
 
     The deficit is filled by ONE coordinated gesture of the fingers the action leaves free (a
@@ -524,7 +228,7 @@ def _raise_intensity(rng: np.random.Generator, pose: np.ndarray, prog: _Programs
         return pose
     n_i, s_i, h_i = np.nonzero(need)
     k = n_i.size
-    free = np.stack([_FREE_4[a] for a in ACTIONS])[prog.act_NxSx2[n_i, s_i, h_i]]          # (k, 4)
+    free = np.stack([FREE_FINGERS[a] for a in ACTIONS])[prog.act_NxSx2[n_i, s_i, h_i]]          # (k, 4)
     k_free = np.maximum(free.sum(-1), 1)
     target = cfg.min_intensity_dps + 5.0
     deficit = target - omega0[n_i, s_i, h_i]
@@ -545,7 +249,7 @@ def _raise_intensity(rng: np.random.Generator, pose: np.ndarray, prog: _Programs
     act = base[..., H.MCP].mean(-1) + base[..., H.PIP].mean(-1)                             # (k, L)
     span = act.max(1) - act.min(1)
     prof = (act - act.min(1, keepdims=True)) / np.maximum(span, 1e-6)[:, None]
-    taper = _smoothstep(t / 8.0) * _smoothstep((L - 1 - t) / 8.0)
+    taper = smoothstep(t / 8.0) * smoothstep((L - 1 - t) / 8.0)
     w0 = np.clip(warp, 0, L - 1)
     i0 = np.floor(w0).astype(np.int64)
     i1 = np.minimum(i0 + 1, L - 1)
@@ -692,7 +396,7 @@ def _gap_schedule(rng: np.random.Generator, kind: str, k: int, cfg: SynthConfig)
     else:  # grip: holds most of the segment
         t_in, t_out, far = rng.uniform(-15, 12, (k, 1)), rng.uniform(45, 80, (k, 1)), rng.uniform(0.03, 0.07, (k, 1))
     r = rng.uniform(6, 14, (k, 1)) / speed
-    close = _smoothstep((f - t_in + r) / r) * (1.0 - _smoothstep((f - t_out) / r))
+    close = smoothstep((f - t_in + r) / r) * (1.0 - smoothstep((f - t_out) / r))
     return far * (1.0 - close)
 
 
@@ -760,7 +464,7 @@ def synth_chunk(seed: int, chunk_index: int, cfg: SynthConfig = SynthConfig()) -
     rng = np.random.default_rng([seed, chunk_index])
     N, S, L = cfg.chunk_size, cfg.segments_per_sequence, cfg.segment_len
     T = S * L
-    prog = _sample_programs(rng, cfg)
+    prog = sample_programs(rng, cfg)
     scale = rng.uniform(*cfg.hand_scale_range, N)
     geom = H.hand_geometry(scale, rng.uniform(-cfg.bone_jitter, cfg.bone_jitter, (N, 5, 3)))
 

@@ -31,6 +31,8 @@ from handx_jax.metrics import MetricConfig
 from handx_jax.models.evaluator import PRESETS, Evaluator, EvaluatorConfig, evaluator_loss
 from handx_jax.train import OptimConfig, TrainConfig
 
+TRAINABLE = "evaluator"  # config.json's "trainable": `handx train evaluator` (families.TRAINABLES)
+
 
 @dataclass(frozen=True)
 class EvaluatorDataConfig:
@@ -117,6 +119,7 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
     from handx_jax.models.layers import count_params
     from handx_jax.text.cache import build_cache, open_cache
     from handx_jax.text.hf import as_encoder
+    from handx_jax.runlog import trainable_renamed
     from handx_jax.train import TrainSpec, train
 
     cfg.validate()
@@ -162,7 +165,7 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
         init = lambda rng: _init_params(mcfg, Lmax, rng)  # noqa: E731
     n_params = count_params(jax.eval_shape(init, jax.random.PRNGKey(0)))
     truncated = _truncation(cache, clips, train_levels)
-    config = {"family": "evaluator", "run_id": out.name, "preset": cfg.preset, "model": dataclasses.asdict(mcfg),
+    config = {"trainable": TRAINABLE, "run_id": out.name, "preset": cfg.preset, "model": dataclasses.asdict(mcfg),
               "layers": mcfg.layers, "dim": mcfg.latent, "heads": mcfg.heads, "ff": mcfg.ff, "params": n_params,
               "text": to_dict(policy), "train_levels": list(train_levels),
               "data": {"path": str(Path(data).absolute()), "fingerprint": ds.fingerprint,
@@ -186,8 +189,10 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
                 f"({row['samples_per_s']:.0f} samples/s)")
 
     t0 = time.perf_counter()
+    # Evaluator runs written before issue 42 said "family": "evaluator"; they resume as this trainable.
     res = train(out, TrainSpec(init=init, loss=loss, cfg=tcfg, config=config, get_batch=tdata.batch,
-                               num_examples=len(tdata)), on_log=on_log, stop_at=stop_at)
+                               num_examples=len(tdata), upgrade_config=trainable_renamed("evaluator", TRAINABLE)),
+                on_log=on_log, stop_at=stop_at)
     wall = time.perf_counter() - t0
     if res["step"] < tcfg.steps:  # stopped early (stop_at): the folder stays resumable, no checkpoint files
         return out

@@ -50,12 +50,15 @@ from types import ModuleType
 class Axis:
     """A sweep axis a family adds to the shared ones (layers, dim, heads, ff, data fraction): the results
     column ``name``, the config key a sweep point sets it with (``axes_of`` reads it from the point's
-    overrides), its letter in run ids (``run_id``) and its table header (``analysis.tables``)."""
+    overrides), its letter in run ids (``run_id``) and display labels (``analysis.schema.config_label``), its
+    table header (``analysis.tables``) and the type of its values (a positive number; the results schema's
+    column, ``analysis.schema.family_columns``)."""
 
     name: str
     key: str
     short: str
     header: str
+    kind: type = int
 
 
 @dataclass(frozen=True)
@@ -102,13 +105,13 @@ class Family:
 
 FAMILIES: dict[str, Family] = {
     "diffusion": Family("handx_jax.families.diffusion", "the treble-residual diffusion model (paper §5.1)",
-                        norm="handx_jax.representation:DIFFUSION_NORM", encoder=True, flops="handx_jax.families.diffusion.flops:from_config",
+                        norm="handx_jax.representation.diffusion:DIFFUSION_NORM", encoder=True, flops="handx_jax.families.diffusion.flops:from_config",
                         # DDIM-50: what every diffusion sweep has generated with (DDPM takes all 1,000 steps)
                         sweep_sample=("sample.sampler=ddim", "sample.steps=50"),
                         tasks=("text2motion", "inbetween", "keyframes", "wrist", "reaction", "long", "prediction")),
     "tokenizer": Family("handx_jax.families.tokenizer", "the FSQ motion tokenizer of the AR family (paper §5.2)",
-                        norm="handx_jax.representation:AR_NORM", results=False, tasks=(),
-                        after_train=(("handx", "tokenize", "--tokenizer", "{out}", "--data", "{data}"),)),
+                        norm="handx_jax.representation.ar:AR_NORM", results=False, tasks=(),
+                        after_train=(("handx", "data", "tokens", "--tokenizer", "{out}", "--data", "{data}"),)),
     "ar": Family("handx_jax.families.ar", "the text-prefix LM over FSQ motion tokens (paper §5.2)",
                  encoder=True, needs=("tokenizer",), table="table3", tasks=("text2motion", "prediction"),
                  # the FSQ codebook of the tokenizer it is trained from (its runs record it as "codebook")
@@ -124,7 +127,7 @@ TRAINABLES: dict[str, str] = {
 
 # The normalisation statistics a dataset's stats.npz holds besides the families' (``Family.norm``): those
 # of the trainables that read the dataset's motion (the evaluator's).
-TRAINABLE_NORMS: tuple[str, ...] = ("handx_jax.representation:EVALUATOR_NORM",)
+TRAINABLE_NORMS: tuple[str, ...] = ("handx_jax.representation.evaluator:EVALUATOR_NORM",)
 
 # Families registered from outside the package (``register``), as NAME=MODULE pairs: children of this
 # process (the sweep launcher's ``handx`` stages) find them here. MODULE holds ``REGISTRY: Family``.

@@ -1,7 +1,7 @@
 """The FSQ motion-tokenizer family (paper §5.2; reference §4.1–4.4): training, loading, the token cache.
 
     handx train tokenizer --data DIR --preset paper --set model.codebook=4096 --out TOK
-    handx tokenize --tokenizer TOK --data DIR          # DIR/token_cache/<fingerprint>/codes.npy
+    handx data tokens --tokenizer TOK --data DIR       # DIR/token_cache/<fingerprint>/codes.npy
 
 Training items are 48-frame windows of the train split's clips at every start 0..12 (13 per clip,
 §4.3), in the normalised 288-d AR representation (§2.4, the dataset's ``ar`` stats). The loss is the
@@ -9,7 +9,7 @@ Training items are 48-frame windows of the train split's clips at every start 0.
 logs, on up to ``data.eval_clips`` full clips of the val split: MPJPE in mm (per hand, relative to
 its wrist, de-normalised), codebook usage and perplexity.
 
-A trained tokenizer is one per (dataset, codebook): ``handx tokenize`` encodes every clip once
+A trained tokenizer is one per (dataset, codebook): ``handx data tokens`` encodes every clip once
 (30 codes each) into a token cache that every LM size trains from. The cache's fingerprint hashes
 the dataset and the tokenizer's parameters, so an LM run can name exactly the tokenizer it used.
 """
@@ -388,11 +388,11 @@ class TokenCache:
 
         root = Path(root)
         meta = read_format_meta(root / "meta.json", TOKEN_FORMAT, TOKEN_FORMAT_VERSION,
-                                missing="not a token cache (missing meta.json); build one with `handx tokenize`",
-                                upgrade="; rebuild it with `handx tokenize`")
+                                missing="not a token cache (missing meta.json); build one with `handx data tokens`",
+                                upgrade="; rebuild it with `handx data tokens`")
         if dataset_fingerprint is not None and meta["dataset_fingerprint"] != dataset_fingerprint:
             raise DataError(f"token cache built for dataset {meta['dataset_fingerprint']}, not {dataset_fingerprint}; "
-                            "run `handx tokenize` on this dataset", path=root)
+                            "run `handx data tokens` on this dataset", path=root)
         return cls(root, meta, read_codes(root / "codes.npy", meta))
 
 
@@ -404,22 +404,23 @@ def read_codes(path: Path, meta: dict) -> np.ndarray:
     try:
         codes = np.load(path, allow_pickle=False)
     except FileNotFoundError:
-        raise DataError("missing codes.npy; rebuild the cache with `handx tokenize`", path=path.parent) from None
+        raise DataError("missing codes.npy; rebuild the cache with `handx data tokens`", path=path.parent) from None
     except (ValueError, OSError, EOFError) as e:  # numpy: "Failed to read all data for array ..." and kin
         raise DataError(f"unreadable or truncated token cache ({str(e).splitlines()[0][:200]}); rebuild it with "
-                        f"`handx tokenize`", path=path) from None
+                        f"`handx data tokens`", path=path) from None
     if codes.shape != (meta["num_clips"], meta["tokens_per_clip"]):
         raise DataError(f"codes shape {codes.shape} does not match meta.json's ({meta['num_clips']}, "
-                        f"{meta['tokens_per_clip']}); rebuild it with `handx tokenize`", path=path)
+                        f"{meta['tokens_per_clip']}); rebuild it with `handx data tokens`", path=path)
     if codes.dtype.kind not in "iu":
-        raise DataError(f"codes must be integers, got dtype {codes.dtype}; rebuild it with `handx tokenize`", path=path)
+        raise DataError(f"codes must be integers, got dtype {codes.dtype}; rebuild it with `handx data tokens`",
+                        path=path)
     nb = int(meta["nb_code"])
     bad = (codes < 0) | (codes >= nb)
     if bad.any():
         row, col = (int(v) for v in np.argwhere(bad)[0])
         raise DataError(f"{int(bad.sum())} codes outside the codebook [0, {nb}) of tokenizer "
                         f"{meta.get('tokenizer_fingerprint', '?')}, the first {int(codes[row, col])} at clip {row}, "
-                        f"token {col}; rebuild it with `handx tokenize`", path=path)
+                        f"token {col}; rebuild it with `handx data tokens`", path=path)
     return codes
 
 
@@ -431,8 +432,8 @@ def open_token_cache(data_dir: str | os.PathLike, tokenizer_dir: str | os.PathLi
     fp = token_cache_fingerprint(ds.fingerprint, load(tokenizer_dir).fingerprint)
     root = Path(data_dir) / TOKEN_CACHE_DIRNAME / fp
     if not root.exists():
-        raise DataError(f"no token cache for this dataset + tokenizer; run `handx tokenize --tokenizer {tokenizer_dir} "
-                        f"--data {data_dir}`", path=root.parent)
+        raise DataError(f"no token cache for this dataset + tokenizer; run `handx data tokens --tokenizer "
+                        f"{tokenizer_dir} --data {data_dir}`", path=root.parent)
     return TokenCache.open(root, dataset_fingerprint=ds.fingerprint)
 
 

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handx_jax.models.ladder import TABLE_B, table_b_name
+from handx_jax.models.ladder import named_sizes
 from handx_jax.models.layers import (REFERENCE_LINEAR_INIT, DecoderLayer, Dropout, packed_in_proj_init,
                                      sinusoidal_table, with_branch_token)
 from handx_jax.models.shape_cache import per_config
@@ -61,10 +61,7 @@ class DiTConfig:
 PRESETS = {
     "tiny": DiTConfig(layers=2, dim=64, heads=4, ff=128),
     "small": DiTConfig(layers=4, dim=128, heads=4, ff=512),
-    "paper-4L": DiTConfig(layers=4, dim=256, heads=4, ff=1024),
-    "paper-8L": DiTConfig(layers=8, dim=512, heads=8, ff=1024),
-    "paper-12L": DiTConfig(layers=12, dim=512, heads=8, ff=1024),
-    **{table_b_name(L, d): DiTConfig(layers=L, dim=d, heads=H, ff=F) for L, d, H, F in TABLE_B},
+    **{name: DiTConfig(layers=L, dim=d, heads=H, ff=F) for name, (L, d, H, F) in named_sizes().items()},
 }
 SIZE_FIELDS = ("layers", "dim", "heads", "ff")
 

@@ -237,9 +237,12 @@ def _captions(ds, split: str) -> list[str]:
     return list(dict.fromkeys(tk.dataset_captions(ds, [split])))  # unique, first-appearance order
 
 
+TRAINABLE = "t5"  # config.json's "trainable": `handx train t5` (families.TRAINABLES); no model family
+
+
 def _run_identity(cfg: PretrainConfig, mcfg: T5Config, ds_fp: str, tok: tk.Tokenizer) -> dict:
     """What a resumed run must share with the original (paths may differ; content may not)."""
-    return {"family": "t5-pretrain", "pretrain": dataclasses.asdict(cfg), "model": dataclasses.asdict(mcfg),
+    return {"trainable": TRAINABLE, "pretrain": dataclasses.asdict(cfg), "model": dataclasses.asdict(mcfg),
             "dataset_fingerprint": ds_fp, "tokenizer_fingerprint": tok.fingerprint}
 
 
@@ -253,6 +256,7 @@ def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainC
     exported once all ``cfg.steps`` are done.
     """
     from handx_jax.data.dataset import Dataset
+    from handx_jax.runlog import trainable_renamed
     from handx_jax.train import TrainConfig, TrainSpec, check_resume, train
 
     t_start = time.perf_counter()
@@ -312,7 +316,8 @@ def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainC
               "n_params": counts, "train_captions": len(train_seqs), "eval_captions": len(eval_seqs),
               "truncated_train_captions": int(n_trunc), "input_len": S, "target_len": T}
     resume_keys = [*identity, "train"]
-    check_resume(out, {**config, "train": dataclasses.asdict(tcfg)}, resume_keys)
+    upgrade = trainable_renamed("t5-pretrain", TRAINABLE)  # runs written before issue 42 resume too
+    check_resume(out, {**config, "train": dataclasses.asdict(tcfg)}, resume_keys, upgrade)
     latest = _latest_checkpoint(out)
     if latest is None:
         log(f"pretrain {cfg.preset}: {counts['encoder_total']:,} encoder params ({counts['all']:,} with decoder), "
@@ -326,7 +331,8 @@ def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainC
 
     spec = TrainSpec(init=init, loss=loss, cfg=tcfg, config=config,
                      get_step_batch=lambda step: batch_dict(stream.batch(step)), evaluate=evaluate,
-                     optimizer=(make_optimizer(cfg), make_schedule(cfg)), resume_keys=resume_keys)
+                     optimizer=(make_optimizer(cfg), make_schedule(cfg)), resume_keys=resume_keys,
+                     upgrade_config=upgrade)
     res = train(out, spec, on_log=on_log, stop_at=stop_at_step, save_at_stop=True)
     step = int(res["step"])
     if step < cfg.steps:

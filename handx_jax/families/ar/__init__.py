@@ -1,10 +1,14 @@
 """The autoregressive family: a text-prefix LM over FSQ motion tokens (paper §5.2; reference §4.5–4.8).
 
     handx train tokenizer --data DIR --set model.codebook=4096 --out TOK   # one per (dataset, codebook)
-    handx tokenize --tokenizer TOK --data DIR                       # token cache
+    handx data tokens --tokenizer TOK --data DIR                    # token cache
     handx text cache --data DIR --encoder ENC --joined              # the joined-prompt text cache
     handx train ar --data DIR --encoder ENC --tokenizer TOK --preset 8L-512 --out RUN
     handx generate --run RUN --data DIR --split test --out gen.npz
+
+One concern: the AR family's side of the registry contract (its config and presets, training, loading,
+generation and command-line hooks, ``families/__init__.py``), in the one module the registry names;
+decoding is ``decode.py``'s.
 
 Training items are (clip, level) pairs of the train split's nested fraction. The prefix is the frozen
 text features of the clip's three prompts at that level, joined with separators (the text cache's

@@ -14,6 +14,10 @@ The run folder follows ``analysis.schema``'s contract: ``config.json`` holds ``f
 axes (under ``model``), ``data_fraction``, ``params``, ``params_non_embedding``, ``flops_per_sample``
 and ``text_flops_per_sample``; ``metrics.jsonl`` logs the cumulative ``train_flops``. The run also
 keeps ``norm_stats.npz`` so generation does not need the dataset.
+
+One concern: the diffusion family's side of the registry contract (its config and presets, training,
+loading, generation and command-line hooks, ``families/__init__.py``), in the one module the registry
+names; the Gaussian process is ``process.py``'s, the compiled sampler ``sampling.py``'s.
 """
 
 from __future__ import annotations

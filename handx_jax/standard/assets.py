@@ -1,0 +1,128 @@
+"""The packaged assets of the standard evaluator: their version and folders (the current one, the archived
+``standard-vN`` ones), the card, the checksums every load verifies, and which ``--evaluator`` values
+name one of them."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from handx_jax.io import DataError, sha256_file, verify_checksum
+
+VERSION = 5  # of the packaged assets; bumped whenever the recipe or any weight changes
+ASSETS = Path(__file__).resolve().parent.parent / "assets" / "standard"  # handx_jax/assets/standard
+CARD_JSON, CARD_MD, MANIFEST = "card.json", "CARD.md", "test_manifest.npz"
+CARD_SHA = CARD_JSON + ".sha256"  # io.write_checksum's sidecar: the card's own checksum
+ENCODER_DIR, EVALUATOR_DIR = "encoder", "evaluator"
+NAME = "standard"  # `handx eval run --evaluator standard` (the default)
+
+
+def assets_folder(assets: Path | None = None) -> Path:
+    """``assets``, or the packaged assets folder. ``ASSETS`` is read when called, not imported by the other
+    modules, so pointing this module's ``ASSETS`` elsewhere (a test's copy) moves every reader with it."""
+    return Path(assets or ASSETS)
+
+def read_card(assets: Path | None = None) -> dict:
+    p = assets_folder(assets) / CARD_JSON
+    if not p.exists():
+        raise DataError(f"the standard evaluator's card is missing (is the package installed with its assets? "
+                        f"see pyproject package-data)", path=p)
+    return json.loads(p.read_text())
+
+
+def asset_files(assets: Path) -> list[str]:
+    """Files covered by the card's checksums (everything but the card, its checksum and CARD.md), sorted."""
+    return sorted(str(p.relative_to(assets)) for p in Path(assets).rglob("*")
+                  if p.is_file() and p.name not in (CARD_JSON, CARD_SHA, CARD_MD) and "__pycache__" not in p.parts)
+
+
+def verify_assets(assets: Path | None = None) -> dict:
+    """Check the assets before anything reads them, and return the card: card.json against its sidecar
+    ``card.json.sha256`` (the card holds the recipe, the Ground Truth rows and every other file's sha256,
+    so it is covered first), then each file against the card. A changed or missing file is a DataError
+    naming it. :func:`load` runs this on every load, packaged assets or ``assets=`` another folder."""
+    assets = assets_folder(assets)
+    if not (assets / CARD_JSON).exists():
+        read_card(assets)  # the "is the package installed with its assets?" message
+    try:
+        verify_checksum(assets / CARD_JSON, required=True)
+    except DataError as e:
+        raise DataError(f"standard evaluator card changed or unverifiable: {str(e).split(': ', 1)[-1]} "
+                        "(reinstall the package)", path=assets / CARD_JSON) from None
+    card = read_card(assets)
+    for rel, want in card["sha256"].items():
+        p = Path(assets) / rel
+        if not p.exists():
+            raise DataError("standard evaluator file missing (reinstall the package)", path=p)
+        if sha256_file(p) != want:
+            raise DataError("standard evaluator file corrupt: sha256 differs from card.json (reinstall the "
+                            "package)", path=p)
+    return card
+
+
+def reference_cache_dir(assets: Path | None = None) -> Path:
+    """Where a standard evaluator (the current one, or the archived one of ``assets``) caches reference
+    embeddings: the package folder may be read-only (and an editable install should not collect cache
+    files), so a user cache folder, one per version."""
+    base = os.environ.get("HANDX_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "handx-jax")
+    version = VERSION if assets is None or Path(assets) == ASSETS else read_card(assets)["version"]
+    return Path(base) / f"standard-v{version}" / "reference_cache"
+
+
+def evaluator_dir(assets: Path | None = None) -> Path:
+    """The packaged evaluator folder. Passing it as ``--evaluator`` (e.g. to ``handx sweep run``, which
+    reads its ``evaluator.json`` for the caption level) selects the standard evaluator."""
+    return assets_folder(assets) / EVALUATOR_DIR
+
+
+def archived(version: int) -> Path:
+    """The assets folder of an earlier standard evaluator, kept so that old numbers can be re-scored and
+    compared: ``handx_jax/assets/standard-v{version}/`` (``--evaluator standard-v{version}``)."""
+    return ASSETS.with_name(f"{ASSETS.name}-v{int(version)}")
+
+
+def versions() -> list[int]:
+    """Every standard evaluator this package ships: the current one and the archived ones."""
+    old = [int(p.name.rsplit("-v", 1)[1]) for p in ASSETS.parent.glob(f"{ASSETS.name}-v*")
+           if p.name.rsplit("-v", 1)[1].isdigit() and (p / CARD_JSON).exists()]
+    return sorted(set(old) | {VERSION})
+
+
+def assets_for(evaluator: str | os.PathLike | None) -> Path | None:
+    """The assets folder an ``--evaluator`` value names, or None for any other evaluator: omitted,
+    ``standard`` or ``standard-v{VERSION}`` is the current one; ``standard-vN`` an archived one (an
+    unknown N is a one-line error listing the versions); an evaluator folder of either is itself."""
+    if evaluator is None or str(evaluator) in (NAME, f"{NAME}-v{VERSION}"):
+        return ASSETS
+    e = str(evaluator)
+    if e.startswith(f"{NAME}-v") and e[len(NAME) + 2:].isdigit():
+        folder = archived(int(e[len(NAME) + 2:]))
+        if not (folder / CARD_JSON).exists():
+            raise DataError(f"--evaluator {e}: no such standard evaluator; this package has "
+                            f"{', '.join(f'{NAME}-v{v}' for v in versions())}")
+        return folder
+    p = Path(evaluator).resolve()
+    for v in versions():
+        folder = ASSETS if v == VERSION else archived(v)
+        if p == (folder / EVALUATOR_DIR).resolve():
+            return folder
+    return None
+
+
+def is_standard(evaluator: str | os.PathLike | None) -> bool:
+    """``--evaluator`` omitted, ``standard``, ``standard-vN``, or a packaged evaluator folder itself."""
+    return assets_for(evaluator) is not None
+
+
+def evaluator_meta(evaluator: str | os.PathLike | None) -> dict:
+    """``evaluator.json`` of an evaluator folder, or of a standard evaluator (see :func:`is_standard`)."""
+    assets = assets_for(evaluator)
+    folder = evaluator_dir(assets) if assets is not None else Path(evaluator)
+    return json.loads((folder / "evaluator.json").read_text())
+
+
+def encoder_dir(assets: Path | None = None) -> Path:
+    """The packaged T5 encoder folder (pass it as ``--encoder`` to train models on the standard corpus)."""
+    return assets_folder(assets) / ENCODER_DIR
