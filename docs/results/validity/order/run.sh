@@ -3,7 +3,7 @@
 # events? A small test on the 4,000-clip prefix of corpus v2 (the validity suite's clips): standard evaluator v5
 # fine-tuned on the prefix's train split, with and without its reversed copy mixed into the batches, then the
 # validity suite on the prefix's 230 test clips (disjoint from the train split) for each.
-#   docs/results/validity/order/run.sh WORK [STEPS]
+#   [ARMS="reversed control"] docs/results/validity/order/run.sh WORK [STEPS]
 set -euo pipefail
 WORK=${1:?work folder}
 STEPS=${2:-300}
@@ -20,7 +20,7 @@ common=(--data "$WORK/data" --encoder "$ENC" --preset small --steps "$STEPS" --b
         --set data.text_bucket=256 --set train.log_every=50 --set train.ckpt_every=100 --set train.wandb=disabled
         --set data.augment_white_mm=1.5 --set data.augment_lowfreq_mm=3 --set model.mask_same_text=true
         --set model.reverse_negative=true)
-for arm in reversed control; do
+for arm in ${ARMS:-reversed control}; do
   extra=()
   [ "$arm" = reversed ] && extra=(--set "data.reversed_path=$WORK/rev" --set data.reversed_share=0.3)
   [ -f "$WORK/E-$arm/evaluator.json" ] || "${H[@]}" train evaluator "${common[@]}" "${extra[@]}" --out "$WORK/E-$arm"
