@@ -113,6 +113,10 @@ FAMILIES: dict[str, Family] = {
                  encoder=True, needs=("tokenizer",), table="table3", tasks=("text2motion", "prediction"),
                  # the FSQ codebook of the tokenizer it is trained from (its runs record it as "codebook")
                  axes=(Axis("codebook", "model.codebook", "K", "Codebook"),)),
+    "ghtt-pose": Family("handx_jax.families.ghtt.pose", "G-HTT's pose block P, the step a G-HTT run is trained from",
+                        results=False, tasks=()),
+    "ghtt": Family("handx_jax.families.ghtt", "G-HTT: the action block A over a trained P (prediction, recognition)",
+                   encoder=True, needs=("ghtt-pose",), tasks=("prediction", "recognition")),
 }
 # What ``handx train NAME`` trains besides the families: artefacts that are neither generators nor
 # results rows (one training verb for everything, issue 42). NAME → the module with
