@@ -180,3 +180,13 @@ def test_real_tiny_ghtt_sweep_scored_on_prediction(tmp_path):
     _, prompts, motions = split_prompts(Dataset.open(data), "test", 4, 0)
     em, et = ghtt.embed_motions(np.stack(motions)), ghtt.embed_texts(prompts)
     assert em.shape == et.shape and np.allclose(np.linalg.norm(em, axis=-1), 1, atol=1e-5)
+    # ... and `handx eval recognition` beside the evaluator's own retrieval of the same clips
+    from handx_jax.cli import main
+
+    assert main(["eval", "recognition", "--run", str(run), "--evaluator", str(E), "--block", "4",
+                 "--replications", "2"]) == 0
+    rec = json.loads((run / "eval_recognition.json").read_text())
+    assert rec["_meta"]["rprec_block"] == 4 and rec["_meta"]["clips"] == len(prompts)
+    for side in ("run", "evaluator_ground_truth"):
+        assert 0 <= rec[side]["rprec_top1"]["mean"] <= rec[side]["rprec_top3"]["mean"] <= 1
+    assert main(["eval", "recognition", "--run", str(tmp_path / "sweep/steps")]) == 2  # not a run: one line
