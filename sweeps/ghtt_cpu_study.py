@@ -11,7 +11,7 @@ prediction`` (K = 20 from N(μ, 5Σ)) writes MPJPE-RA/-PA and APD of the predict
         --eval-limit 10000 --out S
     handx analyze fit S/results.csv --x flops --y mpjpe_ra_right --plot S/fit.png
 
-``cpu``: depth {1, 2, 3} × width {32, 64, 128}: (1, 32), (2, 32), (2, 64), (3, 128) (CPU_SIZES), the same steps for
+``cpu``: depth {1, 2, 3} × width {32, 64, 96}: (1, 32), (2, 32), (2, 64), (3, 96) (CPU_SIZES), the same steps for
 every size (CPU_POSE_STEPS, CPU_ACTION_STEPS at batch 64). ``tiny``: two sizes at a few steps (tests).
 """
 
@@ -20,7 +20,7 @@ from __future__ import annotations
 from sweeps.common import RESOURCES as _RESOURCES
 from sweeps.launcher import RunSpec, Step, family_step, run_id
 
-CPU_SIZES = ((1, 32), (2, 32), (2, 64), (3, 128))  # (layers, width) of both blocks
+CPU_SIZES = ((1, 32), (2, 32), (2, 64), (3, 96))  # (layers, width) of both blocks
 CPU_POSE_STEPS = 800
 CPU_ACTION_STEPS = 600
 CPU_BATCH = 64

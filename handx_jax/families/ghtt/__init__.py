@@ -122,19 +122,15 @@ class GHTTRunConfig:
 Config = GHTTRunConfig
 
 
-def _abs(p: str) -> str:
-    return str(Path(p).absolute()) if p else ""
-
-
 def make_config(preset: str = "tiny", overrides: Sequence[str] = (), *, data: str = "", encoder: str = "",
                 pose: str = "") -> GHTTRunConfig:
     """A run config of a named size; P's part (``model.pose``, ``model.span``) is the P run's when given."""
     model = get_preset(PRESETS, preset, "G-HTT preset")
     if pose:
-        pm = from_dict(G.GHTTConfig, C.record_of(pose, PP.FAMILY)["model"])
+        pm = from_dict(G.GHTTConfig, run_config(pose, PP.FAMILY)["model"])
         model = dataclasses.replace(model, pose=pm.pose, span=pm.span)
     cfg = GHTTRunConfig(preset=preset, model=model, train=TRAIN_PRESETS[preset],
-                        data=DataConfig(path=_abs(data), encoder=_abs(encoder), pose=_abs(pose)))
+                        data=DataConfig(*(str(Path(p).absolute()) if p else "" for p in (data, encoder, pose))))
     return apply_overrides(cfg, overrides)
 
 
@@ -254,8 +250,7 @@ def train(run_dir: str | os.PathLike, cfg: GHTTRunConfig, *, stop_at=None, on_lo
     for key in ("path", "encoder", "pose"):
         if not getattr(cfg.data, key):
             raise ConfigError(f"data.{key} is empty: give --data, --encoder and --ghtt-pose")
-    pose_doc = C.record_of(cfg.data.pose, PP.FAMILY)
-    pm = from_dict(G.GHTTConfig, pose_doc["model"])
+    pm = from_dict(G.GHTTConfig, run_config(cfg.data.pose, PP.FAMILY)["model"])
     if (pm.pose, pm.span) != (cfg.model.pose, cfg.model.span):  # P's sizes are the P run's
         cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, pose=pm.pose, span=pm.span))
     ds = Dataset.open(cfg.data.path)

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -95,16 +94,6 @@ def augment(key, H_BxTx153, aug: AugConfig):
     v = _perturb_rigid(kv, H_BxTx153[..., HM.V_SLICE].reshape(B, T, 2, HM.RIGID), aug.v_deg, aug.v_cm)
     r = _perturb_rigid(kr, H_BxTx153[..., HM.R_SLICE], aug.r_deg, aug.r_cm)
     return jnp.concatenate([p, v.reshape(B, T, 2 * HM.RIGID), r], -1)
-
-
-def record_of(run_dir, family: str) -> dict:
-    p = Path(run_dir) / "config.json"
-    if not p.exists():
-        raise DataError(f"not a {family} run folder (no config.json)", path=run_dir)
-    doc = json.loads(p.read_text())
-    if doc.get("family") != family:
-        raise DataError(f"run folder is a {doc.get('family')!r} run, not a {family} run", path=run_dir)
-    return doc
 
 
 def span_latents(pose_params, cfg: G.GHTTConfig, Hn_BxSxTx153):
