@@ -129,13 +129,15 @@ def test_param_count_is_length_free_and_flops_match_xla():
     assert 0.8 < analytic / xla < 1.25, (analytic, xla)
 
 
-def test_registry_declares_tasks_and_refuses_what_ghtt_does_not_do():
+def test_registry_declares_tasks_and_the_launcher_refuses_a_step_as_a_point(tmp_path):
     from handx_jax.families import entry, sweep_task
+    from sweeps.launcher import RunSpec, SweepConfig, launch
 
     assert entry("ghtt").tasks == ("prediction", "recognition") and sweep_task("ghtt") == "prediction"
-    with pytest.raises(ValueError, match="generates nothing"):
-        sweep_task("ghtt-pose")
     assert sweep_task("diffusion") == "text2motion"
+    with pytest.raises(ValueError, match="run p: family ghtt-pose generates nothing") as e:
+        launch([RunSpec("p", "ghtt-pose")], SweepConfig(data="D", encoder="", out=str(tmp_path / "s"), evaluator="E"))
+    assert "\n" not in str(e.value) and not (tmp_path / "s").exists()
 
 
 @pytest.mark.slow
