@@ -192,3 +192,14 @@ def test_real_tiny_ghtt_sweep_scored_on_prediction(tmp_path):
     for side in ("run", "evaluator_ground_truth"):
         assert 0 <= rec[side]["rprec_top1"]["mean"] <= rec[side]["rprec_top3"]["mean"] <= 1
     assert main(["eval", "recognition", "--run", str(tmp_path / "sweep/steps")]) == 2  # not a run: one line
+
+
+def test_rectify_starts_a_span_at_the_frame_before_it():
+    from handx_jax.families.ghtt import rectify
+
+    rng = np.random.default_rng(1)
+    span, before = jnp.asarray(rng.normal(size=(2, 15, HM.FRAME_DIM))), jnp.asarray(rng.normal(size=(2, HM.FRAME_DIM)))
+    out = np.asarray(rectify(span, before))
+    np.testing.assert_allclose(out[:, 0, HM.P_SLICE], np.asarray(before)[:, HM.P_SLICE], atol=1e-6)
+    np.testing.assert_allclose(out[:, -1], np.asarray(span)[:, -1], atol=1e-6)  # blended out by the span's end
+    np.testing.assert_array_equal(out[..., HM.V_SLICE.start:], np.asarray(span)[..., HM.V_SLICE.start:])  # motion kept
