@@ -155,7 +155,7 @@ def numbers(cfg: GHTTRunConfig, *, text_len: int = 96, encoder_cfg=None) -> dict
 # Training A
 
 
-def pooled_text(cache, clips, levels, chunk: int = 1024) -> np.ndarray:
+def pooled_text(cache, clips, levels, chunk: int = 128) -> np.ndarray:
     """Each (clip, level)'s caption feature: the mean of its joined caption's T5 token states (N, L, 768)."""
     out = np.zeros((len(clips), len(levels), cache.meta["d_model"]), np.float32)
     for li, lv in enumerate(levels):
@@ -166,9 +166,10 @@ def pooled_text(cache, clips, levels, chunk: int = 1024) -> np.ndarray:
     return out
 
 
-def offset_latents(pose_params, cfg: G.GHTTConfig, Hn_NxFx153: np.ndarray, chunk: int = 256):
+def offset_latents(pose_params, cfg: G.GHTTConfig, Hn_NxFx153: np.ndarray, chunk: int = 16):
     """m̄^P of every span at every offset 0..t−1: (N, t, S, D) with S = F // t, and which spans are wholly
-    inside the clip (t, S)."""
+    inside the clip (t, S). ``chunk`` clips at a time: each is t·S = 60 spans through E^P (at 256 clips, E^P
+    of the `small` preset held 7.6 GB of activations and was killed for memory)."""
     t, F = cfg.span, Hn_NxFx153.shape[1]
     S = F // t
     offsets = jnp.arange(t)
