@@ -28,16 +28,18 @@ def clips(tmp_path_factory):
 
 def test_frames_round_trip_and_ignore_where_the_clip_is(clips):
     _, x = clips
-    H, (R, o), s = jax.vmap(HM.to_frames)(jnp.asarray(x))
-    back = jax.vmap(HM.from_frames)(H, R[:, 0], o[:, 0], s)
+    frames = jax.jit(jax.vmap(HM.to_frames))  # one program each (op by op, the 60-step scans take seconds)
+    H, (R, o), s = frames(jnp.asarray(x))
+    back = jax.jit(jax.vmap(HM.from_frames))(H, R[:, 0], o[:, 0], s)
     assert float(jnp.abs(back - x).max()) < 1e-4  # metres, over 60 frames of accumulated palm motion
     # continuing from the frame before a span (how predicted spans are placed) is the same inverse
-    cont = jax.vmap(lambda h, r, oo, ss: HM.from_frames(h[20:], r, oo, ss, first_is_anchor=False))(H, R[:, 19], o[:, 19], s)
+    cont = jax.jit(jax.vmap(lambda h, r, oo, ss: HM.from_frames(h[20:], r, oo, ss, first_is_anchor=False)))(
+        H, R[:, 19], o[:, 19], s)
     assert float(jnp.abs(cont - x[:, 20:]).max()) < 1e-4
     # v and r are relative (App. B.2 as read here): a rigid motion of the whole clip changes none of H
     Rg = HM.axis_angle_rotation(jnp.asarray([0.3, -1.0, 0.5]), jnp.asarray(1.1))
     moved = jnp.einsum("ij,...j->...i", Rg, jnp.asarray(x)) + jnp.asarray([0.2, -0.1, 0.4])
-    H2 = jax.vmap(lambda j: HM.to_frames(j)[0])(moved)
+    H2 = frames(moved)[0]
     assert float(jnp.abs(H2 - H).max()) < 1e-4
     assert H.shape == (8, 60, HM.FRAME_DIM) and HM.FRAME_DIM == 6 * 21 + 27
 
