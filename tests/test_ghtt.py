@@ -187,7 +187,7 @@ def test_real_tiny_ghtt_sweep_scored_on_prediction(tmp_path):
     # ... and `handx eval recognition` beside the evaluator's own retrieval of the same clips
     from handx_jax.cli import main
 
-    assert main(["eval", "recognition", "--run", str(run), "--evaluator", str(E), "--block", "4",
+    assert main(["eval", "recognition", "--run", str(run), "--evaluator", str(E), "--block", "4", "--limit", "4",
                  "--replications", "2"]) == 0
     rec = json.loads((run / "eval_recognition.json").read_text())
     assert rec["_meta"]["rprec_block"] == 4 and rec["_meta"]["clips"] == len(prompts)
