@@ -45,6 +45,7 @@ GROUPS = (
     ("sweep", "sweeps.cli"),
     ("standard", "handx_jax.standard.cli"),
     ("standard validity", "handx_jax.validity.cli"),  # adds `handx standard validity` to the group above
+    ("eval recognition", "handx_jax.evaluation.recognition"),  # adds `handx eval recognition` to the eval group
     ("import/export", "handx_jax.interop.cli"),
 )
 

@@ -172,13 +172,15 @@ def _slurm(specs: Sequence[RunSpec], cfg: SweepConfig, out: Path) -> dict[str, s
 def launch(specs: Sequence[RunSpec], cfg: SweepConfig) -> LaunchResult:
     """Run every spec (skipping finished stages); return the results table and the runs that failed."""
     out = Path(cfg.out).absolute()
-    from handx_jax.families import entry
+    from handx_jax.families import entry, sweep_task
 
     for s in specs:
         run_dir(cfg, s)  # refuses names that would leave OUT
     for s in specs:
         try:
             entry(s.family)  # every run names a registered family (its results row says which)
+            if cfg.evaluator:  # scored: the family serves the task its sweeps are scored on (Family.sweep_task)
+                sweep_task(s.family)
         except ValueError as e:
             raise ValueError(f"run {s.name}: {e}") from None
     if cfg.executor == "slurm" and "timeout_min" not in cfg.slurm:

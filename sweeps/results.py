@@ -48,6 +48,25 @@ def run_status(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | 
     return "pending", None
 
 
+# The prediction benchmark's columns (``handx eval prediction``'s "predicted" row: every frame after the
+# observation), taken into the results row of a run scored on prediction (``Family.sweep_task``).
+PREDICTION_COLUMNS = tuple(f"{m}_{h}" for m in ("mpjpe_ra", "mpjpe_pa", "apd") for h in ("left", "right"))
+
+
+def prediction_columns(d: Path) -> dict:
+    """A run folder's prediction scores (``RUN/eval_prediction.json``) as results columns; {} without one. They
+    replace the same columns of ``eval.json``, which the evaluator computes over whole clips, observed
+    frames included."""
+    pred = read_json_or_empty(d / "eval_prediction.json").get("predicted") or {}
+    out = {}
+    for c in PREDICTION_COLUMNS:
+        if isinstance(pred.get(c), (int, float)):
+            out[c] = float(pred[c])
+            if isinstance(pred.get(f"{c}_ci"), (int, float)):
+                out[f"{c}_ci"] = float(pred[f"{c}_ci"])
+    return out
+
+
 def result_row(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | None = None) -> dict:
     from analysis.schema import column_by_name, row_from_run_dir, validate_row
 
@@ -64,6 +83,7 @@ def result_row(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | 
             row.setdefault("data_sampling", cdoc["data"]["sampling"])
     else:
         row = {"run_id": spec.name, "family": spec.family}
+    row.update(prediction_columns(d))
     row["run_id"] = spec.name
     known = column_by_name()
     for k, v in spec.axes.items():

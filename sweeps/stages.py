@@ -41,9 +41,28 @@ def stage_state(cfg: SweepConfig, spec: RunSpec) -> dict[str, bool]:
     prompted at another caption level than the evaluator scores (:func:`stale_scores`)."""
     d = run_dir(cfg, spec)
     stale = stale_scores(cfg, d)
-    return {"train": (d / "train_done.json").exists(),
-            "generate": (d / "generated.npz").exists() and stale != "generate",
-            "evaluate": (d / "eval.json").exists() and stale is None}
+    state = {"train": (d / "train_done.json").exists(),
+             "generate": (d / "generated.npz").exists() and stale != "generate",
+             "evaluate": (d / "eval.json").exists() and stale is None}
+    if _predicts(spec):  # scored by the prediction benchmark as well (Family.sweep_task)
+        state["predict"] = (d / PREDICTION_FILE).exists()
+    return state
+
+
+PREDICTION_FILE = "eval_prediction.json"  # evaluation.prediction.RESULT_FILE (not imported: it pulls in JAX)
+
+
+def _predicts(spec: RunSpec) -> bool:
+    return bool(spec.family) and _sweep_task(spec.family) == "prediction"
+
+
+def _sweep_task(family: str) -> str:
+    from handx_jax.families import entry
+
+    try:
+        return entry(family).sweep_task
+    except ValueError:  # an unregistered family: launch() names it
+        return "text2motion"
 
 
 @functools.lru_cache(maxsize=8)
@@ -109,7 +128,7 @@ def stale_scores(cfg: SweepConfig, d: Path) -> str | None:
 
 def is_complete(cfg: SweepConfig, spec: RunSpec) -> bool:
     st = stage_state(cfg, spec)
-    return st["train"] and (not cfg.evaluator or st["evaluate"])
+    return st["train"] and (not cfg.evaluator or (st["evaluate"] and st.get("predict", True)))
 
 
 def read_json_or_empty(path: Path) -> dict:
@@ -251,6 +270,17 @@ def generate_settings(cfg: SweepConfig, spec: RunSpec) -> list[str]:
     return [*entry(spec.family).sweep_sample, *own, *cfg.sample]
 
 
+def _task_args(spec: RunSpec) -> list[str]:
+    """The generate stage's task: the split's captions (text2motion), or, for a family scored on prediction
+    (``Family.sweep_task``), the split's clips continued from their first frames (the completed clips are
+    what the evaluator then scores)."""
+    if _sweep_task(spec.family) != "prediction":
+        return []
+    from handx_jax.families import PREDICTION_OBSERVED
+
+    return ["--task", "prediction", "--observed-frames", str(PREDICTION_OBSERVED)]
+
+
 def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
     """Bring one run through its stages (each skipped if its output exists), holding the run's lock.
 
@@ -322,13 +352,21 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
                 level = json.loads((Path(cfg.evaluator) / "evaluator.json").read_text())["text"]["eval_level"]
                 stage("generate", _subst(["handx", "generate", "--run", str(d), "--data", cfg.data, "--split",
                                           cfg.eval_split, "--level", str(level), "--limit", str(cfg.eval_limit),
-                                          "--samples", str(cfg.eval_samples),
+                                          "--samples", str(cfg.eval_samples), *_task_args(spec),
                                           *(a for o in generate_settings(cfg, spec) for a in ("--set", o)),
                                           "--out", str(d / "generated.npz")], {}))
             if not state["evaluate"]:
                 stage("evaluate", _subst(["handx", "eval", "run", "--evaluator", cfg.evaluator, "--generated",
                                           str(d / "generated.npz"), "--data", cfg.data, "--block",
                                           str(cfg.rprec_block), "--json", "--out", str(d)], {}))
+            if "predict" in state and not state["predict"]:
+                from handx_jax.families import PREDICTION_OBSERVED, PREDICTION_SAMPLES
+
+                stage("predict", _subst(["handx", "eval", "prediction", "--run", str(d), "--data", cfg.data,
+                                         "--split", cfg.eval_split, "--limit", str(cfg.eval_limit), "--samples",
+                                         str(PREDICTION_SAMPLES), "--observed-frames", str(PREDICTION_OBSERVED),
+                                         *(a for o in generate_settings(cfg, spec) for a in ("--set", o)),
+                                         "--json", "--out", str(d / PREDICTION_FILE)], {}))
         update_json(status, status="done", error=None)
         return stage_state(cfg, spec)
     except BaseException as e:

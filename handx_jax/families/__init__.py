@@ -81,7 +81,15 @@ class Family:
     ``axes``: the sweep axes it adds (:class:`Axis`; the AR family's codebook).
     ``tasks``: the generation tasks its runs serve (``handx generate --task``; a run's ``tasks`` is
     this tuple). A family serving ``prediction`` takes ``--observed-frames N`` among its generate
-    flags (``handx eval prediction`` passes it); one serving none is a step, not a generator.
+    flags (``handx eval prediction`` passes it); one serving none is a step, not a generator. A family
+    serving ``recognition`` (not a generation task: ``handx generate`` refuses it) gives its runs
+    ``embed_motions(joints (N, F, 2, 21, 3)) -> (N, D)`` and ``embed_texts(prompts) -> (N, D)``, unit
+    vectors whose dot products rank captions for a motion (``handx eval recognition``).
+    ``sweep_task``: what a sweep scores its runs on (one of ``tasks``; :func:`sweep_task`): ``text2motion``
+    (the split's captions → motion, scored by the evaluator) or ``prediction`` (the split's clips continued
+    from their first ``PREDICTION_OBSERVED`` frames: the evaluator scores the completed clips, and
+    ``handx eval prediction`` writes ``RUN/eval_prediction.json``, whose predicted frames' MPJPE-RA/-PA and
+    APD land in the run's results row).
     """
 
     module: str  # import path of the family module
@@ -96,6 +104,7 @@ class Family:
     sweep_sample: tuple[str, ...] = ()
     axes: tuple[Axis, ...] = ()
     tasks: tuple[str, ...] = ("text2motion",)
+    sweep_task: str = "text2motion"
 
     def norm_preset(self):
         """The ``representation.NormPreset`` that ``norm`` names (None without one); its ``name`` is the
@@ -116,7 +125,17 @@ FAMILIES: dict[str, Family] = {
                  encoder=True, needs=("tokenizer",), table="table3", tasks=("text2motion", "prediction"),
                  # the FSQ codebook of the tokenizer it is trained from (its runs record it as "codebook")
                  axes=(Axis("codebook", "model.codebook", "K", "Codebook"),)),
+    "ghtt-pose": Family("handx_jax.families.ghtt.pose", "G-HTT's pose block P, the step a G-HTT run is trained from",
+                        results=False, tasks=()),
+    "ghtt": Family("handx_jax.families.ghtt", "G-HTT: the action block A over a trained P (prediction, recognition)",
+                   encoder=True, needs=("ghtt-pose",), tasks=("prediction", "recognition"), sweep_task="prediction"),
 }
+# A sweep's prediction scoring (``Family.sweep_task == "prediction"``): G-HTT's observation of 16 frames and
+# its K = 20 samples (§4.2).
+SWEEP_TASKS = ("text2motion", "prediction")
+PREDICTION_OBSERVED = 16
+PREDICTION_SAMPLES = 20
+
 # What ``handx train NAME`` trains besides the families: artefacts that are neither generators nor
 # results rows (one training verb for everything, issue 42). NAME → the module with
 # ``add_train_args(parser)``, ``train_from_args(args) -> exit status`` and ``TRAIN_HELP``.
@@ -173,6 +192,19 @@ def register(name: str, family: Family):
             os.environ.pop(ENV, None)
         else:
             os.environ[ENV] = old
+
+
+def sweep_task(name: str) -> str:
+    """The task a sweep scores runs of ``name`` on (``Family.sweep_task``); a ValueError in one line where the
+    family cannot be a scored sweep point (it generates nothing, or not the task it declares)."""
+    fam = entry(name)
+    if not fam.tasks:
+        raise ValueError(f"family {name} generates nothing (it is a step another family is trained from): give it "
+                         f"to a run as a shared step (sweeps.launcher.family_step), not as a sweep point")
+    if fam.sweep_task not in SWEEP_TASKS or fam.sweep_task not in fam.tasks:
+        raise ValueError(f"family {name} is scored in sweeps on {fam.sweep_task!r}, which it does not serve (it does "
+                         f"{', '.join(fam.tasks)}); sweeps score {' or '.join(SWEEP_TASKS)}")
+    return fam.sweep_task
 
 
 def get_family(name: str) -> ModuleType:
