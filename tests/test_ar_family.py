@@ -205,3 +205,4 @@ def test_stitch_keeps_the_observation_and_joins_the_continuation_at_its_last_fra
         np.testing.assert_allclose(rel(out[:, f + k - 1]), rel(dec[:, f + k - 1]) + w * pose_off, atol=1e-6)
     np.testing.assert_allclose(rel(out[:, f + L:]), rel(dec[:, f + L:]), atol=1e-6)
     np.testing.assert_allclose(rel(stitch(dec, src, f, 0)[:, f:]), rel(dec[:, f:]), atol=1e-6)
+    np.testing.assert_array_equal(stitch(dec, src, f, -1), stitch(dec, src, f, 60 - f))  # the rest of the clip
