@@ -211,6 +211,12 @@ def test_observation_training_feeds_the_observed_frames_clean_and_centred():
     total, _ = make_loss(Spy(), res, norm)(None, batch, key, True)
     held = D.held_anchor(jnp.asarray(x0c), jnp.asarray(obs))
     assert float(total) == pytest.approx(float(D.diffusion_loss(jnp.asarray(x0c), held, res)[0]), rel=1e-5)
+    # ... and its input after the observation is the residual on the held frame, noised
+    k_t, k_n, _, _ = jax.random.split(key, 4)
+    t = jax.random.randint(k_t, (6,), 0, SCHED.T)
+    want = np.asarray(D.q_sample(SCHED, jnp.asarray(x0c) - held, t, jax.random.normal(k_n, x0.shape)))
+    np.testing.assert_allclose(np.asarray(seen["x_t"])[~obs], want[~obs], rtol=1e-5, atol=1e-5)
+    np.testing.assert_array_equal(np.asarray(seen["x_t"])[obs], x0c[obs])
 
     make_loss(Spy(), D.DiffusionConfig(), norm)(None, batch, key, True)
     plain = np.asarray(seen["x_t"])

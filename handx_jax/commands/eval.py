@@ -236,9 +236,10 @@ def _predict(args: argparse.Namespace) -> int:
     res = PR.score(np.swapaxes(pred_NxK, 0, 1), np.stack(sources), N, bins, MetricConfig(seed=args.seed))
     t2 = time.perf_counter()
     if ev is not None:
-        # A baseline's K samples are one clip repeated: scored as one group, its intervals are the
-        # evaluator's replications, not a spread over identical copies (0).
-        groups = pred_NxK if args.run else pred_NxK[:, :1]
+        # K identical samples (a baseline, greedy decoding) are one clip repeated: scored as one group, their
+        # intervals are the evaluator's replications, not a spread over identical copies (0).
+        groups = pred_NxK[:, :1] if np.array_equal(pred_NxK, np.broadcast_to(pred_NxK[:, :1], pred_NxK.shape)) \
+            else pred_NxK
         res["completed"] = PR.evaluator_scores(*ev, groups, prompts, [ds.ids[c] for c in clips], ds, args.split,
                                                MetricConfig(seed=args.seed))
     meta["seconds"] = {"generation": round(t1 - t0, 3), "metrics": round(t2 - t1, 3),

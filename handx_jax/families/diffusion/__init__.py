@@ -227,16 +227,15 @@ def make_loss(model: TrebleDenoiser, dcfg: D.DiffusionConfig, norm=None):
         if observe:  # the clip centred on its observation, as the prediction task places it
             obs_BxF = D.observation_frames(jax.random.fold_in(rng, 4), B, x0.shape[1], dcfg)
             x0 = D.centre_on_observed(x0, obs_BxF, mean, scale)
-        x_t = D.q_sample(sched, x0, t, jax.random.normal(k_n, x0.shape))
+        anchor = D.held_anchor(x0, obs_BxF) if observe and dcfg.observe_residual else 0.0  # 0 on observed frames
+        x_t = D.q_sample(sched, x0 - anchor, t, jax.random.normal(k_n, x0.shape))
         if observe:  # the observed frames enter clean, as the sampler gives them (process.sample)
             x_t = jnp.where(obs_BxF[:, :, None, None], x0, x_t)
         # Per-branch (reference §3.2) and joint (all three, for guidance) conditioning dropout.
         drop = D.cond_drop_mask(k_drop, B, dcfg) if train else jnp.zeros((B, 3), bool)
         x0_hat = model.apply(params, x_t, t, jnp.swapaxes(batch["text"], 0, 1), jnp.swapaxes(batch["mask"], 0, 1),
                              drop, deterministic=not train, rngs={"dropout": k_do})
-        if observe and dcfg.observe_residual:
-            x0_hat = x0_hat + D.held_anchor(x0, obs_BxF)
-        return D.diffusion_loss(x0, x0_hat, dcfg)
+        return D.diffusion_loss(x0, x0_hat + anchor, dcfg)  # the output is the residual where anchor ≠ 0
 
     return loss
 
