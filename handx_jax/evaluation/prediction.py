@@ -174,7 +174,8 @@ def score(pred_KxNxTx2x21x3, gt_NxTx2x21x3, observed: int, bins, cfg: MetricConf
            "mpjpe": np.stack([np.asarray(joint_error_frames_mm(p, gt, root_aligned=False)) for p in pred])}
     apd = apd_frames_mm(pred) if K > 1 else None
     held = np.asarray(joint_error_frames_mm(last_frame(gt, observed), gt, root_aligned=True))
-    of_mean = np.asarray(joint_error_frames_mm(_mean_pose(pred), gt, root_aligned=True))
+    # The K samples' mean pose (joints and wrists averaged): its root-aligned error is the mean prediction's.
+    of_mean = np.asarray(joint_error_frames_mm(pred.mean(0), gt, root_aligned=True))
     row = lambda a, b: {"frames": label(a, b), **_row(err, apd, a, b, cfg, held, of_mean)}  # noqa: E731
     obs = row(0, observed)
     obs["max_joint_error_mm"] = float(1000.0 * np.linalg.norm(pred[:, :, :observed] - gt[:, :observed], axis=-1).max())
@@ -182,12 +183,6 @@ def score(pred_KxNxTx2x21x3, gt_NxTx2x21x3, observed: int, bins, cfg: MetricConf
     # holding still is a few mm off.
     return {"observed": obs, "first": row(observed, observed + 1), "horizons": [row(a, b) for a, b in bins],
             "predicted": row(observed, T)}
-
-
-def _mean_pose(pred_KxNxTx2x21x3: np.ndarray) -> np.ndarray:
-    """The K samples' mean, each hand's joints averaged relative to its wrist (and the wrist itself):
-    the root-aligned error of this is the error of the mean prediction."""
-    return pred_KxNxTx2x21x3.mean(0)
 
 
 # The standard evaluator's numbers of the completed clips (``completed`` in the result): FID and R-Precision
@@ -212,7 +207,8 @@ def evaluator_scores(ev, cache, pred_NxKxTx2x21x3: np.ndarray, prompts, clip_ids
     res = evaluate_generated(ev, entries, ds, cfg, split=split, cache=cache)
     flat = res.flat()
     out = {k: flat[k] for name in COMPLETED for k in (name, f"{name}_ci")}
-    keep = ("evaluator_id", "evaluator_name", "eval_level", "rprec_block", "rprec_chance", "replications", "groups", "prompts", "warnings")
+    keep = ("evaluator_id", "evaluator_name", "eval_level", "rprec_block", "rprec_chance", "replications", "groups",
+            "prompts", "warnings")
     out["_meta"] = {k: res.meta[k] for k in keep if k in res.meta} | {
         "ci_method": {k: res.meta.get("ci_method", {}).get(k) for k in COMPLETED}}
     return out
