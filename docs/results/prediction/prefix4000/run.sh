@@ -27,9 +27,14 @@ handx train diffusion --data $D --encoder $ENC $DIFF --set train.steps=600 --set
 P="--observed-frames 16 --samples 20 --limit 76"
 for b in last-frame velocity ground-truth; do handx eval prediction --baseline $b --data $D $P --out $OUT/$b.json; done
 handx eval prediction --run $W/DIFF_RES $P --sampler ddim --sample-steps 50 --out $OUT/diffusion_residual.json
+handx eval prediction --run $W/DIFF_RES $P --sampler ddim --sample-steps 50 --guidance 1.0 \
+    --out $OUT/diffusion_residual_cfg1.json
 handx eval prediction --run $W/DIFF_OBS $P --sampler ddim --sample-steps 50 --out $OUT/diffusion_observe.json
 handx eval prediction --run $W/AR $P --temperature 1.0 --out $OUT/ar.json
+handx eval prediction --run $W/AR $P --out $OUT/ar_greedy.json
 python $OUT/tokenizer_oracle.py $W/TOK $D $OUT/tokenizer_oracle.json
 python $OUT/compare.py "hold the last frame=$OUT/last-frame.json" "constant velocity=$OUT/velocity.json" \
-    "diffusion, residual (200 steps)=$OUT/diffusion_residual.json" "AR (212 steps)=$OUT/ar.json" \
-    "diffusion, observed (600 steps)=$OUT/diffusion_observe.json" "the clip itself=$OUT/ground-truth.json"
+    "diffusion, observe + residual, 200 steps (2.01e12 FLOPs)=$OUT/diffusion_residual.json" \
+    "AR, T = 1, 212 steps (2.00e12 FLOPs)=$OUT/ar.json" \
+    "diffusion, observe, 600 steps (6.02e12 FLOPs)=$OUT/diffusion_observe.json" \
+    "tokenizer oracle (perfect LM; reads the future)=$OUT/tokenizer_oracle.json" "the clip itself=$OUT/ground-truth.json"
