@@ -214,20 +214,32 @@ def load_train_data(cfg: DiffusionRunConfig) -> TrainData:
 # Training
 
 
-def make_loss(model: TrebleDenoiser, dcfg: D.DiffusionConfig):
+def make_loss(model: TrebleDenoiser, dcfg: D.DiffusionConfig, norm=None):
+    """The x0 objective (reference §3.5). With ``dcfg.observe_prob`` > 0 (``norm``: the run's
+    normalisation, for re-centring) some items see their first frames clean (``D.observation_frames``)."""
     sched = D.cosine_schedule(dcfg.steps)
+    observe = dcfg.observe_prob > 0
+    if observe:
+        mean = jnp.asarray(norm.mean, jnp.float32)
+        scale = jnp.asarray(norm.std + np.float32(norm.eps), jnp.float32)
 
     def loss(params, batch, rng, train: bool):
-        k_t, k_n, k_drop, k_do = jax.random.split(rng, 4)
+        k_t, k_n, k_drop, k_do = jax.random.split(rng, 4)  # as before the option existed: same draws when off
         x0 = batch["x0"]
         B = x0.shape[0]
         t = jax.random.randint(k_t, (B,), 0, sched.T)  # uniform t (reference §3.4)
-        x_t = D.q_sample(sched, x0, t, jax.random.normal(k_n, x0.shape))
+        if observe:  # the clip centred on its observation, as the prediction task places it
+            obs_BxF = D.observation_frames(jax.random.fold_in(rng, 4), B, x0.shape[1], dcfg)
+            x0 = D.centre_on_observed(x0, obs_BxF, mean, scale)
+        anchor = D.held_anchor(x0, obs_BxF) if observe and dcfg.observe_residual else 0.0  # 0 on observed frames
+        x_t = D.q_sample(sched, x0 - anchor, t, jax.random.normal(k_n, x0.shape))
+        if observe:  # the observed frames enter clean, as the sampler gives them (process.sample)
+            x_t = jnp.where(obs_BxF[:, :, None, None], x0, x_t)
         # Per-branch (reference §3.2) and joint (all three, for guidance) conditioning dropout.
         drop = D.cond_drop_mask(k_drop, B, dcfg) if train else jnp.zeros((B, 3), bool)
         x0_hat = model.apply(params, x_t, t, jnp.swapaxes(batch["text"], 0, 1), jnp.swapaxes(batch["mask"], 0, 1),
                              drop, deterministic=not train, rngs={"dropout": k_do})
-        return D.diffusion_loss(x0, x0_hat, dcfg)
+        return D.diffusion_loss(x0, x0_hat + anchor, dcfg)  # the output is the residual where anchor ≠ 0
 
     return loss
 
@@ -239,7 +251,7 @@ def run_record(cfg: DiffusionRunConfig, cache_meta: dict) -> dict:
     return {
         "family": FAMILY, "preset": cfg.preset,
         "model": dataclasses.asdict(cfg.model),
-        "diffusion": dataclasses.asdict(cfg.diffusion),
+        "diffusion": _diffusion_record(cfg.diffusion),
         "data": dataclasses.asdict(cfg.data),
         "sample": dataclasses.asdict(cfg.sample),
         "data_fraction": cfg.data.fraction,
@@ -254,6 +266,15 @@ def run_record(cfg: DiffusionRunConfig, cache_meta: dict) -> dict:
         "text_cache": {"fingerprint": cache_meta["fingerprint"], "encoder_fingerprint": cache_meta["encoder_fingerprint"],
                        "Lmax": cache_meta["Lmax"], "d_model": cache_meta["d_model"]},
     }
+
+
+def _diffusion_record(dcfg: D.DiffusionConfig) -> dict:
+    """config.json's ``diffusion``: without observation training (the default) the observe_* keys are left
+    out, so a run's record, and resuming a folder written before they existed, are as before."""
+    d = dataclasses.asdict(dcfg)
+    if not dcfg.observe_prob:
+        d.pop("observe_prob"), d.pop("observe_max"), d.pop("observe_residual")
+    return d
 
 
 # Run config keys a resumed run must share with the folder's config.json (train.py refuses others).
@@ -285,7 +306,7 @@ def train(run_dir: str | os.PathLike, cfg: DiffusionRunConfig, *, stop_at: int |
         return init_denoiser(cfg.model, rng, text_len=L)[1]
 
     return loop.train(run_dir, loop.TrainSpec(
-        init=init, loss=make_loss(model, cfg.diffusion), cfg=cfg.train, config=record, get_batch=data.batch,
+        init=init, loss=make_loss(model, cfg.diffusion, data.norm), cfg=cfg.train, config=record, get_batch=data.batch,
         num_examples=data.num_items, flops_per_sample=record["flops_per_sample"], resume_keys=RESUME_KEYS),
         stop_at=stop_at, on_log=on_log)
 
@@ -318,7 +339,11 @@ class DiffusionRun:
     # The family interface's run object: what ``handx generate`` calls.
     @property
     def tasks(self) -> tuple[str, ...]:
-        return entry(FAMILY).tasks  # declared in the registry; the sampler's masks are D.TASKS
+        """The registry's tasks (the sampler's masks are D.TASKS); a run trained with an observation on every
+        item (diffusion.observe_prob = 1) never learnt to start from nothing: prediction only."""
+        if self.cfg.diffusion.observe_prob >= 1:
+            return ("prediction",)
+        return entry(FAMILY).tasks
 
     def generate(self, prompts, opts, *, samples: int = 1, task: str = "text2motion", sources=None,
                  keyframes: Sequence[int] = (30,), fixed_hand: str = "left") -> np.ndarray:

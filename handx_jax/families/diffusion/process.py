@@ -47,6 +47,22 @@ class DiffusionConfig:
     p_soft: float = 0.10
     k_trans: int = 5
     blend: str = "x0"
+    # Observation-conditioned training (issue 41 item 3, motion prediction): with this probability a
+    # training item's first n frames (n uniform in 1..observe_max) enter the denoiser clean, as the
+    # sampler's prediction task gives them, and the item is centred on those frames' mean wrist midpoint
+    # (as prediction centres its observation, not on the hidden whole clip). A run trained so reads its
+    # hard-constrained frames (γ = 1) clean at every sampling step (``sample``). 0 = off: the reference's
+    # training, and every published text-to-motion number.
+    observe_prob: float = 0.0
+    observe_max: int = 40
+    # With observation training: the frames after the observation are diffused as residuals on the last
+    # observed frame held (normalised features; the observed frames stay as they are, clean), so the
+    # denoiser's input and output there are the motion away from holding still and x̂0 = held + output: a
+    # network that outputs 0 is the hold-the-last-frame predictor (a residual connection, as motion
+    # prediction models since Martinez et al. 2017 use). Adding the held frame to the output only, with
+    # the input left absolute, fought the denoiser's near-identity at small t: 88 mm at frame 17 after
+    # 200 steps (docs/results/prediction/prefix4000).
+    observe_residual: bool = False
 
     def __post_init__(self):
         if self.blend not in BLENDS:
@@ -55,6 +71,12 @@ class DiffusionConfig:
             v = getattr(self, name)
             if not 0 <= v < 1:
                 raise ValueError(f"diffusion.{name} must be in [0, 1), got {v}")
+        if not 0 <= self.observe_prob <= 1:
+            raise ValueError(f"diffusion.observe_prob must be in [0, 1], got {self.observe_prob}")
+        if self.observe_max < 1:
+            raise ValueError(f"diffusion.observe_max must be at least 1, got {self.observe_max}")
+        if self.observe_residual and not self.observe_prob:
+            raise ValueError("diffusion.observe_residual needs observation training (diffusion.observe_prob > 0)")
 
 
 @dataclass(frozen=True)
@@ -122,6 +144,38 @@ def cond_drop_mask(rng: jax.Array, B: int, cfg: DiffusionConfig) -> jax.Array:
     k_joint, k_branch = jax.random.split(rng)
     joint_Bx1 = jax.random.bernoulli(k_joint, cfg.joint_drop, (B, 1))
     return joint_Bx1 | jax.random.bernoulli(k_branch, cfg.cond_drop, (B, 3))
+
+
+def observation_frames(rng: jax.Array, B: int, F: int, cfg: DiffusionConfig) -> jax.Array:
+    """Training-time observation mask (B, F) bool, True = the frame enters the denoiser clean: for a
+    fraction ``observe_prob`` of the items the first n frames, n uniform in 1..min(observe_max, F − 1)
+    (at least one frame is always left to predict); none for the others."""
+    k_on, k_n = jax.random.split(rng)
+    on_B = jax.random.bernoulli(k_on, cfg.observe_prob, (B,))
+    n_B = jax.random.randint(k_n, (B,), 1, min(cfg.observe_max, F - 1) + 1)
+    return on_B[:, None] & (jnp.arange(F)[None, :] < n_B[:, None])
+
+
+def held_anchor(x_BxFxJxC, obs_BxF):
+    """Each row's last observed frame held over the frames after its observation, 0 on the observed frames
+    and on rows with none: what ``observe_residual`` adds to the network's output."""
+    F = x_BxFxJxC.shape[1]
+    n_B = obs_BxF.sum(1)
+    last_BxJxC = jnp.take_along_axis(x_BxFxJxC, jnp.maximum(n_B - 1, 0)[:, None, None, None], axis=1)[:, 0]
+    after_BxF = (jnp.arange(F)[None, :] >= n_B[:, None]) & (n_B > 0)[:, None]
+    return jnp.where(after_BxF[:, :, None, None], last_BxJxC[:, None], 0.0)
+
+
+def centre_on_observed(x0_BxFx42x4, obs_BxF, mean_42x4, scale_42x4):
+    """Re-centre normalised clips on their observed frames' mean wrist midpoint (rows with no observed
+    frame unchanged): the prediction task places its observation so (``sampling.generate``), because the
+    whole clip's centre would tell the model where the hidden future goes. ``scale`` is the
+    normalisation's std + eps; a translation only moves the xyz channels."""
+    xyz = x0_BxFx42x4[..., :3] * scale_42x4[:, :3] + mean_42x4[:, :3]
+    mid_BxFx3 = 0.5 * (xyz[:, :, 0] + xyz[:, :, 21])
+    w_BxF = obs_BxF.astype(x0_BxFx42x4.dtype)
+    c_Bx3 = (w_BxF[..., None] * mid_BxFx3).sum(1) / jnp.maximum(w_BxF.sum(1), 1.0)[:, None]
+    return x0_BxFx42x4.at[..., :3].add(-c_Bx3[:, None, None, :] / scale_42x4[:, :3])
 
 
 # ------------------------------------------------------------------------------------------------
@@ -234,6 +288,16 @@ def sample(denoise: DenoiseFn, sched: Schedule, shape, rng, cfg: DiffusionConfig
     ts_prev = np.append(ts[1:], -1)
     masked = target is not None and gamma_FxJ is not None
     g = jnp.asarray(gamma_FxJ, jnp.float32)[None, :, :, None] if masked else None
+    # A run trained with observed frames clean (``observe_prob``) is given its hard-constrained entries
+    # (γ = 1: the prediction task's observation) clean in x_t at every step, as in training; noised
+    # copies of them (the blends below) are inputs it was not trained on. Soft masks (γ < 1) are untouched.
+    clean = g >= 1.0 if masked and cfg.observe_prob > 0 else None
+    anchor = None
+    if masked and cfg.observe_residual:  # the observation is the frames all of whose joints are hard (a prefix)
+        # The whole chain runs on x − anchor (0 on the observed frames, so their target is unchanged) and
+        # the anchor comes back at the end: the residual space the run was trained in.
+        obs_BxF = jnp.broadcast_to(jnp.all(g[0, :, :, 0] >= 1.0, axis=1)[None], shape[:2])
+        anchor = held_anchor(jnp.asarray(target, jnp.float32), obs_BxF)
     rng_init, rng_loop = jax.random.split(rng)
     x_T = jax.random.normal(rng_init, shape)
     B = shape[0]
@@ -241,6 +305,8 @@ def sample(denoise: DenoiseFn, sched: Schedule, shape, rng, cfg: DiffusionConfig
     def body(x, inp):
         t, t_prev, key = inp
         t_B = jnp.full((B,), t, jnp.int32)
+        if clean is not None:
+            x = jnp.where(clean, target, x)
         x0_hat = model(x, t_B)
         if steer is not None:
             x0_hat = steer(x0_hat, t)
@@ -270,4 +336,4 @@ def sample(denoise: DenoiseFn, sched: Schedule, shape, rng, cfg: DiffusionConfig
 
     keys = jax.random.split(rng_loop, len(ts))
     x0, _ = jax.lax.scan(body, x_T, (jnp.asarray(ts, jnp.int32), jnp.asarray(ts_prev, jnp.int32), keys))
-    return x0
+    return x0 if anchor is None else x0 + anchor

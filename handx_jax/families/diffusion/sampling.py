@@ -13,8 +13,10 @@ the last K_hor + k_trans frames of segment k placed at its frames 0..K_hor+k_tra
 of segment k+1, so each new segment adds 60 − K_hor − k_trans frames.
 
 Motion prediction (G-HTT's task, issue 33; ``task="prediction"``, ``SampleOptions.observed_frames``):
-the first N frames of the source, centred on their own mean, are kept exactly (γ = 1, no band) and the
-rest is generated; nothing after frame N of the source is read (``task_gamma``, ``generate``).
+the first N frames of the source, centred on their own mean, are kept (γ = 1, no band) and the rest is
+generated; nothing after frame N of the source is read (``task_gamma``, ``generate``), and the output's
+first N frames are the source's own. A run trained with ``diffusion.observe_prob`` > 0 reads them clean
+at every step (``process.sample``), as it was trained to.
 
 Contact guidance (``sample.contact``, issue 33 item 2; handx_jax/guidance.py): a request (B, F, 43) of named
 contacts per frame, from a written spec or the prompt record's contact events, and its strength are
@@ -295,7 +297,10 @@ def generate(run: DiffusionRun, prompts: Sequence[Prompt], opts: SampleOptions, 
     x = sample_normalised(run, flat, opts, targets_BxFx42x4=targets, gamma_FxJ=gamma,
                           request_BxFxC=contact_request(flat, opts.contact, run.cfg.model.frames))
     j = to_joints(run, x, centers)
-    return j.reshape(P, G, *j.shape[1:])
+    j = j.reshape(P, G, *j.shape[1:])
+    if task == "prediction":  # the observation is given: returned as read, not through the normalisation
+        j[:, :, :opts.observed_frames] = src[:, None, :opts.observed_frames]
+    return j
 
 
 def generate_long(run: DiffusionRun, segments: Sequence[Prompt], opts: SampleOptions, *, samples: int = 1,
