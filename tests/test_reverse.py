@@ -110,6 +110,15 @@ def test_batches_mix_in_the_reversed_copy_at_the_share_asked(corpus):
             want = cap(ds, int(clips[i])) == cap(rds, i)  # the companion holds every train clip, in order
         assert bool(p["rev_same_text"][i]) == want, i
     assert p["rev_same_text"].any() or not any(cap(ds, int(c)) == cap(rds, k) for k, c in enumerate(clips))
+    # Paired: the batch's last items are the reversals of its first ones, each with its own caption.
+    pairs = TrainingData(ds, caches[0], stats, clips, [0], 7, text_ids=True, companion=(rds, caches[1]),
+                         companion_share=0.25, companion_pairs=True)
+    q = pairs.batch(idx[:16])
+    k = 4
+    np.testing.assert_array_equal(q["motion"][:12], a["motion"][:12])
+    for j in range(k):  # the companion holds every train clip in order: clip j's reversal is companion item j
+        np.testing.assert_allclose(q["motion"][12 + j], rev[j], atol=1e-6)
+        assert q["text_id"][12 + j] == caption_ids(rds, np.array([j]), np.array([0]))[0]
     again = mixed.batch(idx)  # a pure function of (seed, indices): resume draws the same batch
     np.testing.assert_array_equal(again["motion"], b["motion"])
     np.testing.assert_array_equal(again["text"], b["text"])

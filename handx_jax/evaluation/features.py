@@ -102,18 +102,20 @@ class TrainingData:
 
     ``companion``: (dataset, its joined cache) of extra training pairs (``data.reverse``: the split's
     clips played backwards with their own captions); each item is replaced by a random companion item
-    with probability ``companion_share`` (a pure function of (seed, the batch's indices): exact resume).
+    with probability ``companion_share`` (a pure function of (seed, the batch's indices): exact resume);
+    with ``companion_pairs`` the last share of the batch is instead the reversals of its first items.
     The companion's motion is normalised with this corpus's ``stats``."""
 
     def __init__(self, ds, cache, stats: rep.NormStats, clips: np.ndarray, levels: Sequence[int], seed: int,
                  text_bucket: int = 16, motion_input: str = "positions", *, augment_white_m: float = 0.0,
                  augment_lowfreq_m: float = 0.0, reversed_copy: bool = False, text_ids: bool = False,
-                 companion: tuple | None = None, companion_share: float = 0.0):
+                 companion: tuple | None = None, companion_share: float = 0.0, companion_pairs: bool = False):
         self.ds, self.cache, self.stats = ds, cache, stats
         self.augment_white_m, self.augment_lowfreq_m = float(augment_white_m), float(augment_lowfreq_m)
         self.reversed_copy, self.text_ids = bool(reversed_copy), bool(text_ids)
         self.companion = companion if companion_share > 0 else None
         self.companion_share = float(companion_share)
+        self.companion_pairs = bool(companion_pairs)
         if self.companion is not None:  # which companion clip is which source clip's reversal
             where = {cid: i for i, cid in enumerate(ds.ids)}
             src = [where.get(cid.rsplit("~", 1)[0], -1) for cid in self.companion[0].ids]
@@ -145,7 +147,7 @@ class TrainingData:
 
     def batch(self, idx: np.ndarray, levels: np.ndarray | None = None) -> dict[str, np.ndarray]:
         clips = self.clips[np.asarray(idx)]
-        levels = self.item_levels(idx) if levels is None else np.asarray(levels)
+        levels = self.item_levels(idx) if levels is None else np.array(levels)  # a copy: pairing edits it
         joints, h, m = self._read(self.ds, self.cache, clips, levels)
         ids = caption_ids(self.ds, clips, levels) if self.text_ids else None
         from_comp = None
@@ -171,11 +173,14 @@ class TrainingData:
     def _mix(self, idx, levels, joints, h, m, ids):
         """Replace a ``companion_share`` of the batch's items by random companion items (same levels)."""
         cds, ccache = self.companion
-        rng = np.random.default_rng([self.seed, 0xC0A, *np.asarray(idx, np.int64).tolist()])
-        take = np.flatnonzero(rng.random(len(idx)) < self.companion_share)
+        if self.companion_pairs:
+            take, cclips = self._pairs(idx, levels)
+        else:
+            rng = np.random.default_rng([self.seed, 0xC0A, *np.asarray(idx, np.int64).tolist()])
+            take = np.flatnonzero(rng.random(len(idx)) < self.companion_share)
+            cclips = rng.integers(0, len(cds), len(take))
         if not len(take):
             return joints, h, m, ids, np.full(len(idx), -1, np.int64)
-        cclips = rng.integers(0, len(cds), len(take))
         cj, ch, cm = self._read(cds, ccache, cclips, levels[take])
         L = max(h.shape[1], ch.shape[1])  # the two caches' Lmax may differ: pad both to the longer
         pad = lambda x, L: np.pad(x, [(0, 0), (0, L - x.shape[1])] + [(0, 0)] * (x.ndim - 2))  # noqa: E731
@@ -186,6 +191,19 @@ class TrainingData:
         from_comp = np.full(len(idx), -1, np.int64)
         from_comp[take] = cclips
         return joints, h, m, ids, from_comp
+
+    def _pairs(self, idx, levels):
+        """Paired mode: the last ``round(share · B)`` items become the reversals of the first ones (each with
+        its partner's caption level), so a clip and its own reversal meet in one batch with their two
+        captions: the contrast that carries the order of events. A partner the companion does not hold
+        keeps its own item."""
+        B = len(idx)
+        k = min(int(round(self.companion_share * B)), B // 2)
+        partners = self.clips[np.asarray(idx)[:k]]
+        rev = self._rev_of[partners]
+        take = np.arange(B - k, B)[rev >= 0]
+        levels[take] = levels[:k][rev >= 0]
+        return take, rev[rev >= 0]
 
     def _reversal_reads_the_same(self, clips, levels, ids, from_comp) -> np.ndarray:
         """Per item: is its reversal's caption its own (then the reversal is no negative of its text)? A

@@ -51,6 +51,9 @@ class EvaluatorDataConfig:
     # from it (features.TrainingData). Normalised with this corpus's statistics.
     reversed_path: str = ""
     reversed_share: float = 0.0
+    # Paired: the last share of each batch is the reversals of its first items (a clip and its own reversal,
+    # with their two captions, in one batch) instead of random reversed clips; share ≤ 0.5.
+    reversed_pairs: bool = False
 
 
 @dataclass(frozen=True)
@@ -81,6 +84,9 @@ class EvaluatorRunConfig:
             raise ConfigError("data.augment_white_mm and data.augment_lowfreq_mm must be >= 0 (mm)")
         if not 0.0 <= self.data.reversed_share < 1.0:
             raise ConfigError(f"data.reversed_share must be in [0, 1), got {self.data.reversed_share}")
+        if self.data.reversed_pairs and self.data.reversed_share > 0.5:
+            raise ConfigError(f"data.reversed_pairs pairs the first items of a batch with reversals in its last ones: "
+                              f"data.reversed_share must be <= 0.5, got {self.data.reversed_share}")
         if (self.data.reversed_share > 0) != bool(self.data.reversed_path):
             raise ConfigError("data.reversed_path and data.reversed_share > 0 go together (a `handx data reverse` "
                               "dataset and the share of each batch drawn from it)")
@@ -156,7 +162,8 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
     tdata = TrainingData(ds, cache, stats, clips, train_levels, tcfg.seed, cfg.data.text_bucket, mcfg.motion_input,
                          augment_white_m=cfg.data.augment_white_mm / 1000, augment_lowfreq_m=cfg.data.augment_lowfreq_mm / 1000,
                          reversed_copy=mcfg.reverse_negative, text_ids=mcfg.mask_same_text,
-                         companion=companion, companion_share=cfg.data.reversed_share)
+                         companion=companion, companion_share=cfg.data.reversed_share,
+                         companion_pairs=cfg.data.reversed_pairs)
     model = Evaluator(mcfg)
     Lmax = int(cache.meta["Lmax"])
     if start is not None:
@@ -171,7 +178,8 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
               "data": {"path": str(Path(data).absolute()), "fingerprint": ds.fingerprint,
                        "text_bucket": cfg.data.text_bucket,
                        **({"reversed": {"path": str(Path(cfg.data.reversed_path).absolute()),
-                                        "fingerprint": companion[0].fingerprint, "share": cfg.data.reversed_share}}
+                                        "fingerprint": companion[0].fingerprint, "share": cfg.data.reversed_share,
+                                        **({"pairs": True} if cfg.data.reversed_pairs else {})}}
                           if companion else {})},
               **({"init_from": {"path": str(Path(cfg.init_from).absolute()),
                                 "fingerprint": start.fingerprint}} if start else {}),

@@ -3,7 +3,7 @@
 # events? A small test on the 4,000-clip prefix of corpus v2 (the validity suite's clips): standard evaluator v5
 # fine-tuned on the prefix's train split, with and without its reversed copy mixed into the batches, then the
 # validity suite on the prefix's 230 test clips (disjoint from the train split) for each.
-#   [ARMS="reversed control"] docs/results/validity/order/run.sh WORK [STEPS]
+#   [ARMS="reversed pairs control"] docs/results/validity/order/run.sh WORK [STEPS]
 set -euo pipefail
 WORK=${1:?work folder}
 STEPS=${2:-300}
@@ -20,10 +20,12 @@ common=(--data "$WORK/data" --encoder "$ENC" --preset small --steps "$STEPS" --b
         --set data.text_bucket=256 --set train.log_every=50 --set train.ckpt_every=100 --set train.wandb=disabled
         --set data.augment_white_mm=1.5 --set data.augment_lowfreq_mm=3 --set model.mask_same_text=true
         --set model.reverse_negative=true)
-for arm in ${ARMS:-reversed control}; do
+for arm in ${ARMS:-reversed pairs control}; do
   extra=()
   [ "$arm" = reversed ] && extra=(--set "data.reversed_path=$WORK/rev" --set data.reversed_share=0.3)
-  [ -f "$WORK/E-$arm/evaluator.json" ] || "${H[@]}" train evaluator "${common[@]}" "${extra[@]}" --out "$WORK/E-$arm"
-  [ -f "$WORK/val-$arm/validity.json" ] || "${H[@]}" standard validity --data "$WORK/data" --evaluator "$WORK/E-$arm" \
-      --kinds white,lowfreq,reverse,other --out "$WORK/val-$arm"
+  # pairs: half of each batch is the reversals of the other half (a clip and its own reversal meet)
+  [ "$arm" = pairs ] && extra=(--set "data.reversed_path=$WORK/rev" --set data.reversed_share=0.5 --set data.reversed_pairs=true)
+  [ -f "$WORK/E-$arm-$STEPS/evaluator.json" ] || "${H[@]}" train evaluator "${common[@]}" "${extra[@]}" --out "$WORK/E-$arm-$STEPS"
+  [ -f "$WORK/val-$arm-$STEPS/validity.json" ] || "${H[@]}" standard validity --data "$WORK/data" --evaluator "$WORK/E-$arm-$STEPS" \
+      --kinds white,lowfreq,reverse,other --out "$WORK/val-$arm-$STEPS"
 done
