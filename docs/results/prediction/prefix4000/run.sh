@@ -11,7 +11,7 @@ handx standard corpus --clips 4000 --out $D
 handx text cache --data $D --encoder $ENC                      # per field (diffusion)
 handx text cache --data $D --encoder $ENC --joined             # joined (AR)
 handx train tokenizer --data $D --preset small --set train.steps=2000 --out $W/TOK
-handx tokenize --tokenizer $W/TOK --data $D
+handx data tokens --tokenizer $W/TOK --data $D
 DIFF="--preset tiny --set model.text_dim=64 --set train.batch_size=64 --set train.optim.lr=1e-3
       --set train.optim.schedule=cosine --set model.dropout=0.0"
 # diffusion, observation-conditioned with the residual output, 200 steps (6.7e11 training FLOPs)
@@ -32,9 +32,12 @@ handx eval prediction --run $W/DIFF_RES $P --sampler ddim --sample-steps 50 --gu
 handx eval prediction --run $W/DIFF_OBS $P --sampler ddim --sample-steps 50 --out $OUT/diffusion_observe.json
 handx eval prediction --run $W/AR $P --temperature 1.0 --out $OUT/ar.json
 handx eval prediction --run $W/AR $P --out $OUT/ar_greedy.json
+# G-HTT: the L2-d32 point (P + A, 1.8e12 FLOPs) of `handx sweep run sweeps/ghtt_cpu_study.py --preset cpu` on the
+# same prefix (docs/results/ghtt); GHTT_RUN=SWEEP/runs/L2-d32-…
+handx eval prediction --run ${GHTT_RUN:?the G-HTT run} $P --out $OUT/ghtt_L2-d32.json
 python $OUT/tokenizer_oracle.py $W/TOK $D $OUT/tokenizer_oracle.json
 python $OUT/compare.py "hold the last frame=$OUT/last-frame.json" "constant velocity=$OUT/velocity.json" \
     "diffusion, observe + residual, 200 steps (2.01e12 FLOPs)=$OUT/diffusion_residual.json" \
-    "AR, T = 1, 212 steps (2.00e12 FLOPs)=$OUT/ar.json" \
+    "AR, T = 1, 212 steps (2.00e12 FLOPs)=$OUT/ar.json" "G-HTT L2-d32, P + A (1.8e12 FLOPs)=$OUT/ghtt_L2-d32.json" \
     "diffusion, observe, 600 steps (6.02e12 FLOPs)=$OUT/diffusion_observe.json" \
     "tokenizer oracle (perfect LM; reads the future)=$OUT/tokenizer_oracle.json" "the clip itself=$OUT/ground-truth.json"
