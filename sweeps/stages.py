@@ -362,7 +362,9 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
             if "predict" in state and not state["predict"]:
                 from handx_jax.families import PREDICTION_OBSERVED, PREDICTION_SAMPLES
 
+                # The completed clips are scored by the sweep's own evaluator, as the evaluate stage's samples are.
                 stage("predict", _subst(["handx", "eval", "prediction", "--run", str(d), "--data", cfg.data,
+                                         "--evaluator", cfg.evaluator or "none",
                                          "--split", cfg.eval_split, "--limit", str(cfg.eval_limit), "--samples",
                                          str(PREDICTION_SAMPLES), "--observed-frames", str(PREDICTION_OBSERVED),
                                          *(a for o in generate_settings(cfg, spec) for a in ("--set", o)),

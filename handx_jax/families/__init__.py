@@ -275,6 +275,20 @@ def run_config(run_dir: str | Path, family: str) -> dict:
     return json.loads((Path(run_dir) / "config.json").read_text())
 
 
+def generation_config(cfg, overrides, allowed: tuple[str, ...] = ("sample.",)):
+    """A loaded run's config with the generation-time ``overrides`` applied and validated; only keys under
+    ``allowed`` sections may change (the rest is what the weights were trained with)."""
+    from handx_jax.config import apply_overrides
+
+    bad = [o for o in overrides if not o.split("=", 1)[0].strip().startswith(allowed)]
+    if bad:
+        names = " and ".join(f"{a}*" for a in allowed)
+        raise ValueError(f"generation can only override {names} keys, got {bad}")
+    cfg = apply_overrides(cfg, overrides)
+    cfg.validate()
+    return cfg
+
+
 def load_run(run_dir: str | Path, **kw):
     """Open any trained run for generation, dispatching on its ``config.json["family"]``."""
     return get_family(family_of(run_dir)).load(run_dir, **kw)

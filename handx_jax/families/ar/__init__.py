@@ -41,7 +41,7 @@ import numpy as np
 from handx_jax.families.ar import decode as AD
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
 from handx_jax.families import tokenizer as T
-from handx_jax.families import entry, run_config
+from handx_jax.families import entry, generation_config, run_config
 from handx_jax.io import DataError
 from handx_jax.models import prefix_lm as P
 from handx_jax.optim import OptimConfig
@@ -455,12 +455,7 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
 
     run_dir = Path(run_dir)
     doc = run_config(run_dir, FAMILY)
-    cfg = from_dict(ARRunConfig, doc)
-    bad = [o for o in overrides if not o.split("=", 1)[0].strip().startswith("sample.")]
-    if bad:
-        raise ValueError(f"generation can only override sample.* keys, got {bad}")
-    cfg = apply_overrides(cfg, overrides)
-    cfg.validate()
+    cfg = generation_config(from_dict(ARRunConfig, doc), overrides)
     enc = _encoder(encoder, cfg.data.encoder)
     want = doc.get("text_cache", {}).get("encoder_fingerprint")
     if want and enc.fingerprint != want:

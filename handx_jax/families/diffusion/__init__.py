@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,7 +35,7 @@ import numpy as np
 
 from handx_jax.families.diffusion import process as D
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
-from handx_jax.families import entry, run_config
+from handx_jax.families import entry, generation_config, run_config
 from handx_jax.io import DataError
 from handx_jax.models.dit import PRESETS, DiTConfig, TrebleDenoiser, forward_flops, init_denoiser, param_count, size_name
 from handx_jax.optim import OptimConfig
@@ -385,12 +384,7 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
 
     run_dir = Path(run_dir)
     doc = run_config(run_dir, FAMILY)
-    cfg = config_from_dict(doc)
-    bad = [o for o in overrides if not o.split("=", 1)[0].strip().startswith(("diffusion.", "sample."))]
-    if bad:
-        raise ValueError(f"generation can only override sample.* and diffusion.* keys, got {bad}")
-    cfg = apply_overrides(cfg, overrides)
-    cfg.validate()
+    cfg = generation_config(config_from_dict(doc), overrides, ("sample.", "diffusion."))
     enc = as_encoder(encoder or cfg.data.encoder)
     want = doc.get("text_cache", {}).get("encoder_fingerprint")
     if want and enc.fingerprint != want:

@@ -15,8 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handx_jax.config import apply_overrides, from_dict
-from handx_jax.families import run_config
+from handx_jax.config import from_dict
+from handx_jax.families import generation_config, run_config
 from handx_jax.families.ghtt import common as C
 from handx_jax.families.ghtt import pose as PP
 from handx_jax.io import DataError
@@ -207,12 +207,7 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
 
     run_dir = Path(run_dir)
     doc = run_config(run_dir, FAMILY)
-    cfg = from_dict(GHTTRunConfig, doc)
-    bad = [o for o in overrides if not o.split("=", 1)[0].strip().startswith("sample.")]
-    if bad:
-        raise ValueError(f"generation can only override sample.* keys, got {bad}")
-    cfg = apply_overrides(cfg, overrides)
-    cfg.validate()
+    cfg = generation_config(from_dict(GHTTRunConfig, doc), overrides)
     pose = PP.load(doc["pose_run"]["path"])
     if pose.fingerprint != doc["pose_run"]["fingerprint"]:
         raise DataError(f"the P run changed since this G-HTT run was trained on it (fingerprint {pose.fingerprint}, "
