@@ -311,7 +311,8 @@ def test_order_test_scores_a_reader_of_order_one_and_a_blind_one_zero():
     fwd = np.zeros((3, 60, 2, 21, 3))
     fwd[:, 0, 0, 0, 0] = [1, 2, 3]
     rev = -fwd
-    got = order_test(Stub(False), fwd, rev, caps, rcaps)
+    clean = Stub(False).embed_text(*zip(*caps))
+    got = order_test(Stub(False), fwd, rev, caps, rcaps, clean)
     assert got == {"clips": 2, "forward_picks_own": 1.0, "reversed_picks_reversed": 1.0, "mean": 1.0}
-    got = order_test(Stub(True), fwd, rev, caps, rcaps)
+    got = order_test(Stub(True), fwd, rev, caps, rcaps, clean)
     assert got["forward_picks_own"] == 1.0 and got["reversed_picks_reversed"] == 0.0

@@ -68,9 +68,10 @@ def finger_error_mm(a_NxTx2x21x3: np.ndarray, b_NxTx2x21x3: np.ndarray) -> float
     return float(np.linalg.norm(ra - rb, axis=-1).mean() * 1000.0)
 
 
-def caption_reader_top3(ev, clean_captions, captions, *, block: int = 32) -> float:
+def caption_reader_top3(ev, clean_text_NxD, captions, *, block: int = 32) -> float:
     """Top-3 R-Precision of a reader of captions alone: the perturbed clips' own level-0 captions, through the
-    evaluator's text side, stand in for their motion embeddings and are ranked against the clean captions.
+    evaluator's text side, stand in for their motion embeddings and are ranked against the clean captions'
+    embeddings ``clean_text_NxD`` (``ev.embed_text`` of them, computed once by the caller).
 
     It is what an evaluator that read exactly what the annotation says would score. Where it stays high
     under a meaning-changing perturbation, the captions themselves still pick the clip out of a block of
@@ -80,13 +81,12 @@ def caption_reader_top3(ev, clean_captions, captions, *, block: int = 32) -> flo
 
     from handx_jax.metrics import r_precision
 
-    t_clean = ev.embed_text(*zip(*clean_captions))
     t_pert = ev.embed_text(*zip(*captions))
-    top, _ = r_precision(jnp.asarray(t_clean), jnp.asarray(t_pert), block, 3)
+    top, _ = r_precision(jnp.asarray(clean_text_NxD), jnp.asarray(t_pert), block, 3)
     return float(top[2])
 
 
-def order_test(ev, gt_NxTx2x21x3, reversed_NxTx2x21x3, clean_captions, reversed_captions) -> dict:
+def order_test(ev, gt_NxTx2x21x3, reversed_NxTx2x21x3, clean_captions, reversed_captions, clean_text_NxD) -> dict:
     """Does the evaluator read the order of events? On the clips whose reversal reads differently at level 0,
     a two-way choice between the clip's caption and its reversal's caption: the share of forward clips
     nearer their own caption, and of reversed clips nearer the reversed caption (chance 0.5 each; a
@@ -95,7 +95,7 @@ def order_test(ev, gt_NxTx2x21x3, reversed_NxTx2x21x3, clean_captions, reversed_
     if not differs.any():
         return {"clips": 0}
     pick = np.flatnonzero(differs)
-    t_f = ev.embed_text(*zip(*[clean_captions[i] for i in pick]))
+    t_f = np.asarray(clean_text_NxD)[pick]
     t_r = ev.embed_text(*zip(*[reversed_captions[i] for i in pick]))
     m_f = ev.embed_motion(np.asarray(gt_NxTx2x21x3)[pick])
     m_r = ev.embed_motion(np.asarray(reversed_NxTx2x21x3)[pick])
