@@ -155,6 +155,38 @@ def test_finger_error_is_wrist_relative():
     assert finger_error_mm(x, y) == pytest.approx(4.0, rel=1e-3)
 
 
+def test_tokenizer_hybrids_split_the_error_into_shape_and_wrist_path():
+    from handx_jax.validity.scores import finger_error_mm, hybrids, wrist_path_error_mm
+
+    x = _clips(2)
+    rng = np.random.default_rng(0)
+    rec = x + rng.normal(0, 0.01, x.shape).astype(np.float32)  # both kinds of error at once
+    h = hybrids(x, rec)
+    # The shape hybrid keeps every wrist-relative error and none of the wrist path's, and vice versa.
+    assert wrist_path_error_mm(x, h["shape"]) == pytest.approx(0.0, abs=1e-4)
+    assert finger_error_mm(x, h["shape"]) == pytest.approx(finger_error_mm(x, rec), rel=1e-5)
+    assert finger_error_mm(x, h["wrist_path"]) == pytest.approx(0.0, abs=1e-3)
+    assert wrist_path_error_mm(x, h["wrist_path"]) == pytest.approx(wrist_path_error_mm(x, rec), rel=1e-5)
+    # A hand turned rigidly about its wrist has no articulation error once aligned on the palm.
+    from scipy.spatial.transform import Rotation
+
+    rot = Rotation.from_rotvec(rng.normal(0, 0.5, (*x.shape[:3], 3))).as_matrix().astype(np.float32)
+    turned = np.einsum("nthij,nthkj->nthki", rot, x - x[..., :1, :]) + x[..., :1, :] + 0.05
+    assert finger_error_mm(x, turned) > 5
+    assert finger_error_mm(x, hybrids(x, turned)["articulation"]) == pytest.approx(0.0, abs=1e-3)
+    # Turned and with its non-palm joints bent: what is left is exactly the bending.
+    from handx_jax import skeleton as sk
+
+    bend = np.zeros_like(x)
+    fingers = [j for j in range(21) if j not in (0, *sk.MCPS.values())]
+    bend[..., fingers, :] = rng.normal(0, 0.004, bend[..., fingers, :].shape)
+    bent_turned = np.einsum("nthij,nthkj->nthki", rot, x + bend - x[..., :1, :]) + x[..., :1, :]
+    assert finger_error_mm(x, hybrids(x, bent_turned)["articulation"]) == pytest.approx(
+        finger_error_mm(x, x + bend), rel=1e-3)
+    # 1 cm of Gaussian noise per coordinate moves a point by 2·√(2/π)·1 cm on average (a χ with 3 degrees).
+    assert wrist_path_error_mm(x, rec) == pytest.approx(2 * np.sqrt(2 / np.pi) * 10.0, rel=0.1)
+
+
 def test_perturbations_move_what_they_say():
     x = _clips(4)
     for amp in (0.001, 0.003):
@@ -211,6 +243,9 @@ def test_validity_command_on_a_standard_prefix(tmp_path, capsys):
     # A 4-step tokenizer reconstructs poorly: centimetres off on the fingers, and the evaluator sees it.
     assert rec["finger_error_mm"] > 5 and rec["top3_ratio"] < shift["top3_ratio"]
     assert "tokenizer `tok`" in (out / "validity.md").read_text()
+    assert all(0 <= rec[f"{p}_only_top3_ratio"] <= 1.5 for p in ("shape", "articulation", "wrist_path"))
+    assert rec["articulation_error_mm"] > 5  # a 4-step tokenizer's fingers are off whatever the palm's turn
+    assert "its errors apart" in (out / "validity.md").read_text()
     # A bad flag is one line and exit 2.
     assert handx(["standard", "validity", "--data", str(data), "--out", str(out), "--kinds", "wobble"]) == 2
     assert "unknown; choose from white" in capsys.readouterr().err

@@ -68,6 +68,49 @@ def finger_error_mm(a_NxTx2x21x3: np.ndarray, b_NxTx2x21x3: np.ndarray) -> float
     return float(np.linalg.norm(ra - rb, axis=-1).mean() * 1000.0)
 
 
+def wrist_path_error_mm(a_NxTx2x21x3: np.ndarray, b_NxTx2x21x3: np.ndarray) -> float:
+    """Mean distance between the two wrists' global positions, in millimetres."""
+    a = np.asarray(a_NxTx2x21x3, np.float64)[..., 0, :]
+    b = np.asarray(b_NxTx2x21x3, np.float64)[..., 0, :]
+    return float(np.linalg.norm(a - b, axis=-1).mean() * 1000.0)
+
+
+def hybrids(gt_NxTx2x21x3: np.ndarray, rec_NxTx2x21x3: np.ndarray) -> dict[str, np.ndarray]:
+    """A reconstruction split into its two kinds of error, each alone on the ground truth:
+
+    - ``shape``: the reconstruction's joints relative to its wrists, placed on the ground truth's wrists
+      (the hand's shape and orientation as reconstructed, the wrist path true);
+    - ``articulation``: the same with each hand turned onto the ground truth's palm orientation
+      (``palm_aligned``): the fingers' articulation error alone;
+    - ``wrist_path``: the ground truth moved, per hand and frame, onto the reconstruction's wrists.
+
+    The AR features integrate the root, so a tokenizer's wrist path drifts by centimetres; which of the two
+    costs the evaluator's score is what limits the tokenizer (issue 40, item 5).
+    """
+    gt = np.asarray(gt_NxTx2x21x3, np.float32)
+    rec = np.asarray(rec_NxTx2x21x3, np.float32)
+    w_gt, w_rec = gt[..., :1, :], rec[..., :1, :]
+    return {"shape": rec - w_rec + w_gt, "articulation": palm_aligned(gt, rec), "wrist_path": gt - w_gt + w_rec}
+
+
+def palm_aligned(gt_NxTx2x21x3: np.ndarray, rec_NxTx2x21x3: np.ndarray) -> np.ndarray:
+    """The reconstruction's hands turned, per hand and frame, onto the ground truth's palm orientation (the
+    rotation that best maps its rigid palm, wrist and four MCPs, onto the ground truth's: Kabsch) and placed
+    on the ground truth's wrists. What is left of the error is the fingers' articulation alone."""
+    from handx_jax import skeleton as sk
+
+    gt = np.asarray(gt_NxTx2x21x3, np.float64)
+    rec = np.asarray(rec_NxTx2x21x3, np.float64)
+    rel_gt, rel_rec = gt - gt[..., :1, :], rec - rec[..., :1, :]
+    palm = [0, *sorted(sk.MCPS.values())]
+    h = np.einsum("...ji,...jk->...ik", rel_rec[..., palm, :], rel_gt[..., palm, :])  # (..., 3, 3) covariance
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("...ij,...jk->...ik", u, vt)))  # a rotation, never a reflection
+    u[..., :, -1] *= d[..., None]
+    r = np.einsum("...ij,...jk->...ik", u, vt)  # rel_rec @ r ≈ rel_gt on the palm
+    return (np.einsum("...ji,...ik->...jk", rel_rec, r) + gt[..., :1, :]).astype(np.float32)
+
+
 def caption_reader_top3(ev, clean_text_NxD, captions, *, block: int = 32) -> float:
     """Top-3 R-Precision of a reader of captions alone: the perturbed clips' own level-0 captions, through the
     evaluator's text side, stand in for their motion embeddings and are ranked against the clean captions'
