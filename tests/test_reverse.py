@@ -92,6 +92,12 @@ def test_batches_mix_in_the_reversed_copy_at_the_share_asked(corpus):
     from_rev = np.array([not np.allclose(b["motion"][i], fwd[i]) for i in range(len(idx))])
     assert 0.25 < from_rev.mean() < 0.75, from_rev.mean()
     np.testing.assert_array_equal(b["motion"][~from_rev], a["motion"][~from_rev])
+    # The kept items keep their own text too (only the taken ones are read from the companion).
+    L = min(a["text"].shape[1], b["text"].shape[1])
+    np.testing.assert_array_equal(b["text"][~from_rev][:, :L], a["text"][~from_rev][:, :L])
+    np.testing.assert_array_equal(b["text_mask"][~from_rev][:, :L], a["text_mask"][~from_rev][:, :L])
+    assert not a["text_mask"][~from_rev][:, L:].any() and not b["text_mask"][~from_rev][:, L:].any()
+    np.testing.assert_array_equal(b["text_id"][~from_rev], a["text_id"][~from_rev])
     for i in np.flatnonzero(from_rev):  # each replaced item is some reversed clip, with that clip's caption id
         j = int(np.argmin(np.abs(rev - b["motion"][i]).reshape(len(rev), -1).max(1)))
         np.testing.assert_allclose(b["motion"][i], rev[j], atol=1e-6)

@@ -148,11 +148,12 @@ class TrainingData:
     def batch(self, idx: np.ndarray, levels: np.ndarray | None = None) -> dict[str, np.ndarray]:
         clips = self.clips[np.asarray(idx)]
         levels = self.item_levels(idx) if levels is None else np.array(levels)  # a copy: pairing edits it
-        joints, h, m = self._read(self.ds, self.cache, clips, levels)
-        ids = caption_ids(self.ds, clips, levels) if self.text_ids else None
         from_comp = None
-        if self.companion is not None:
-            joints, h, m, ids, from_comp = self._mix(idx, levels, joints, h, m, ids)
+        if self.companion is None:
+            joints, h, m = self._read(self.ds, self.cache, clips, levels)
+            ids = caption_ids(self.ds, clips, levels) if self.text_ids else None
+        else:
+            joints, h, m, ids, from_comp = self._mix(idx, clips, levels)
         # Trim the text to the batch's longest caption, rounded up to a multiple of ``text_bucket`` tokens:
         # concise levels then cost a fraction of Lmax, and at most Lmax/bucket step shapes are compiled.
         # Masking makes the loss independent of the padding; on an accelerator, where each new shape
@@ -170,8 +171,10 @@ class TrainingData:
             out["text_id"] = ids
         return out
 
-    def _mix(self, idx, levels, joints, h, m, ids):
-        """Replace a ``companion_share`` of the batch's items by random companion items (same levels)."""
+    def _mix(self, idx, clips, levels):
+        """The batch with a ``companion_share`` of its items taken from the companion (same levels): random
+        companion items, or with ``companion_pairs`` the reversals of the batch's first items. Only the
+        items that stay are read from this corpus, only the taken ones from the companion."""
         cds, ccache = self.companion
         if self.companion_pairs:
             take, cclips = self._pairs(idx, levels)
@@ -179,15 +182,23 @@ class TrainingData:
             rng = np.random.default_rng([self.seed, 0xC0A, *np.asarray(idx, np.int64).tolist()])
             take = np.flatnonzero(rng.random(len(idx)) < self.companion_share)
             cclips = rng.integers(0, len(cds), len(take))
-        if not len(take):
-            return joints, h, m, ids, np.full(len(idx), -1, np.int64)
-        cj, ch, cm = self._read(cds, ccache, cclips, levels[take])
-        L = max(h.shape[1], ch.shape[1])  # the two caches' Lmax may differ: pad both to the longer
-        pad = lambda x, L: np.pad(x, [(0, 0), (0, L - x.shape[1])] + [(0, 0)] * (x.ndim - 2))  # noqa: E731
-        h, m, ch, cm = pad(h, L), pad(m, L), pad(ch, L), pad(cm, L)
-        joints[take], h[take], m[take] = cj, ch, cm
-        if ids is not None:
-            ids[take] = caption_ids(cds, cclips, levels[take])
+        keep = np.setdiff1d(np.arange(len(idx)), take)
+        parts = [(keep, self._read(self.ds, self.cache, clips[keep], levels[keep]))]
+        if len(take):
+            parts.append((take, self._read(cds, ccache, cclips, levels[take])))
+        L = max(h.shape[1] for _, (_, h, _) in parts)  # the two caches' Lmax may differ: pad to the longer
+        j0, h0, m0 = parts[0][1]
+        joints = np.empty((len(idx),) + j0.shape[1:], j0.dtype)
+        h = np.zeros((len(idx), L) + h0.shape[2:], h0.dtype)
+        m = np.zeros((len(idx), L), m0.dtype)
+        for where, (pj, ph, pm) in parts:
+            joints[where], h[where, :ph.shape[1]], m[where, :pm.shape[1]] = pj, ph, pm
+        ids = None
+        if self.text_ids:
+            ids = np.empty(len(idx), np.int64)
+            ids[keep] = caption_ids(self.ds, clips[keep], levels[keep])
+            if len(take):
+                ids[take] = caption_ids(cds, cclips, levels[take])
         from_comp = np.full(len(idx), -1, np.int64)
         from_comp[take] = cclips
         return joints, h, m, ids, from_comp
