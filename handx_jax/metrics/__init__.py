@@ -28,7 +28,7 @@ from handx_jax.metrics.contact import (CONTACT_CHANNELS, N_CONTACT_CHANNELS, Nam
 from handx_jax.metrics.embedding import (GRAM_CHUNK, diversity, diversity_indices, expected_hit, fid, fid_resampled,
                                          multimodality, pairwise_dist, r_precision, resampled_moments,
                                          resampled_pair_mean)
-from handx_jax.metrics.hand_papers import (BONE_RADII_M, CAPSULE_RADIUS_M, apd_frames_mm, apd_mm,
+from handx_jax.metrics.hand_papers import (BONE_RADII_M, CAPSULE_RADIUS_M, apd_frames_mm, apd_mm, best_rotation,
                                            capsule_penetration, hand_capsules, interhand_penetration,
                                            joint_error_frames_mm, mpjpe_pa_frames_mm, mpjpe_pa_mm, mpjpe_ra_mm,
                                            penetration_stats, procrustes_align, segment_distance)
@@ -45,7 +45,7 @@ __all__ = [
     "contact_feasibility_counts", "contact_thresholds", "named_contacts",
     "GRAM_CHUNK", "diversity", "diversity_indices", "expected_hit", "fid", "fid_resampled", "multimodality",
     "pairwise_dist", "r_precision", "resampled_moments", "resampled_pair_mean",
-    "BONE_RADII_M", "CAPSULE_RADIUS_M", "apd_frames_mm", "apd_mm", "capsule_penetration", "hand_capsules",
+    "BONE_RADII_M", "CAPSULE_RADIUS_M", "apd_frames_mm", "apd_mm", "best_rotation", "capsule_penetration", "hand_capsules",
     "interhand_penetration", "joint_error_frames_mm", "mpjpe_pa_frames_mm", "mpjpe_pa_mm", "mpjpe_ra_mm",
     "penetration_stats", "procrustes_align", "segment_distance",
     "MOTION_CHUNK",

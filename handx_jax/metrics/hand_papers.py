@@ -46,14 +46,22 @@ def procrustes_align(x_BxJx3: jax.Array, y_BxJx3: jax.Array) -> jax.Array:
     """
     mx, my = x_BxJx3.mean(-2, keepdims=True), y_BxJx3.mean(-2, keepdims=True)
     xc, yc = x_BxJx3 - mx, y_BxJx3 - my
-    H = jnp.einsum("...ji,...jk->...ik", xc, yc)  # (B, 3, 3)
+    R, trace = best_rotation(xc, yc)
+    var = jnp.sum(xc**2, axis=(-2, -1))
+    s = trace / jnp.where(var > 0, var, 1.0)
+    return s[..., None, None] * jnp.einsum("...ij,...kj->...ki", R, xc) + my
+
+
+def best_rotation(x_BxJx3: jax.Array, y_BxJx3: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The proper rotation R (det +1) minimising Σ_j ‖y_j − R x_j‖² about the origin (Kabsch; centre both
+    sets first for a fit about their centroids), batched over leading axes, and tr(S D), the correlation
+    the similarity's scale divides (:func:`procrustes_align`). With H = Σ x_j y_jᵀ = U S Vᵀ: R = V D Uᵀ,
+    D = diag(1, 1, det(V Uᵀ)), which keeps R a rotation where the best orthogonal map would be a reflection."""
+    H = jnp.einsum("...ji,...jk->...ik", x_BxJx3, y_BxJx3)  # (B, 3, 3)
     U, S, Vt = jnp.linalg.svd(H)
     d = jnp.where(jnp.linalg.det(U) * jnp.linalg.det(Vt) < 0, -1.0, 1.0)  # det(V Uᵀ) = det(U) det(Vᵀ)
     D = jnp.stack([jnp.ones_like(d), jnp.ones_like(d), d], -1)  # (B, 3)
-    R = jnp.einsum("...ji,...j,...kj->...ik", Vt, D, U)  # V D Uᵀ
-    var = jnp.sum(xc**2, axis=(-2, -1))
-    s = jnp.sum(S * D, -1) / jnp.where(var > 0, var, 1.0)
-    return s[..., None, None] * jnp.einsum("...ij,...kj->...ki", R, xc) + my
+    return jnp.einsum("...ji,...j,...kj->...ik", Vt, D, U), jnp.sum(S * D, -1)  # V D Uᵀ
 
 
 @jax.jit

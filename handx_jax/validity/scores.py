@@ -76,7 +76,7 @@ def wrist_path_error_mm(a_NxTx2x21x3: np.ndarray, b_NxTx2x21x3: np.ndarray) -> f
 
 
 def hybrids(gt_NxTx2x21x3: np.ndarray, rec_NxTx2x21x3: np.ndarray) -> dict[str, np.ndarray]:
-    """A reconstruction split into its two kinds of error, each alone on the ground truth:
+    """A reconstruction's errors, each alone on the ground truth:
 
     - ``shape``: the reconstruction's joints relative to its wrists, placed on the ground truth's wrists
       (the hand's shape and orientation as reconstructed, the wrist path true);
@@ -84,8 +84,8 @@ def hybrids(gt_NxTx2x21x3: np.ndarray, rec_NxTx2x21x3: np.ndarray) -> dict[str, 
       (``palm_aligned``): the fingers' articulation error alone;
     - ``wrist_path``: the ground truth moved, per hand and frame, onto the reconstruction's wrists.
 
-    The AR features integrate the root, so a tokenizer's wrist path drifts by centimetres; which of the two
-    costs the evaluator's score is what limits the tokenizer (issue 40, item 5).
+    The AR features integrate the root, so a tokenizer's wrist path drifts by centimetres; which part costs
+    the evaluator's score is what limits the tokenizer (issue 40, item 5).
     """
     gt = np.asarray(gt_NxTx2x21x3, np.float32)
     rec = np.asarray(rec_NxTx2x21x3, np.float32)
@@ -94,21 +94,21 @@ def hybrids(gt_NxTx2x21x3: np.ndarray, rec_NxTx2x21x3: np.ndarray) -> dict[str, 
 
 
 def palm_aligned(gt_NxTx2x21x3: np.ndarray, rec_NxTx2x21x3: np.ndarray) -> np.ndarray:
-    """The reconstruction's hands turned, per hand and frame, onto the ground truth's palm orientation (the
-    rotation that best maps its rigid palm, wrist and four MCPs, onto the ground truth's: Kabsch) and placed
-    on the ground truth's wrists. What is left of the error is the fingers' articulation alone."""
-    from handx_jax import skeleton as sk
+    """The reconstruction's hands turned, per hand and frame, about their wrists onto the ground truth's palm
+    orientation (the rotation that best maps the rigid palm, wrist and four MCPs, onto the ground truth's:
+    ``metrics.best_rotation``) and placed on the ground truth's wrists. What is left of the error is the
+    fingers' articulation alone."""
+    import jax.numpy as jnp
 
-    gt = np.asarray(gt_NxTx2x21x3, np.float64)
-    rec = np.asarray(rec_NxTx2x21x3, np.float64)
+    from handx_jax import skeleton as sk
+    from handx_jax.metrics import best_rotation
+
+    gt = np.asarray(gt_NxTx2x21x3, np.float32)
+    rec = np.asarray(rec_NxTx2x21x3, np.float32)
     rel_gt, rel_rec = gt - gt[..., :1, :], rec - rec[..., :1, :]
     palm = [0, *sorted(sk.MCPS.values())]
-    h = np.einsum("...ji,...jk->...ik", rel_rec[..., palm, :], rel_gt[..., palm, :])  # (..., 3, 3) covariance
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(np.einsum("...ij,...jk->...ik", u, vt)))  # a rotation, never a reflection
-    u[..., :, -1] *= d[..., None]
-    r = np.einsum("...ij,...jk->...ik", u, vt)  # rel_rec @ r ≈ rel_gt on the palm
-    return (np.einsum("...ji,...ik->...jk", rel_rec, r) + gt[..., :1, :]).astype(np.float32)
+    r, _ = best_rotation(jnp.asarray(rel_rec[..., palm, :]), jnp.asarray(rel_gt[..., palm, :]))
+    return np.asarray(jnp.einsum("...ij,...kj->...ki", r, jnp.asarray(rel_rec))) + gt[..., :1, :]
 
 
 def caption_reader_top3(ev, clean_text_NxD, captions, *, block: int = 32) -> float:
