@@ -57,6 +57,19 @@ def test_reversed_clips_are_the_split_backwards_with_their_own_captions(corpus):
     assert rds.report["level0_same_as_forward"] == pytest.approx(1 - diff)
 
 
+def test_a_thin_subset_is_reversed_from_its_own_rows(corpus, monkeypatch):
+    """``--clips N`` spreads each chunk over the corpus: its rows are gathered, not read as one span."""
+    import handx_jax.data.reverse as R
+
+    root, ds, _ = corpus
+    monkeypatch.setattr(R, "CHUNK", 2)  # chunks of 2 clips about 7 apart: wider than 4 rows per clip
+    picked = pick_clips(ds, "train", 5)
+    assert len(picked) == 5 and np.diff(picked).min() > 4
+    sub = Dataset.open(build_reversed(ds.root, root / "rev5", limit=5, workers=1, log=lambda s: None))
+    np.testing.assert_array_equal(np.asarray(sub.motion), np.asarray(ds.motion[picked])[:, ::-1])
+    assert sub.ids == [ds.ids[c] + "~rev" for c in picked]
+
+
 def test_caption_ids_match_identical_captions_across_datasets(corpus):
     _, ds, rds = corpus
     train = pick_clips(ds, "train", None)

@@ -73,11 +73,15 @@ def build_reversed(data: str | os.PathLike, out: str | os.PathLike, *, split: st
 
     def chunks():
         # Each chunk's rows come from one contiguous read of the memmap (the split's clips are sorted), not
-        # a gather of scattered rows, which on a corpus larger than the free page cache re-reads pages.
+        # a gather of scattered rows, which on a corpus larger than the free page cache re-reads pages;
+        # a thin subset (``limit``) spreads a chunk over most of the corpus, so it gathers its rows instead.
         for s in range(0, len(clips), CHUNK):
             c = clips[s:s + CHUNK]
-            block = np.asarray(ds.motion[int(c[0]):int(c[-1]) + 1], np.float32)
-            motion[s:s + len(c)] = block[c - c[0]][:, ::-1]
+            if int(c[-1] - c[0]) + 1 <= 4 * len(c):
+                block = np.asarray(ds.motion[int(c[0]):int(c[-1]) + 1], np.float32)[c - c[0]]
+            else:
+                block = np.asarray(ds.motion[c], np.float32)
+            motion[s:s + len(c)] = block[:, ::-1]
             yield motion[s:s + len(c)], ids[s:s + CHUNK]
 
     records, texts = [], []
