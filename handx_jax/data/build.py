@@ -48,7 +48,7 @@ class BuildConfig:
 
 # The captioner wording that goes with each annotation reading (events.ANNOTATIONS): a corpus built
 # with the stable reading also words each fact independently (issue 40).
-WORDING = {"reference": "shared", "stable": "per_fact"}
+WORDING = {"reference": "shared", "stable": "per_fact", "gist": "per_fact"}
 
 
 def reading_of_options(options: dict) -> str | None:
@@ -242,9 +242,10 @@ def recipe(cfg: BuildConfig) -> dict:
 # those corpora (issue 40's stable annotation and per-fact wording). They are recorded only when they
 # change the content, so every earlier corpus (and its prefixes) keeps its identity.
 _NEUTRAL_OPTIONS = {"wording": "shared"}
+_NEUTRAL_SYNTH = {"motion": "oscillate"}
 _NEUTRAL_ANNOTATION = {"smooth_sigma_frames": 0.0, "contact_hysteresis_m": 0.0, "contact_gap_frames": 0,
                        "contact_min_frames": 1, "segmentation": "greedy",
-                       "merge_gap_frames": 10, "state_delta": True}
+                       "merge_gap_frames": 10, "state_delta": True, "finger_curl_swing_deg": 0.0}
 _NEUTRAL_SPEC = {"hysteresis": 0.0}
 _NEUTRAL_FEATURES = {"thumb_mcp": "reference", "dip_coupling": 0.0}
 
@@ -256,6 +257,8 @@ def _drop_neutral(options: dict) -> None:
                 d.pop(k)
 
     drop(options, _NEUTRAL_OPTIONS)
+    if isinstance(options.get("synth"), dict):
+        drop(options["synth"], _NEUTRAL_SYNTH)
     ann = options.get("annotation")
     if isinstance(ann, dict):
         # merge_gap_frames and state_delta only act with the "states" segmentation.

@@ -34,10 +34,14 @@ def add_parser(subparsers) -> None:
     s.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
     s.add_argument("--val-fraction", type=float, default=0.05)
     s.add_argument("--test-fraction", type=float, default=0.05)
-    s.add_argument("--annotation", default="reference", choices=("reference", "stable"),
+    s.add_argument("--annotation", default="reference", choices=("reference", "stable", "gist"),
                    help="annotation reading: 'reference' (§6.1-6.2, no smoothing; the default, and every corpus "
-                        "built before issue 40) or 'stable' (smoothed, hysteretic states, per-fact wording; "
-                        "docs/validity.md)")
+                        "built before issue 40), 'stable' (smoothed, hysteretic states, per-fact wording; "
+                        "docs/validity.md) or 'gist' (stable, plus each finger's curl swings, which level 0 "
+                        "says; corpus v3)")
+    s.add_argument("--motion", default="oscillate", choices=("oscillate", "transition"),
+                   help="what a segment's actions do: 'oscillate' (go back and forth; every corpus before v3) or "
+                        "'transition' (go once from one pose to another, one segment per sequence; corpus v3)")
     s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_synth)
@@ -112,8 +116,11 @@ def _synth(a: argparse.Namespace) -> int:
     from handx_jax.data.dataset import Dataset
     from handx_jax.data.stats import dataset_stats, format_stats
 
+    from handx_jax.data.synth import SynthConfig
+
+    synth = SynthConfig(motion=a.motion, segments_per_sequence=1) if a.motion == "transition" else SynthConfig()
     cfg = with_reading(BuildConfig(clips=a.clips, seed=a.seed, workers=a.workers, val_fraction=a.val_fraction,
-                                   test_fraction=a.test_fraction), a.annotation)
+                                   test_fraction=a.test_fraction, synth=synth), a.annotation)
     out = build_corpus(a.out, cfg, overwrite=a.force, progress=not a.quiet)
     ds = Dataset.open(out)
     rep = ds.report

@@ -24,7 +24,7 @@ from scipy.ndimage import gaussian_filter1d
 
 from handx_jax import skeleton as sk
 from handx_jax.data import features as ft
-from handx_jax.data.segment import SPEEDS, Events, SegmentSpec, contact_runs, segment, segment_states
+from handx_jax.data.segment import SPEEDS, Events, SegmentSpec, contact_runs, segment, segment_states, swings
 
 AXES = ("left-right", "front-back", "down-up")  # world x, y, z of the canonical frame (A.2)
 # Wrist direction names by axis and sign (reference §6.2): x+ left-to-right, y+ back-to-front, z+ down-to-up.
@@ -109,6 +109,13 @@ class AnnotationConfig:
     segmentation: str = "greedy"
     merge_gap_frames: int = 10
     state_delta: bool = True
+    # --- The "gist" reading (issue 40, level-0 stability; 0 = off, every reading before it) ---
+    # Each hand's record gains ``finger_curl``: per finger (index … pinky), the swings of at least this many
+    # degrees of its whole-finger curl (the mean flexion of its joints), read by :func:`segment.swings`.
+    # Level 0 of the template captions says them (``caption.gist``). One decision per finger and swing with
+    # a threshold far from both the noise (1 mm white moves the curl by ~0.5°, 3 mm low-frequency by ~3°)
+    # and the acting fingers' travel (≥ 35° on corpus v3's motion, ``SynthConfig.motion="transition"``).
+    finger_curl_swing_deg: float = 0.0
 
     def __post_init__(self):
         if self.segmentation not in ("greedy", "states"):
@@ -117,6 +124,8 @@ class AnnotationConfig:
             raise ValueError("sign_ratio must lie in (0.5, 1]")
         if self.smooth_sigma_frames < 0 or self.contact_hysteresis_m < 0:
             raise ValueError("smooth_sigma_frames and contact_hysteresis_m must be ≥ 0")
+        if self.finger_curl_swing_deg < 0:
+            raise ValueError("finger_curl_swing_deg must be ≥ 0 (0 = no finger_curl record)")
         if self.contact_gap_frames < 0 or self.contact_min_frames < 1:
             raise ValueError("contact_gap_frames must be ≥ 0 and contact_min_frames ≥ 1")
 
@@ -243,7 +252,27 @@ def annotate(joints_NxTx2x21x3: np.ndarray, cfg: AnnotationConfig = AnnotationCo
         c, k = divmod(s_, 25)
         records[c]["two_hand_relationships"]["finger_tip_contact"].setdefault(INTER_KEYS[k], []).append(
             {"start": a, "end": b, "state": "contact"})
+    if cfg.finger_curl_swing_deg > 0:
+        _emit_finger_curl(records, f.flexion_NxTx2x14, cfg.finger_curl_swing_deg)
     return records
+
+
+CURL_FINGERS = ("index", "middle", "ring", "pinky")
+_CURL_COLUMNS = [[i for i, n in enumerate(ft.FLEX_JOINTS) if n.startswith(f + "_")] for f in CURL_FINGERS]
+
+
+def _emit_finger_curl(records: list[dict], flexion_NxTx2x14: np.ndarray, threshold_deg: float) -> None:
+    """The gist reading's ``finger_curl`` lists: swings of each finger's whole curl (mean joint flexion)."""
+    N, T = flexion_NxTx2x14.shape[:2]
+    curl_NxTx2x4 = np.degrees(np.stack([flexion_NxTx2x14[..., cols].mean(-1) for cols in _CURL_COLUMNS], -1))
+    s, st, en, dr = swings(np.moveaxis(curl_NxTx2x4.reshape(N, T, 8), 1, 2).reshape(-1, T), threshold_deg)
+    for r in records:
+        for hk in _HANDS_KEYS:
+            r[hk]["finger_curl"] = {f: [] for f in CURL_FINGERS}
+    for s_, a, b, d in zip(s.tolist(), st.tolist(), en.tolist(), dr.tolist()):
+        c, k = divmod(s_, 8)
+        records[c][_HANDS_KEYS[k // 4]]["finger_curl"][CURL_FINGERS[k % 4]].append(
+            {"start": a, "end": b, "direction": "curl" if d > 0 else "straighten"})
 
 
 # ---------------------------------------------------------------------------------------------
@@ -287,7 +316,11 @@ def _stable() -> AnnotationConfig:
 # "reference": the reference code's reading as this project has always annotated (no smoothing,
 # reference §6.1–6.2, with the documented readings of AnnotationConfig's defaults); the default for
 # imported official data and for every corpus built before issue 40. "stable": see _stable.
-ANNOTATIONS: dict[str, AnnotationConfig] = {"reference": AnnotationConfig(), "stable": _stable()}
+# "gist": the stable reading plus each finger's whole-curl swings of ≥ 20°, which level 0 of the captions
+# says (corpus v3, issue 40). 20° sits in the gap of corpus v3's motion between the fingers an action moves
+# (curl ranges ≥ 35°) and those it leaves (≤ 15°): docs/results/validity/corpus-v3/.
+ANNOTATIONS: dict[str, AnnotationConfig] = {"reference": AnnotationConfig(), "stable": _stable(),
+                                            "gist": dataclasses.replace(_stable(), finger_curl_swing_deg=20.0)}
 
 
 def annotation_config(name: str) -> AnnotationConfig:

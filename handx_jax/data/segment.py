@@ -410,3 +410,57 @@ def _close_runs(m_SxT: np.ndarray, gap: int, min_frames: int) -> np.ndarray:
     return m
 
 
+
+
+def swings(x_SxT: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The swings of at least ``threshold`` of every series: a zigzag whose reversal threshold is
+    ``threshold`` (the "gist" reading's whole-finger curl, issue 40). Returns (series, start, end, direction
+    +1 up / −1 down) with half-open frame ranges [start, end), sorted by series then start.
+
+    A series starts undecided; its first swing begins at the extreme opposite to the first departure of at
+    least ``threshold`` (the lowest frame so far for an upward swing). A swing runs on while the series keeps
+    going its way and turns only once the series has come back by ``threshold`` from the swing's extreme;
+    the swing then ends at that extreme (inclusive) and the next one starts there. So a monotone change
+    is one swing whatever its noise, and a wobble smaller than ``threshold`` never starts or turns one.
+    """
+    x = np.asarray(x_SxT, np.float64)
+    S, T = x.shape
+    rows = np.arange(S)
+    d = np.zeros(S, np.int8)
+    hi, lo = x[:, 0].copy(), x[:, 0].copy()
+    hi_t, lo_t = np.zeros(S, np.int64), np.zeros(S, np.int64)
+    ext, ext_t = x[:, 0].copy(), np.zeros(S, np.int64)
+    starts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []    # (series, start frame, direction)
+    ends: list[tuple[np.ndarray, np.ndarray]] = []                  # (series, last frame) of finished swings
+    for t in range(1, T):
+        v = x[:, t]
+        und = d == 0
+        up_hi, dn_lo = und & (v > hi), und & (v < lo)
+        hi, hi_t = np.where(up_hi, v, hi), np.where(up_hi, t, hi_t)
+        lo, lo_t = np.where(dn_lo, v, lo), np.where(dn_lo, t, lo_t)
+        begin = und & (hi - lo >= threshold)
+        if begin.any():
+            up = begin & (hi_t == t)
+            dirn = np.where(up, 1, -1).astype(np.int8)
+            starts.append((rows[begin], np.where(up, lo_t, hi_t)[begin], dirn[begin]))
+            d = np.where(begin, dirn, d)
+            ext, ext_t = np.where(begin, v, ext), np.where(begin, t, ext_t)
+        going = ~und & ~begin
+        further = going & ((v - ext) * d > 0)
+        turn = going & ~further & (np.abs(ext - v) >= threshold)
+        if turn.any():
+            ends.append((rows[turn], ext_t[turn]))
+            starts.append((rows[turn], ext_t[turn], (-d[turn]).astype(np.int8)))
+            d = np.where(turn, -d, d)
+        moved = further | turn
+        ext, ext_t = np.where(moved, v, ext), np.where(moved, t, ext_t)
+    live = d != 0
+    ends.append((rows[live], ext_t[live]))
+    if not starts:
+        z = np.zeros(0, np.int64)
+        return z, z, z, z
+    s_s, s_t, s_d = (np.concatenate(a) for a in zip(*starts))
+    e_s, e_t = (np.concatenate(a) for a in zip(*ends))
+    o_s, o_e = np.lexsort((s_t, s_s)), np.lexsort((e_t, e_s))
+    # Each series' swings end in order, one end per start, so the k-th start pairs with the k-th end.
+    return s_s[o_s], s_t[o_s], e_t[o_e] + 1, s_d[o_s].astype(np.int64)

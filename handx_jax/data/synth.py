@@ -68,6 +68,17 @@ class SynthConfig:
     transition_frames: int = 10              # ramp length on each side of a segment boundary
     min_intensity_dps: float = 40.0          # per-hand finger intensity a non-idle segment is raised to
     global_translation_m: float = 0.3        # random sequence offset (x, y) and height jitter
+    # "oscillate" (corpora v1–v2): a segment's two-pose actions go back and forth. "transition" (corpus v3,
+    # issue 40): each goes once from one pose to the other, at full amplitude, and no intensity top-up moves
+    # the fingers an action leaves free; see synth_programs.ActionContext.profile.
+    motion: str = "oscillate"
+
+    def __post_init__(self):
+        if self.motion not in ("oscillate", "transition"):
+            raise ValueError(f"SynthConfig.motion must be 'oscillate' or 'transition', not {self.motion!r}")
+        if self.motion == "transition" and self.segments_per_sequence != 1:
+            # The boundary blend between segments would put half of a pose change at each clip's edges.
+            raise ValueError("SynthConfig.motion='transition' needs segments_per_sequence=1")
 
 
 @dataclass
@@ -472,7 +483,9 @@ def synth_chunk(seed: int, chunk_index: int, cfg: SynthConfig = SynthConfig()) -
     pose = H.couple_neighbours(pose)
     pose = _blend_boundaries(pose.reshape(N, S, L, -1), prog.idle_NxS, cfg.transition_frames).reshape(pose.shape)
     rot = _blend_boundaries(rot.reshape(N, S, L, -1), prog.idle_NxS, cfg.transition_frames).reshape(rot.shape)
-    pose = _raise_intensity(rng, H.clip_to_limits(pose), prog, cfg)
+    pose = H.clip_to_limits(pose)
+    if cfg.motion != "transition":  # corpus v3 adds no incidental finger motion (the clip filter decides)
+        pose = _raise_intensity(rng, pose, prog, cfg)
 
     # FK in each hand's frame, then wrist rotation (with a slow orientation drift), then mirroring
     # of the left hand: equal channels give mirror-symmetric hands about the x = 0 plane.

@@ -44,8 +44,33 @@ class ActionContext:
     def phase(self) -> np.ndarray:
         return self.u(0, 2 * np.pi)[:, None]
 
+    @property
+    def transition(self) -> bool:
+        """Corpus v3's motion (``SynthConfig.motion == "transition"``): a segment goes ONCE from one pose to
+        another and holds, instead of oscillating between them (see ``profile``)."""
+        return self.cfg.motion == "transition"
+
     def amp(self) -> np.ndarray:
+        if self.transition:  # a transition reaches its target pose: no partial swings near a threshold
+            return np.ones((self.n, 1, 1))
         return self.u(*self.cfg.amplitude_range)[:, None, None]
+
+    def profile(self, fr: tuple[float, float], sharp: float = 2.0) -> np.ndarray:
+        """The (n, L) 0..1 time course of a two-pose action.
+
+        ``oscillate`` (corpora v1–v2): back and forth with plateaus (``_plateau``).
+        ``transition`` (corpus v3): one monotone smoothstep from 0 to 1, or from 1 to 0, centred in the middle
+        of the segment and lasting 0.35–0.8 s (scaled by the speed draw), with holds on both sides. A clip then
+        goes from one pose to another, so playing it backwards changes what it does ("closes into a fist"
+        becomes "opens from a fist"), and every finger that acts moves the whole way, far more than one that
+        does not: a gap the annotation's thresholds can sit in (issue 40, level-0 stability).
+        """
+        if not self.transition:
+            return _plateau(self.t, self.freq(*fr), self.phase(), sharp)
+        dur = (self.u(0.35, 0.8) / self.u(*self.cfg.speed_range))[:, None]
+        mid = self.u(0.7, 1.3)[:, None]
+        s = smoothstep((self.t - mid) / dur + 0.5)
+        return np.where(self.rng.random(self.n)[:, None] < 0.5, s, 1.0 - s)
 
     def jitter(self, pose_16: np.ndarray, deg: float = 6.0) -> np.ndarray:
         """Per-instance variation of a reference pose; abduction varies less than flexion."""
@@ -70,7 +95,7 @@ class ActionContext:
     def between(self, a_nx16: np.ndarray, b_nx16: np.ndarray, fr: tuple[float, float] = (0.5, 1.1),
                 sharp: float = 2.0) -> np.ndarray:
         """Go back and forth between two poses with random rate, phase and amplitude."""
-        s = _plateau(self.t, self.freq(*fr), self.phase(), sharp)[..., None] * self.amp()
+        s = self.profile(fr, sharp)[..., None] * self.amp()
         return a_nx16[:, None] + s * (b_nx16 - a_nx16)[:, None]
 
 
@@ -105,8 +130,11 @@ def _pinch(finger: int, others_flat: bool = False) -> Callable[[ActionContext], 
         keep = [finger, 4 + finger, 8 + finger, H.T_CMC_FLEX, H.T_CMC_ABD, H.T_MCP, H.T_IP]
         b[:, keep] = target[keep]
         a = c.hyperextend(c.jitter(H.SPREAD if others_flat else H.FLAT, 6))
-        if others_flat:  # the OK sign keeps the other fingers up; only index and thumb travel
-            a[:, [1, 2, 3, 5, 6, 7]] = b[:, [1, 2, 3, 5, 6, 7]]
+        if others_flat or c.transition:
+            # The OK sign keeps the other fingers up, and every corpus-v3 pinch keeps them where they are:
+            # only the pinching finger and the thumb travel (no half curl of the others).
+            others = [ch for f in range(4) if f != finger for ch in (f, 4 + f)]
+            a[:, others] = b[:, others]
         return (c.between(a, b, (0.5, 1.0), 2.5), *c.zeros())
     return action
 
@@ -119,8 +147,10 @@ def _act_finger_tap(c: ActionContext) -> ActionOut:
     ph = (c.t[..., None] / period[..., None] + order + c.u(0, 1)[:, None, None]) % 1.0   # (n, L, 4)
     pulse = np.sin(np.pi * np.clip(ph * 4.0, 0, 1)) ** 2                   # one tap per quarter sweep
     pose = np.repeat(base[:, None], c.t.shape[1], 1)
-    pose[..., H.MCP] += pulse * c.u(30, 50, (1, 1)) * c.amp()
-    pose[..., H.PIP] += pulse * c.u(15, 30, (1, 1))
+    # Corpus v3 taps deeper, so a tapping finger's curl swings clear of the incidental motion.
+    mcp, pip = ((60, 75), (40, 55)) if c.transition else ((30, 50), (15, 30))
+    pose[..., H.MCP] += pulse * c.u(*mcp, (1, 1)) * c.amp()
+    pose[..., H.PIP] += pulse * c.u(*pip, (1, 1))
     return (pose, *c.zeros())
 
 
@@ -138,6 +168,8 @@ def _act_count(c: ActionContext) -> ActionOut:
     up = smoothstep((t - start[..., None] - rank[:, None] * step[..., None]) / ramp)
     back = smoothstep((t - (L / c.cfg.fps - 0.45)) / 0.35)             # fold back near the end
     s = up * (1 - back)                                                    # (n, L, 5) extended 0..1
+    if c.transition:  # corpus v3: one way only, extending from the fist or (played backwards) folding into it
+        s = np.where((c.rng.random(c.n) < 0.5)[:, None, None], up, up[:, ::-1])
     pose = np.repeat(fist[:, None], L, 1)
     fingers = s[..., 1:]
     for blk in (H.MCP, H.PIP, H.ABD):
@@ -149,7 +181,10 @@ def _act_count(c: ActionContext) -> ActionOut:
 def _act_wave(c: ActionContext) -> ActionOut:
     """Waving: side-to-side wrist swing with the fingers fluttering open and closed."""
     f, ph = c.freq(1.3, 2.2), c.phase()
-    pose = c.between(c.jitter(H.SPREAD, 5), c.jitter(H.RELAXED, 5), (1.3, 2.2), 1.0)
+    if c.transition:  # corpus v3: the wrist waves, the open fingers hold (no flutter near a threshold)
+        pose = np.repeat(c.jitter(H.SPREAD, 5)[:, None], c.t.shape[1], 1)
+    else:
+        pose = c.between(c.jitter(H.SPREAD, 5), c.jitter(H.RELAXED, 5), (1.3, 2.2), 1.0)
     rot, pos = c.zeros()
     rot[..., 0] = c.u(18, 35)[:, None] * np.sin(2 * np.pi * f * c.t + ph)
     rot[..., 1] = c.u(20, 45)[:, None]                                       # hand raised
@@ -159,9 +194,13 @@ def _act_wave(c: ActionContext) -> ActionOut:
 
 def _act_wrist_roll(c: ActionContext) -> ActionOut:
     """Pronation/supination; the fingers open as the palm turns up (a natural presenting gesture)."""
-    f, ph = c.freq(0.5, 1.1), c.phase()
-    s = 0.5 - 0.5 * np.cos(2 * np.pi * f * c.t + ph)
-    a, b = c.jitter(H.RELAXED, 5), c.hyperextend(c.jitter(H.FLAT, 5))
+    if c.transition:  # corpus v3: the palm turns once, up or down, and the flat fingers hold
+        s = c.profile((0.5, 1.1))
+        a = b = c.jitter(H.FLAT, 5)
+    else:
+        f, ph = c.freq(0.5, 1.1), c.phase()
+        s = 0.5 - 0.5 * np.cos(2 * np.pi * f * c.t + ph)
+        a, b = c.jitter(H.RELAXED, 5), c.hyperextend(c.jitter(H.FLAT, 5))
     pose = a[:, None] + (s[..., None] * c.amp()) * (b - a)[:, None]
     rot, pos = c.zeros()
     rot[..., 2] = c.u(50, 110)[:, None] * s
@@ -170,8 +209,11 @@ def _act_wrist_roll(c: ActionContext) -> ActionOut:
 
 def _act_wrist_flex(c: ActionContext) -> ActionOut:
     """Wrist flexion/extension with tenodesis: the fingers curl as the wrist extends."""
-    f, ph = c.freq(0.5, 1.2), c.phase()
-    w = np.sin(2 * np.pi * f * c.t + ph)
+    if c.transition:  # corpus v3: the wrist bends once, one way
+        w = 2.0 * c.profile((0.5, 1.2)) - 1.0
+    else:
+        f, ph = c.freq(0.5, 1.2), c.phase()
+        w = np.sin(2 * np.pi * f * c.t + ph)
     a, b = c.jitter(H.FLAT, 5), c.jitter(H.base_pose(45, 55, 0.0, (20, 25, 15, 20)), 5)
     pose = a[:, None] + (0.5 + 0.5 * w)[..., None] * (b - a)[:, None]
     rot, pos = c.zeros()
@@ -186,15 +228,17 @@ def _act_finger_wiggle(c: ActionContext) -> ActionOut:
     ph = c.u(0, 2 * np.pi, (5,))[:, None]
     w = np.sin(2 * np.pi * f * c.t[..., None] + ph)                          # (n, L, 5)
     pose = np.repeat(base[:, None], c.t.shape[1], 1)
-    pose[..., H.MCP] += c.u(15, 30, (1, 4)) * w[..., :4]
-    pose[..., H.PIP] += c.u(10, 25, (1, 4)) * w[..., :4]
+    mcp, pip = ((25, 35), (20, 30)) if c.transition else ((15, 30), (10, 25))  # v3: swings clear of the noise
+    pose[..., H.MCP] += c.u(*mcp, (1, 4)) * w[..., :4]
+    pose[..., H.PIP] += c.u(*pip, (1, 4)) * w[..., :4]
     pose[..., H.T_MCP] += 15 * w[..., 4]
     return pose, *c.zeros()
 
 
 def _hyper_pose(c: ActionContext) -> np.ndarray:
     p = c.jitter(H.FLAT, 3)
-    p[:, H.MCP] = c.u(-38, -22, (4,))
+    # Corpus v3 bends back clear of the hyperextension state's hysteresis band (−20° ± 8°).
+    p[:, H.MCP] = c.u(-40, -32, (4,)) if c.transition else c.u(-38, -22, (4,))
     p[:, H.PIP] = c.u(0, 6, (4,))
     return p
 
@@ -202,12 +246,15 @@ def _hyper_pose(c: ActionContext) -> np.ndarray:
 ACTION_FNS: dict[str, Callable[[ActionContext], ActionOut]] = {
     "fist": _two_pose(lambda c: c.jitter(H.RELAXED), lambda c: c.jitter(H.FIST, 4)),
     "open_spread": _two_pose(lambda c: c.jitter(H.FIST), lambda c: c.hyperextend(c.jitter(H.SPREAD, 4))),
-    "point": _two_pose(lambda c: c.jitter(H.RELAXED), _point_pose, (0.4, 0.9), 2.5),
+    # Corpus v3 points from a flat hand, so the index finger holds and the others close the whole way.
+    "point": _two_pose(lambda c: c.jitter(H.FLAT if c.transition else H.RELAXED), _point_pose, (0.4, 0.9), 2.5),
     "pinch_index": _pinch(0),
     "pinch_middle": _pinch(1),
     "pinch_ring": _pinch(2),
     "pinch_pinky": _pinch(3),
-    "spread_close": _two_pose(lambda c: c.jitter(H.base_pose(20, 20, 0.0, (5, 15, 5, 5))),
+    # Corpus v3 spreads and closes straight fingers: abduction only, no half curl.
+    "spread_close": _two_pose(lambda c: c.jitter(H.base_pose(0, 5, 0.0, (5, 15, 5, 5)) if c.transition
+                                                 else H.base_pose(20, 20, 0.0, (5, 15, 5, 5))),
                               lambda c: c.hyperextend(c.jitter(H.SPREAD, 4)), (0.7, 1.5)),
     "wave": _act_wave,
     "finger_tap": _act_finger_tap,
@@ -219,7 +266,8 @@ ACTION_FNS: dict[str, Callable[[ActionContext], ActionOut]] = {
     "ok_sign": _pinch(0, others_flat=True),
     "claw": _two_pose(lambda c: c.jitter(H.FLAT), lambda c: c.jitter(H.CLAW, 5), (0.6, 1.2)),
     "finger_wiggle": _act_finger_wiggle,
-    "hyperextend": _two_pose(lambda c: c.jitter(H.RELAXED), _hyper_pose, (0.5, 1.0)),
+    # Corpus v3 bends the fingers back from a flat hand: the MCPs move, the curl barely does.
+    "hyperextend": _two_pose(lambda c: c.jitter(H.FLAT if c.transition else H.RELAXED), _hyper_pose, (0.5, 1.0)),
 }
 ACTIONS: tuple[str, ...] = tuple(ACTION_FNS)
 # Fingers (0 = index … 3 = pinky) an action leaves free, which the intensity floor may move.

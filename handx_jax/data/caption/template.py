@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import random
 
+from handx_jax.data.caption import gist
 from handx_jax.data.caption.compose import compose
 from handx_jax.data.caption.hand import _HandFacts
 from handx_jax.data.caption.inter import _coordination, _InterFacts
@@ -30,6 +31,9 @@ class TemplateCaptioner:
     text field, the kind of fact, its rank among facts of that kind, detail): not by its exact frames,
     which move with the noise and each text's sentence joins from one
     seeded by (seed, field, level), so a fact is worded the same whatever else the record holds.
+
+    A record read with the "gist" annotation (it carries ``finger_curl``) gets the gist as level 0
+    (``caption.gist``): one decision per finger, in fixed words. Levels 1–4 are composed as always.
     """
 
     def __init__(self, wording: str = "shared"):
@@ -64,4 +68,6 @@ class TemplateCaptioner:
                     rng.seed(f"{seed}/{name}/compose/{lv}")
                 texts[name] = compose(facts, lv, rng, fallback, order)
             out.append(texts)
+        if gist.has_gist(record):  # the gist reading (corpus v3): level 0 says the fingers' gist
+            out[0] = gist.level0(record)
         return out

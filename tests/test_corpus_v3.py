@@ -1,0 +1,142 @@
+"""Corpus v3's parts (issue 40, level-0 stability): the transition motion, the finger-curl swings of the
+"gist" annotation and the gist level 0, through the real generator, annotation, captioner and CLI."""
+
+import numpy as np
+import pytest
+
+from handx_jax.cli import main as handx
+from handx_jax.data import events as E
+from handx_jax.data import features as ft
+from handx_jax.data.build import BuildConfig, recipe
+from handx_jax.data.caption import TemplateCaptioner
+from handx_jax.data.caption import gist
+from handx_jax.data.dataset import Dataset
+from handx_jax.data.segment import swings
+from handx_jax.data.synth import SynthConfig, synth_chunk
+from handx_jax.validity import perturb as P
+
+V3 = SynthConfig(motion="transition", segments_per_sequence=1)
+
+
+def test_swings_known_answers():
+    x = np.array([
+        [0, 5, 10, 30, 50, 50, 49, 51, 50, 20, 0, 1, 0],   # up to the peak at frame 7, down to frame 10
+        [0, 1, -1, 0.5, 0, 1, 0, 0, 1, 0, 0, 0, 0],        # wobbles below the threshold: no swing
+        [50, 40, 30, 20, 10, 0, 0, 0, 0, 0, 0, 0, 0],      # one fall, ending where it bottoms out
+        [0, 12, 0, 12, 0, 12, 0, 12, 0, 12, 0, 12, 0],     # a 12-unit oscillation: three swings at 10
+    ], float)
+    s, st, en, d = swings(x, 20.0)
+    assert s.tolist() == [0, 0, 2] and st.tolist() == [0, 7, 0] and en.tolist() == [8, 11, 6]
+    assert d.tolist() == [1, -1, -1]
+    s, st, en, d = swings(x[3:], 10.0)
+    assert d.tolist() == [1, -1] * 6 and st.tolist() == list(range(12)) and en.tolist() == list(range(2, 14))
+    # Played backwards, every swing turns the other way and the order reverses.
+    s2, st2, en2, d2 = swings(x[:1, ::-1], 20.0)
+    assert d2.tolist() == [1, -1] and st2.tolist() == [0, 5] and en2.tolist() == [6, 13]  # ties keep the first low
+
+
+def test_transition_needs_one_segment_and_a_known_motion():
+    with pytest.raises(ValueError, match="segments_per_sequence=1"):
+        SynthConfig(motion="transition")
+    with pytest.raises(ValueError, match="motion"):
+        SynthConfig(motion="wobble", segments_per_sequence=1)
+
+
+def test_the_recipe_of_older_corpora_is_unchanged():
+    # Options added for corpus v3 are recorded only when they change the content (every earlier corpus
+    # keeps its identity); a v3 recipe records both.
+    old = recipe(BuildConfig(clips=10))["options"]
+    assert "motion" not in old["synth"] and "finger_curl_swing_deg" not in old["annotation"]
+    from handx_jax.data.build import with_reading
+    new = recipe(with_reading(BuildConfig(clips=10, synth=V3), "gist"))["options"]
+    assert new["synth"]["motion"] == "transition" and new["annotation"]["finger_curl_swing_deg"] == 20.0
+
+
+def _curl_ranges(joints_NxTx2x21x3):
+    """Whole-finger curl range (deg) per (clip, hand, finger) and its net change, on the stable features."""
+    flex = ft.compute_features(np.nan_to_num(joints_NxTx2x21x3.astype(np.float64)),
+                               E.ANNOTATIONS["stable"].features).flexion_NxTx2x14
+    cols = [[i for i, n in enumerate(ft.FLEX_JOINTS) if n.startswith(f + "_")] for f in E.CURL_FINGERS]
+    curl = np.degrees(np.stack([flex[..., c].mean(-1) for c in cols], -1))       # (N, T, 2, 4)
+    return np.ptp(curl, axis=1), np.abs(curl[:, -1] - curl[:, 0])
+
+
+def test_transition_motion_leaves_a_gap_between_acting_and_idle_fingers():
+    """Corpus v3's premise: a finger an action closes or opens travels far (and once), a finger it leaves
+    barely moves, so a 20° threshold has no fingers sitting on it."""
+    chunk = synth_chunk(0, 0, V3)
+    rng_, net = _curl_ranges(chunk.joints)
+    closing, resting = [], []
+    for n, prog in enumerate(chunk.programs):
+        if not np.isfinite(chunk.joints[n]).all():
+            continue
+        seg = prog[0]
+        for h, side in enumerate(("left", "right")):
+            if seg[side] in ("fist", "open_spread", "grasp", "thumbs_up"):       # all four fingers act
+                closing.append((rng_[n, h], net[n, h]))
+            elif seg[side] in ("spread_close", "wave", "wrist_roll"):            # no finger curls
+                resting.append(rng_[n, h])
+    closing_r = np.array([r for r, _ in closing])
+    assert len(closing) >= 10 and len(resting) >= 10
+    assert closing_r.min() > 35.0 and np.max(resting) < 18.0   # the gist threshold, 20°, sits between
+    # Once, not back and forth: the net change is the whole range.
+    assert min((nt / r).min() for r, nt in closing) > 0.9
+    # The oscillating corpus (v2) has no such gap: its curl ranges fill the band between.
+    v2 = synth_chunk(0, 0, SynthConfig()).joints                      # 4 segments of 60 frames per sequence
+    r2, _ = _curl_ranges(v2.reshape((-1, 60) + v2.shape[2:]))
+    assert np.mean((r2 > 15) & (r2 < 35)) > 0.15
+    assert np.mean((rng_ > 15) & (rng_ < 35)) < 0.08
+
+
+def test_gist_level0_words_one_decision_per_finger():
+    def hand(**pats):
+        return {"finger_curl": {f: [{"start": 0, "end": 5, "direction": d} for d in pats.get(f, ())]
+                                for f in E.CURL_FINGERS}}
+    assert gist.hand_gist(hand(index=["curl"], middle=["curl"], ring=["curl"], pinky=["curl"])) == "the hand closes"
+    assert gist.hand_gist(hand(middle=["curl"], ring=["curl"], pinky=["curl"])) == \
+        "the middle, ring and pinky fingers curl"
+    assert gist.hand_gist(hand(index=["straighten"], middle=["curl"], ring=["curl"], pinky=["curl"])) == \
+        "the index finger straightens and the middle, ring and pinky fingers curl"
+    assert gist.hand_gist(hand(index=["curl", "straighten", "curl"])) == "the index finger flexes repeatedly"
+    assert gist.hand_gist(hand()) == gist.STILL
+    rel = {"finger_tip_contact": {"left_index_tip, right_index_tip": [{"start": 3, "end": 6, "state": "contact"}]},
+           "palm_palm_distance": {"left_palm, right_palm": [{"start": 0, "end": 60, "state": "near"}]}}
+    assert gist.touch_frames(rel) == 3
+    rel["palm_palm_distance"]["left_palm, right_palm"] = [{"start": 10, "end": 14, "state": "contact"}]
+    assert gist.touch_frames(rel) == 7
+
+
+def test_gist_reading_is_stable_under_noise_and_turns_with_time():
+    """Through the real annotation and captioner: 1 mm of white finger noise leaves the gist level 0 of
+    corpus v3 clips unchanged, and playing them backwards changes it (closes ↔ opens)."""
+    chunk = synth_chunk(0, 1, V3)
+    ok = np.isfinite(chunk.joints).reshape(len(chunk.joints), -1).all(1)
+    x = chunk.joints[ok][:40]
+    cfg, cap = E.ANNOTATIONS["gist"], TemplateCaptioner("per_fact")
+    l0 = lambda clips: [tuple(cap.caption(r, seed=7)[0].values()) for r in E.annotate(clips, cfg)]
+    clean, noisy, rev = l0(x), l0(P.apply("white", x, 0.001, 0)), l0(x[:, ::-1].copy())
+    assert all("finger_curl" in r["left_hand_events"] for r in E.annotate(x[:2], cfg))
+    assert np.mean([a == b for a, b in zip(clean, noisy)]) >= 0.9
+    assert np.mean([a != b for a, b in zip(clean, rev)]) >= 0.6
+    swap = {"closes.": "opens.", "opens.": "closes."}
+    for a, b in zip(clean, rev):  # a whole hand that closes opens when played backwards
+        for ta, tb in zip(a[:2], b[:2]):
+            if ta.startswith("The hand ") and ta.split()[-1] in swap:
+                assert tb == "The hand " + swap[ta.split()[-1]]
+    # The reference and stable readings carry no finger_curl and keep their composed level 0.
+    assert "finger_curl" not in E.annotate(x[:1], E.ANNOTATIONS["stable"])[0]["left_hand_events"]
+
+
+def test_corpus_v3_through_the_cli(tmp_path, capsys):
+    out = tmp_path / "v3"
+    assert handx(["data", "synth", "--clips", "48", "--out", str(out), "--workers", "1", "--quiet",
+                  "--motion", "transition", "--annotation", "gist"]) == 0
+    ds = Dataset.open(out)
+    opts = ds.meta["recipe"]["options"]
+    assert opts["synth"]["motion"] == "transition" and opts["synth"]["segments_per_sequence"] == 1
+    from handx_jax.data.build import reading_of
+    assert reading_of(ds) == ("gist", "per_fact")
+    hands = {t[k][0] for t in ds.texts for k in ("left", "right")}
+    words = ("The hand ", "The index", "The middle", "The ring", "The pinky", "The fingers hold")
+    assert hands and all(h.startswith(words) for h in hands)
+    assert {t["interaction"][0] for t in ds.texts} <= {"The hands touch.", "The hands stay apart."}
