@@ -41,7 +41,8 @@ def add_parser(subparsers) -> None:
                         "says; corpus v3)")
     s.add_argument("--motion", default="oscillate", choices=("oscillate", "transition"),
                    help="what a segment's actions do: 'oscillate' (go back and forth; every corpus before v3) or "
-                        "'transition' (go once from one pose to another, one segment per sequence; corpus v3)")
+                        "'transition' (go once from one pose to another, one segment per sequence, the clip filter at 7 deg/s; "
+                        "corpus v3)")
     s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_synth)
@@ -116,11 +117,11 @@ def _synth(a: argparse.Namespace) -> int:
     from handx_jax.data.dataset import Dataset
     from handx_jax.data.stats import dataset_stats, format_stats
 
-    from handx_jax.data.synth import SynthConfig
+    from handx_jax.data.build import with_motion
 
-    synth = SynthConfig(motion=a.motion, segments_per_sequence=1) if a.motion == "transition" else SynthConfig()
-    cfg = with_reading(BuildConfig(clips=a.clips, seed=a.seed, workers=a.workers, val_fraction=a.val_fraction,
-                                   test_fraction=a.test_fraction, synth=synth), a.annotation)
+    cfg = with_reading(with_motion(BuildConfig(clips=a.clips, seed=a.seed, workers=a.workers,
+                                               val_fraction=a.val_fraction, test_fraction=a.test_fraction),
+                                   a.motion), a.annotation)
     out = build_corpus(a.out, cfg, overwrite=a.force, progress=not a.quiet)
     ds = Dataset.open(out)
     rep = ds.report

@@ -261,18 +261,27 @@ CURL_FINGERS = ("index", "middle", "ring", "pinky")
 _CURL_COLUMNS = [[i for i, n in enumerate(ft.FLEX_JOINTS) if n.startswith(f + "_")] for f in CURL_FINGERS]
 
 
+# A swing whose most bent frame reaches this whole-finger curl goes "full" (into or out of a fist); corpus v3's
+# motion leaves a gap here: a fist's fingers curl 75–90°, a grasp's, a claw's and a pinch's 40–55°.
+FULL_CURL_DEG = 65.0
+
+
 def _emit_finger_curl(records: list[dict], flexion_NxTx2x14: np.ndarray, threshold_deg: float) -> None:
-    """The gist reading's ``finger_curl`` lists: swings of each finger's whole curl (mean joint flexion)."""
+    """The gist reading's ``finger_curl`` lists: swings of each finger's whole curl (mean joint flexion), each
+    with its direction and its depth ("full" when its most bent frame reaches ``FULL_CURL_DEG``)."""
     N, T = flexion_NxTx2x14.shape[:2]
     curl_NxTx2x4 = np.degrees(np.stack([flexion_NxTx2x14[..., cols].mean(-1) for cols in _CURL_COLUMNS], -1))
-    s, st, en, dr = swings(np.moveaxis(curl_NxTx2x4.reshape(N, T, 8), 1, 2).reshape(-1, T), threshold_deg)
+    curl_SxT = np.moveaxis(curl_NxTx2x4.reshape(N, T, 8), 1, 2).reshape(-1, T)
+    s, st, en, dr = swings(curl_SxT, threshold_deg)
     for r in records:
         for hk in _HANDS_KEYS:
             r[hk]["finger_curl"] = {f: [] for f in CURL_FINGERS}
     for s_, a, b, d in zip(s.tolist(), st.tolist(), en.tolist(), dr.tolist()):
         c, k = divmod(s_, 8)
+        bent = float(curl_SxT[s_, a:b].max())
         records[c][_HANDS_KEYS[k // 4]]["finger_curl"][CURL_FINGERS[k % 4]].append(
-            {"start": a, "end": b, "direction": "curl" if d > 0 else "straighten"})
+            {"start": a, "end": b, "direction": "curl" if d > 0 else "straighten",
+             "depth": "full" if bent >= FULL_CURL_DEG else "partial"})
 
 
 # ---------------------------------------------------------------------------------------------
