@@ -257,8 +257,14 @@ def annotate(joints_NxTx2x21x3: np.ndarray, cfg: AnnotationConfig = AnnotationCo
     return records
 
 
-CURL_FINGERS = ("index", "middle", "ring", "pinky")
+CURL_FINGERS = sk.FINGER_NAMES[1:]
 _CURL_COLUMNS = [[i for i, n in enumerate(ft.FLEX_JOINTS) if n.startswith(f + "_")] for f in CURL_FINGERS]
+
+
+def finger_curl_deg(flexion_NxTx2x14: np.ndarray) -> np.ndarray:
+    """Whole-finger curl (N, T, 2, 4) in degrees: the mean flexion of each finger's joints, index … pinky
+    (``Features.flexion_NxTx2x14``, radians); what the gist reading's swings are read from."""
+    return np.degrees(np.stack([flexion_NxTx2x14[..., cols].mean(-1) for cols in _CURL_COLUMNS], -1))
 
 
 # A swing whose most bent frame reaches this whole-finger curl goes "full" (into or out of a fist); corpus v3's
@@ -270,7 +276,7 @@ def _emit_finger_curl(records: list[dict], flexion_NxTx2x14: np.ndarray, thresho
     """The gist reading's ``finger_curl`` lists: swings of each finger's whole curl (mean joint flexion), each
     with its direction and its depth ("full" when its most bent frame reaches ``FULL_CURL_DEG``)."""
     N, T = flexion_NxTx2x14.shape[:2]
-    curl_NxTx2x4 = np.degrees(np.stack([flexion_NxTx2x14[..., cols].mean(-1) for cols in _CURL_COLUMNS], -1))
+    curl_NxTx2x4 = finger_curl_deg(flexion_NxTx2x14)
     curl_SxT = np.moveaxis(curl_NxTx2x4.reshape(N, T, 8), 1, 2).reshape(-1, T)
     s, st, en, dr = swings(curl_SxT, threshold_deg)
     for r in records:

@@ -166,10 +166,10 @@ def _act_count(c: ActionContext) -> ActionOut:
     t = c.t[..., None]
     ramp = step[..., None] * 0.8
     up = smoothstep((t - start[..., None] - rank[:, None] * step[..., None]) / ramp)
-    back = smoothstep((t - (L / c.cfg.fps - 0.45)) / 0.35)             # fold back near the end
-    s = up * (1 - back)                                                    # (n, L, 5) extended 0..1
     if c.transition:  # corpus v3: one way only, extending from the fist or (played backwards) folding into it
-        s = np.where((c.rng.random(c.n) < 0.5)[:, None, None], up, up[:, ::-1])
+        s = np.where((c.rng.random(c.n) < 0.5)[:, None, None], up, up[:, ::-1])      # (n, L, 5) extended 0..1
+    else:
+        s = up * (1 - smoothstep((t - (L / c.cfg.fps - 0.45)) / 0.35))     # then fold back near the end
     pose = np.repeat(fist[:, None], L, 1)
     fingers = s[..., 1:]
     for blk in (H.MCP, H.PIP, H.ABD):

@@ -12,12 +12,11 @@ from handx_jax.data import features as ft
 from handx_jax.data.synth import SynthConfig, synth_chunk
 
 cfg = SynthConfig(motion="transition", segments_per_sequence=1)
-cols = [[i for i, n in enumerate(ft.FLEX_JOINTS) if n.startswith(f + "_")] for f in E.CURL_FINGERS]
 R = defaultdict(list)
 for ci in range(12):
     ch = synth_chunk(0, ci, cfg)
     flex = ft.compute_features(np.nan_to_num(ch.joints.astype(np.float64)), E.ANNOTATIONS["stable"].features).flexion_NxTx2x14
-    curl = np.degrees(np.stack([flex[..., c].mean(-1) for c in cols], -1))          # (N, T, 2, 4)
+    curl = E.finger_curl_deg(flex)                                                    # (N, T, 2, 4)
     rng = np.ptp(curl, axis=1)                                                        # (N, 2, 4)
     for n, prog in enumerate(ch.programs):
         for h, side in enumerate(("left", "right")):
