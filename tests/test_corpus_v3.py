@@ -56,8 +56,7 @@ def _curl_ranges(joints_NxTx2x21x3):
     """Whole-finger curl range (deg) per (clip, hand, finger) and its net change, on the stable features."""
     flex = ft.compute_features(np.nan_to_num(joints_NxTx2x21x3.astype(np.float64)),
                                E.ANNOTATIONS["stable"].features).flexion_NxTx2x14
-    cols = [[i for i, n in enumerate(ft.FLEX_JOINTS) if n.startswith(f + "_")] for f in E.CURL_FINGERS]
-    curl = np.degrees(np.stack([flex[..., c].mean(-1) for c in cols], -1))       # (N, T, 2, 4)
+    curl = E.finger_curl_deg(flex)                                              # (N, T, 2, 4)
     return np.ptp(curl, axis=1), np.abs(curl[:, -1] - curl[:, 0])
 
 
@@ -109,11 +108,19 @@ def test_gist_level0_words_one_decision_per_finger():
     assert gist.hand_gist(hand()) == gist.STILL
     rel = {"finger_tip_contact": {"left_index_tip, right_index_tip": [{"start": 3, "end": 9, "state": "contact"}]},
            "palm_palm_distance": {"left_palm, right_palm": [{"start": 0, "end": 60, "state": "near"}]}}
-    assert gist.touch_frames(rel) == (0, 6) and gist.interaction(rel) == "the fingertips touch"
+    assert gist.touch_frames(rel, 60) == (0, 6) and gist.interaction(rel, 60) == "the fingertips touch"
     rel["finger_tip_contact"]["left_index_tip, right_index_tip"][0]["end"] = 8
-    assert gist.interaction(rel) == "the hands stay apart"   # 5 frames: a graze, not a touch
-    rel["palm_palm_distance"]["left_palm, right_palm"] = [{"start": 10, "end": 16, "state": "contact"}]
-    assert gist.interaction(rel) == "the palms touch"
+    assert gist.interaction(rel, 60) == "the hands stay apart"   # 5 frames: a graze, not a touch
+    # The palm distance is a state series: palms that meet at frame 29 and stay touch for the 31 frames left,
+    # though no event of the list is a "contact" hold.
+    palms = rel["palm_palm_distance"]["left_palm, right_palm"] = [
+        {"start": 20, "end": 30, "start_state": "far", "end_state": "contact", "speed": "fast"}]
+    assert gist.touch_frames(rel, 60) == (31, 5) and gist.interaction(rel, 60) == "the palms touch"
+    # A brief clap (contact from frame 29 until the release starts at 32) is shorter than a touch.
+    palms.append({"start": 32, "end": 40, "start_state": "contact", "end_state": "far", "speed": "fast"})
+    assert gist.touch_frames(rel, 60) == (4, 5) and gist.interaction(rel, 60) == "the hands stay apart"
+    rel["palm_palm_distance"]["left_palm, right_palm"] = [{"start": 0, "end": 60, "state": "contact"}]
+    assert gist.interaction(rel, 60) == "the palms touch"
 
 
 def test_gist_reading_is_stable_under_noise_and_turns_with_time():

@@ -11,11 +11,13 @@ the same are named together. The words are fixed (no random choice), so a text c
 does; played backwards every swing turns the other way, so the text changes with the order.
 
 The interaction says which parts of the hands touch, if any: the palms (a palm-to-palm "contact" state), else
-fingertips (inter-hand fingertip contacts), each counted when it lasts at least ``TOUCH_FRAMES`` frames in all.
+fingertips (inter-hand fingertip contacts), each counted when it lasts at least ``TOUCH_FRAMES`` frames in all:
+palms that come together and stay count from the frame they meet, not only palms pressed the whole clip.
 """
 
 from __future__ import annotations
 
+from handx_jax.data.caption.inter import contact_periods
 from handx_jax.data.caption.words import FOUR, capitalise, finger_group, join_words
 
 TOUCH_FRAMES = 6
@@ -60,16 +62,17 @@ def hand_gist(hand_events: dict) -> str:
     return join_words(parts)
 
 
-def touch_frames(relations: dict) -> tuple[int, int]:
-    """(palm-to-palm contact frames, inter-hand fingertip contact frames) of a record's relations."""
-    palms = sum(e["end"] - e["start"] for lst in relations.get("palm_palm_distance", {}).values() for e in lst
-                if e.get("state") == "contact")
+def touch_frames(relations: dict, T: int) -> tuple[int, int]:
+    """(palm-to-palm contact frames, inter-hand fingertip contact frames) of a record's relations over its T
+    frames. The palm distance is a state series: its contact frames are those held between the transitions
+    into and out of "contact" (``inter.contact_periods``); the fingertip contacts are runs."""
+    palms = sum(e - s for lst in relations.get("palm_palm_distance", {}).values() for s, e in contact_periods(lst, T))
     tips = sum(e["end"] - e["start"] for lst in relations.get("finger_tip_contact", {}).values() for e in lst)
     return palms, tips
 
 
-def interaction(relations: dict) -> str:
-    palms, tips = touch_frames(relations)
+def interaction(relations: dict, T: int) -> str:
+    palms, tips = touch_frames(relations, T)
     return "the palms touch" if palms >= TOUCH_FRAMES else "the fingertips touch" if tips >= TOUCH_FRAMES else \
         "the hands stay apart"
 
@@ -78,4 +81,4 @@ def level0(record: dict) -> dict:
     """The gist's three level-0 texts of one record."""
     return {"left": capitalise(hand_gist(record["left_hand_events"])) + ".",
             "right": capitalise(hand_gist(record["right_hand_events"])) + ".",
-            "interaction": capitalise(interaction(record["two_hand_relationships"])) + "."}
+            "interaction": capitalise(interaction(record["two_hand_relationships"], int(record["frame_count"]))) + "."}
