@@ -113,11 +113,9 @@ def _clip_index(ds, clip: str) -> int:
 
 
 def _synth(a: argparse.Namespace) -> int:
-    from handx_jax.data.build import BuildConfig, build_corpus, with_reading
+    from handx_jax.data.build import BuildConfig, build_corpus, with_motion, with_reading
     from handx_jax.data.dataset import Dataset
     from handx_jax.data.stats import dataset_stats, format_stats
-
-    from handx_jax.data.build import with_motion
 
     cfg = with_reading(with_motion(BuildConfig(clips=a.clips, seed=a.seed, workers=a.workers,
                                                val_fraction=a.val_fraction, test_fraction=a.test_fraction),
