@@ -107,18 +107,24 @@ def model_stages(out: Path, data: Path, steps: int | None, eval_limit: int, eval
     print(f"\nresults: {sweep / 'results.jsonl'} (one row per run), fit plot: {sweep / 'fit.png'}")
 
 
-# The committed `make sweep-cpu` studies, one folder per standard evaluator (vN/replicates: three seeds, fit on
-# the means): the curve the demo's mini sweep is the short version of (docs/results/cpu_study/README.md).
+# The committed `make sweep-cpu` studies, one folder per standard evaluator (vN: one seed; vN/replicates: three
+# seeds, fit on the means): the curve the demo's mini sweep is the short version of (docs/results/cpu_study/).
 STUDIES = Path(__file__).resolve().parent.parent / "docs" / "results" / "cpu_study"
 
 
 def committed_study() -> tuple[Path | None, int | None]:
-    """(folder, evaluator version) of the committed study under the current standard evaluator, else the
-    newest one under an earlier evaluator (the demo then says it is another yardstick)."""
+    """(folder, evaluator version) of the committed study under the current standard evaluator (its three-seed
+    replicates where committed, else its one-seed study), else the newest one under an earlier evaluator (the
+    demo then says it is another yardstick)."""
     from handx_jax import standard
 
-    found = sorted((int(p.parent.name[1:]), p) for p in STUDIES.glob("v*/replicates")
-                   if p.parent.name[1:].isdigit() and (p / "fit.txt").exists())
+    found = []
+    for p in STUDIES.glob("v*"):
+        if p.name[1:].isdigit():
+            best = next((q for q in (p / "replicates", p) if (q / "fit.txt").exists()), None)
+            if best is not None:
+                found.append((int(p.name[1:]), best))
+    found.sort()
     same = [(v, p) for v, p in found if v == standard.VERSION]
     v, p = (same or found or [(None, None)])[-1]
     return p, v
@@ -163,8 +169,8 @@ def verdict(sweep: Path, out: Path) -> bool:
         print(("" if ok else "This sweep's curve does not show the scaling on this yardstick; ")
               + "a mini sweep short enough for 10 minutes on 2 cores is too noisy to pin the slope down (this "
               "demo takes 7–8½ min with its install on 2 quiet cores, measured); the committed `make sweep-cpu` study "
-              "(6 configurations x 3 seeds, ~20 min per seed, "
-              f"{yardstick}; {STUDY.relative_to(STUDY.parents[4])}) gives, beside the demo's:\n"
+              f"(6 configurations x {'3 seeds' if STUDY.name == 'replicates' else 'one seed'}, ~20 min per seed, "
+              f"{yardstick}; {STUDY.relative_to(STUDIES.parents[2])}) gives, beside the demo's:\n"
               + "".join("    " + ln + "\n" for ln in (STUDY / "fit.txt").read_text().splitlines()[:5])
               + f"its plot: {out / 'sweep-cpu-fit.png'}; the demo's: {sweep / 'fit.png'}")
     return ok

@@ -70,10 +70,14 @@ stage() {
 }
 secs() { cat "$W/$1.seconds" 2>/dev/null || echo "?"; }
 
+# The code's standard recipe as `data synth` flags (handx_jax.standard.Recipe: reading and motion; `standard corpus`
+# refuses while the packaged card is an older recipe's, which is the case this script exists for).
+RECIPE_FLAGS=$("$PY" -c "from handx_jax.standard import code_recipe as r; print(f'--seed {r().seed} --annotation {r().annotation} --motion {r().motion}')")
+
 evaluator_branch() {
   set -e
   [ -f "$W/std/meta.json" ] || \
-    stage corpus "${H[@]}" data synth --clips "$CLIPS" --seed 0 --out "$W/std" --workers "$SYNTH_WORKERS" --quiet
+    stage corpus "${H[@]}" data synth --clips "$CLIPS" $RECIPE_FLAGS --out "$W/std" --workers "$SYNTH_WORKERS" --quiet
   # Level 0 only: the evaluator trains and scores there (the full cache, all five levels, took 149 s).
   stage joined_cache "${H[@]}" text cache --data "$W/std" --encoder "$ENC" --joined --levels 0 --max-len 256 \
     --batch-size 1024
@@ -82,7 +86,8 @@ evaluator_branch() {
       --preset small --steps "$EV_STEPS" --batch-size "$EV_BATCH" --lr "$EV_LR" --warmup "$EV_WARMUP" \
       --train-levels 0 --no-final-eval --set train.optim.weight_decay=0.01 --set train.prefetch=8 \
       --set text.max_len=256 --set data.text_bucket=256 --set train.log_every=200 --set train.ckpt_every=1000 \
-      --set train.wandb=disabled
+      --set train.wandb=disabled --set data.augment_white_mm=1.5 --set data.augment_lowfreq_mm=3 \
+      --set model.mask_same_text=true --set model.reverse_negative=true
   local dev
   dev=$("$PY" -c 'import jax; print(jax.devices()[0].device_kind)')
   [ -f "$W/assets/card.json" ] || \
@@ -103,7 +108,7 @@ ladder_branch() {
   local ev3
   ev3=$("$PY" -c "from handx_jax import standard; print(standard.evaluator_dir())")
   [ -f "$W/ladder_data/meta.json" ] || \
-    stage ladder_corpus "${H[@]}" data synth --clips "$LADDER_CLIPS" --seed 0 --out "$W/ladder_data" --workers 4 --quiet
+    stage ladder_corpus "${H[@]}" data synth --clips "$LADDER_CLIPS" $RECIPE_FLAGS --out "$W/ladder_data" --workers 4 --quiet
   stage ladder_cache "${H[@]}" text cache --data "$W/ladder_data" --encoder "$ENC" --batch-size 512
   HANDX_CACHE_DIR="$W/cache_old" "${H[@]}" sweep run sweeps/diffusion_flops_ladder.py --preset "$LADDER_PRESET" \
     --arg fraction=1.0 --arg steps="$LADDER_STEPS" ${LADDER_ARGS:-} --data "$W/ladder_data" --encoder "$ENC" \

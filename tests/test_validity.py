@@ -291,31 +291,38 @@ def test_training_augmentation_is_finger_only_bounded_and_resumable():
 
 
 def test_standard_evaluators_by_id_and_the_recipe_each_accepts(tmp_path):
-    """v5 is the packaged standard evaluator; v4 stays loadable as `standard-v4` (old numbers re-scored),
-    and each accepts only prefixes of its own recipe: v4 the reference reading, v5 the stable one."""
+    """v6 is the packaged standard evaluator; v4 and v5 stay loadable as `standard-v4` / `standard-v5` (old
+    numbers re-scored), and each accepts only prefixes of its own recipe: v4 the reference reading, v5 the
+    stable one, v6 the gist reading on transition motion (corpus v3)."""
     from handx_jax.io import DataError
 
-    assert standard.VERSION == 5 and standard.code_recipe().annotation == "stable"
-    v4 = standard.assets_for("standard-v4")
-    assert v4 == standard.archived(4) and standard.verify_assets(v4)["version"] == 4
-    assert standard.assets_for(None) == standard.assets_for("standard") == standard.assets_for("standard-v5") == standard.ASSETS
-    assert standard.assets_for(standard.evaluator_dir(v4)) == v4 and standard.is_standard("standard-v4")
+    assert standard.VERSION == 6
+    assert (standard.code_recipe().annotation, standard.code_recipe().motion) == ("gist", "transition")
+    v4, v5 = standard.assets_for("standard-v4"), standard.assets_for("standard-v5")
+    assert (v4, v5) == (standard.archived(4), standard.archived(5))
+    assert standard.verify_assets(v4)["version"] == 4 and standard.verify_assets(v5)["version"] == 5
+    assert standard.assets_for(None) == standard.assets_for("standard") == standard.assets_for("standard-v6") == standard.ASSETS
+    assert standard.assets_for(standard.evaluator_dir(v4)) == v4 and standard.is_standard("standard-v5")
     assert standard.assets_for(tmp_path) is None
-    with pytest.raises(DataError, match="no such standard evaluator; this package has standard-v4, standard-v5"):
+    with pytest.raises(DataError, match="no such standard evaluator; this package has standard-v4, standard-v5, standard-v6"):
         standard.assets_for("standard-v9")
     assert standard.reference_cache_dir(v4).parent.name == "standard-v4"
-    assert standard.reference_cache_dir().parent.name == "standard-v5"
+    assert standard.reference_cache_dir().parent.name == "standard-v6"
     old = standard.Recipe(**standard.read_card(v4)["recipe"])
-    assert old.annotation == "reference"  # v4's card predates the field
+    assert (old.annotation, old.motion) == ("reference", "oscillate")  # v4's card predates both fields
+    mid = standard.Recipe(**standard.read_card(v5)["recipe"])
+    assert (mid.annotation, mid.motion) == ("stable", "oscillate")  # v5's predates the motion
     p1 = standard.build_standard_corpus(tmp_path / "v1", 120, recipe=dataclasses.replace(old, clips=120000),
                                         assets=tmp_path / "none", workers=1, progress=False)
-    p2 = standard.build_standard_corpus(tmp_path / "v2", 120, workers=1, progress=False)
-    d1, d2 = Dataset.open(p1), Dataset.open(p2)
-    assert standard.check_reference(d1, assets=v4)["prefix"] and standard.check_reference(d2)["prefix"]
+    p3 = standard.build_standard_corpus(tmp_path / "v3", 120, workers=1, progress=False)
+    d1, d3 = Dataset.open(p1), Dataset.open(p3)
+    assert standard.recipe_of(d3)[0] == dataclasses.replace(standard.code_recipe(), clips=120)
+    assert standard.check_reference(d1, assets=v4)["prefix"] and standard.check_reference(d3)["prefix"]
     with pytest.raises(DataError, match="build option"):
-        standard.check_reference(d1)  # a corpus-v1 prefix is not v5's recipe
-    with pytest.raises(DataError, match="build option"):
-        standard.check_reference(d2, assets=v4)
+        standard.check_reference(d1)  # a corpus-v1 prefix is not v6's recipe
+    for assets in (v4, v5):
+        with pytest.raises(DataError, match="build option"):
+            standard.check_reference(d3, assets=assets)
 
 
 def test_order_test_scores_a_reader_of_order_one_and_a_blind_one_zero():

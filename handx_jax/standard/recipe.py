@@ -12,13 +12,15 @@ from pathlib import Path
 from handx_jax.io import DataError
 from handx_jax.standard.assets import CARD_JSON, CARD_MD, assets_folder, read_card
 
-STANDARD_ANNOTATION = "stable"  # the standard corpus's annotation reading (Recipe.annotation; v1-v4 "reference")
+STANDARD_ANNOTATION = "gist"  # the standard corpus's annotation reading (Recipe.annotation; v1-v4 "reference", v5 "stable")
+STANDARD_MOTION = "transition"  # its generator motion (Recipe.motion; v1-v5 "oscillate")
 
 
 @dataclasses.dataclass(frozen=True)
 class Recipe:
     """The standard corpus: ``handx standard corpus`` = ``handx data synth --clips CLIPS --seed SEED
-    --annotation ANNOTATION`` with the default build options, from generator version ``generator``."""
+    --annotation ANNOTATION --motion MOTION`` with the default build options, from generator version
+    ``generator``."""
 
     # v4: 120k clips (v1-v3: 20k). On 17.9k train clips the small evaluator overfits below GT top-1 0.73 at
     # block 32 (v3); on 108k it does not (docs/results/evaluator_120k_gt_rows.json, and v4's card). The first
@@ -31,12 +33,16 @@ class Recipe:
     # v1-v4: "reference" (the default here, so their cards, which predate the field, read back unchanged);
     # v5 (corpus v2): "stable", issue 40.
     annotation: str = "reference"
+    # The generator's motion (data.build.with_motion). v1-v5: "oscillate" (the default here, so their cards
+    # read back unchanged); v6 (corpus v3): "transition", one pose change per action with the clip filter at
+    # build.TRANSITION_TAU, which the gist reading's level 0 needs (docs/results/validity/corpus-v3/).
+    motion: str = "oscillate"
 
     def build_config(self, clips: int | None = None, workers: int = 0):
-        from handx_jax.data.build import BuildConfig, with_reading
+        from handx_jax.data.build import BuildConfig, with_motion, with_reading
 
-        return with_reading(BuildConfig(clips=self.clips if clips is None else int(clips), seed=self.seed,
-                                        workers=workers), self.annotation)
+        cfg = BuildConfig(clips=self.clips if clips is None else int(clips), seed=self.seed, workers=workers)
+        return with_motion(with_reading(cfg, self.annotation), self.motion)
 
 
 def generator_version() -> str:
@@ -47,9 +53,9 @@ def generator_version() -> str:
 
 
 def code_recipe() -> Recipe:
-    """The recipe this code builds as the standard corpus (standard corpus v2 since evaluator v5: the
-    stable annotation reading, issue 40)."""
-    return Recipe(generator=generator_version(), annotation=STANDARD_ANNOTATION)
+    """The recipe this code builds as the standard corpus: corpus v3 since evaluator v6 (transition motion,
+    gist reading; issue 40). v5 was corpus v2 (stable reading), v1-v4 corpus v1 (reference reading)."""
+    return Recipe(generator=generator_version(), annotation=STANDARD_ANNOTATION, motion=STANDARD_MOTION)
 
 
 def build_options(recipe: Recipe) -> dict:
@@ -69,8 +75,9 @@ def recipe_of(ds) -> tuple[Recipe | None, dict]:
     if r.get("kind") != "synth":
         return None, {}
     opts = dict(r.get("options", {}))
+    motion = str((opts.get("synth") or {}).get("motion", "oscillate"))
     return (Recipe(clips=int(r["clips"]), seed=int(r["seed"]), generator=str(r["generator_version"]),
-                   annotation=reading_of_options(opts) or "custom"), opts)
+                   annotation=reading_of_options(opts) or "custom", motion=motion), opts)
 
 
 def build_standard_corpus(out: str | os.PathLike, clips: int | None = None, *, workers: int = 0,
