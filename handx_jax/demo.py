@@ -1,5 +1,5 @@
-"""``make demo``: the main job, end to end, on the built-in data (CPU-sized: 632 s on 2 quiet cores, measured
-with .venv built; ≈ 1 min more to install).
+"""``make demo``: the main job, end to end, on the built-in data (CPU-sized: 409 s on 2 quiet cores from a fresh
+clone, install included; README).
 
 1. Build the first ``--clips`` clips of the standard corpus (``handx standard corpus --clips N``: synthesis
    → clips + intensity filter → annotation → captions), print its statistics and render one clip with
@@ -10,12 +10,12 @@ with .venv built; ≈ 1 min more to install).
 4. A mini scaling sweep (``handx sweep run``, the ``demo`` preset of ``sweeps/diffusion_cpu_study.py``,
    the short version of ``make sweep-cpu``): the study's three sizes (L1 d32, L2 d64, L2 d128) trained for
    150 / 300 / 600 steps (data seen growing with size, as the study's ``matched`` design) at lr 1e-3, two at
-   a time, each sampled 4 times for all the prefix's 230 standard test prompts (DDIM, 25 steps) and scored
+   a time, each sampled 4 times for all the prefix's 196 standard test prompts (DDIM, 25 steps) and scored
    by the standard evaluator; then the log-linear fit of top-3 R-Precision against training compute and
    its plot, with the chance level drawn, and a verdict: does the curve rise, beside the committed
-   ``make sweep-cpu`` curve. Measured (seed 42, evaluator v4): top-3 0.097 / 0.088 / 0.146, slope +0.025
-   per decade (95% CI [-0.020, 0.070]), r 0.75; the largest run's interval [0.132, 0.161] is above chance
-   (0.094).
+   ``make sweep-cpu`` curve. Measured (seed 42, evaluator v6 on corpus v3): top-3 0.118 / 0.179 / 0.247,
+   slope +0.068 per decade (95% CI [0.056, 0.081]), r 0.996; the largest run's interval [0.212, 0.282] is
+   above chance (0.094).
 
 Each stage is the same ``handx`` command a user would run (printed before it runs). The models are
 small and trained for a few minutes, so the sweep shows the pipeline and how to read a fit, not the

@@ -165,6 +165,9 @@ def test_packaged_standard_evaluator_matches_this_code():
     card = standard.read_card()
     assert standard.Recipe(**card["recipe"]) == standard.code_recipe()
     assert card["recipe_options"] == standard.build_options(standard.code_recipe())
+    rec = standard.code_recipe()  # the card's reproduction command builds this recipe
+    assert (f"`handx data synth --clips {rec.clips} --seed {rec.seed} --annotation {rec.annotation} --motion {rec.motion}`"
+            in (standard.ASSETS / standard.CARD_MD).read_text())
     standard.verify_assets()
     assert {"32", "16"} <= set(card["ground_truth"])
     total = sum(p.stat().st_size for p in standard.ASSETS.rglob("*") if p.is_file())
