@@ -168,7 +168,7 @@ def verdict(sweep: Path, out: Path) -> bool:
         # clone, install included), but its slope's interval still holds 0. Say so, and show the study.
         print(("" if ok else "This sweep's curve does not show the scaling on this yardstick; ")
               + "a mini sweep short enough for 10 minutes on 2 cores is too noisy to pin the slope down (this "
-              "demo takes 7–8½ min with its install on 2 quiet cores, measured); the committed `make sweep-cpu` study "
+              "demo takes 7–8½ min with its install on 2 quiet cores, measured; 6 min 49 s under v6); the committed `make sweep-cpu` study "
               f"(6 configurations x {'3 seeds' if STUDY.name == 'replicates' else 'one seed'}, ~20 min per seed, "
               f"{yardstick}; {STUDY.relative_to(STUDIES.parents[2])}) gives, beside the demo's:\n"
               + "".join("    " + ln + "\n" for ln in (STUDY / "fit.txt").read_text().splitlines()[:5])
