@@ -318,10 +318,11 @@ def test_standard_evaluators_by_id_and_the_recipe_each_accepts(tmp_path):
     d1, d3 = Dataset.open(p1), Dataset.open(p3)
     assert standard.recipe_of(d3)[0] == dataclasses.replace(standard.code_recipe(), clips=120)
     assert standard.check_reference(d1, assets=v4)["prefix"] and standard.check_reference(d3)["prefix"]
-    with pytest.raises(DataError, match="build option"):
+    # A prefix of another packaged version's recipe is refused, naming the evaluator that scores it.
+    with pytest.raises(DataError, match="build option.*recipe of standard evaluator v4: score it with --evaluator standard-v4"):
         standard.check_reference(d1)  # a corpus-v1 prefix is not v6's recipe
     for assets in (v4, v5):
-        with pytest.raises(DataError, match="build option"):
+        with pytest.raises(DataError, match="build option.*score it with --evaluator standard-v6"):
             standard.check_reference(d3, assets=assets)
 
 

@@ -15,7 +15,7 @@ import numpy as np
 # change to the generator moves them by millimetres.
 from handx_jax.data.dataset import MOTION_ATOL
 from handx_jax.io import DataError
-from handx_jax.standard.assets import MANIFEST, assets_folder, read_card
+from handx_jax.standard.assets import ASSETS, CARD_JSON, MANIFEST, NAME, archived, assets_folder, read_card, versions
 from handx_jax.standard.recipe import Recipe, recipe_of
 
 
@@ -47,6 +47,21 @@ def read_manifest(assets: Path | None = None) -> dict[str, np.ndarray]:
         return {k: z[k] for k in z.files}
 
 
+def _other_version(got: Recipe, opts: Mapping[str, Any], assets: Path) -> str:
+    """", but it is the recipe of standard evaluator vN: score it with --evaluator standard-vN" when another
+    packaged standard evaluator was trained on this recipe (a corpus-v2 prefix scored by v6, say), else ""."""
+    folders = [ASSETS] + [archived(v) for v in versions() if (archived(v) / CARD_JSON).exists()]
+    for folder in folders:
+        if Path(folder).resolve() == Path(assets).resolve() or not (folder / CARD_JSON).exists():
+            continue
+        card = read_card(folder)
+        rec = Recipe(**card["recipe"])
+        if card["recipe_options"] == dict(opts) and (rec.generator, rec.seed) == (got.generator, got.seed):
+            return (f", but it is the recipe of standard evaluator v{card['version']}: score it with "
+                    f"--evaluator {NAME}-v{card['version']}")
+    return ""
+
+
 def check_reference(ds, card: Mapping[str, Any] | None = None, assets: Path | None = None) -> dict:
     """Raise ``DataError`` unless ``ds`` is the standard corpus or a prefix of it; return what was found.
 
@@ -71,8 +86,8 @@ def check_reference(ds, card: Mapping[str, Any] | None = None, assets: Path | No
     want_opts = card["recipe_options"]
     diff = sorted(k for k in set(opts) | set(want_opts) if opts.get(k) != want_opts.get(k))
     if diff:
-        raise DataError(f"not the standard recipe: build option(s) {diff} differ from the standard's; {fix}",
-                        path=ds.root / "meta.json")
+        raise DataError(f"not the standard recipe: build option(s) {diff} differ from the standard's "
+                        f"(v{card['version']}){_other_version(got, opts, assets)}; {fix}", path=ds.root / "meta.json")
     if got.clips > want.clips:
         raise DataError(f"{got.clips} clips: more than the standard corpus's {want.clips}, so its test split is not "
                         f"the standard one; {fix}", path=ds.root / "meta.json")
