@@ -35,9 +35,9 @@ mkdir -p "$WORK"
 DATA=$WORK/data
 t0=$(date +%s)
 # The code's recipe, built with `data synth` (`standard corpus` refuses while the packaged card is the old recipe's)
-read -r CLIPS SEED ANNOTATION MOTION < <("$PY" -c "from handx_jax.standard import code_recipe as r; print(r().clips, r().seed, r().annotation, r().motion)")
-[ -f "$DATA/meta.json" ] || "${H[@]}" data synth --clips "$CLIPS" --seed "$SEED" --annotation "$ANNOTATION" \
-  --motion "$MOTION" --out "$DATA" --quiet
+read -r CLIPS FLAGS < <("$PY" -c "from handx_jax.standard import code_recipe as r; print(r().clips, r().synth_flags())")
+# shellcheck disable=SC2086  # FLAGS is a list of flags
+[ -f "$DATA/meta.json" ] || "${H[@]}" data synth --clips "$CLIPS" $FLAGS --out "$DATA" --quiet
 t1=$(date +%s)
 if [ -n "${ENCODER:-}" ]; then
   # package replaces the assets folder: keep a copy of a packaged encoder outside it

@@ -72,7 +72,7 @@ secs() { cat "$W/$1.seconds" 2>/dev/null || echo "?"; }
 
 # The code's standard recipe as `data synth` flags (handx_jax.standard.Recipe: reading and motion; `standard corpus`
 # refuses while the packaged card is an older recipe's, which is the case this script exists for).
-RECIPE_FLAGS=$("$PY" -c "from handx_jax.standard import code_recipe as r; print(f'--seed {r().seed} --annotation {r().annotation} --motion {r().motion}')")
+RECIPE_FLAGS=$("$PY" -c "from handx_jax.standard import code_recipe as r; print(r().synth_flags())")
 
 evaluator_branch() {
   set -e

@@ -279,15 +279,18 @@ def _emit_finger_curl(records: list[dict], flexion_NxTx2x14: np.ndarray, thresho
     curl_NxTx2x4 = finger_curl_deg(flexion_NxTx2x14)
     curl_SxT = np.moveaxis(curl_NxTx2x4.reshape(N, T, 8), 1, 2).reshape(-1, T)
     s, st, en, dr = swings(curl_SxT, threshold_deg)
+    # Each swing's most bent frame over its [start, end), for all swings at once.
+    t_T = np.arange(T)
+    inside_MxT = (t_T >= st[:, None]) & (t_T < en[:, None])
+    full_M = np.where(inside_MxT, curl_SxT[s], -np.inf).max(1) >= FULL_CURL_DEG
     for r in records:
         for hk in _HANDS_KEYS:
             r[hk]["finger_curl"] = {f: [] for f in CURL_FINGERS}
-    for s_, a, b, d in zip(s.tolist(), st.tolist(), en.tolist(), dr.tolist()):
+    for s_, a, b, d, full in zip(s.tolist(), st.tolist(), en.tolist(), dr.tolist(), full_M.tolist()):
         c, k = divmod(s_, 8)
-        bent = float(curl_SxT[s_, a:b].max())
         records[c][_HANDS_KEYS[k // 4]]["finger_curl"][CURL_FINGERS[k % 4]].append(
             {"start": a, "end": b, "direction": "curl" if d > 0 else "straighten",
-             "depth": "full" if bent >= FULL_CURL_DEG else "partial"})
+             "depth": "full" if full else "partial"})
 
 
 # ---------------------------------------------------------------------------------------------

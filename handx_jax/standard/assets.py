@@ -83,6 +83,12 @@ def archived(version: int) -> Path:
     return ASSETS.with_name(f"{ASSETS.name}-v{int(version)}")
 
 
+def version_folder(version: int) -> Path:
+    """The assets folder of standard evaluator ``version``: the packaged one for the current version, else
+    its archive."""
+    return ASSETS if int(version) == VERSION else archived(version)
+
+
 def versions() -> list[int]:
     """Every standard evaluator this package ships: the current one and the archived ones."""
     old = [int(p.name.rsplit("-v", 1)[1]) for p in ASSETS.parent.glob(f"{ASSETS.name}-v*")
@@ -105,7 +111,7 @@ def assets_for(evaluator: str | os.PathLike | None) -> Path | None:
         return folder
     p = Path(evaluator).resolve()
     for v in versions():
-        folder = ASSETS if v == VERSION else archived(v)
+        folder = version_folder(v)
         if p == (folder / EVALUATOR_DIR).resolve():
             return folder
     return None

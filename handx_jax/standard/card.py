@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from handx_jax.data.dataset import MOTION_ATOL
+from handx_jax.standard.recipe import Recipe
 
 
 def _row(r: Mapping[str, Any]) -> str:
@@ -53,9 +54,8 @@ def card_markdown(card: Mapping[str, Any]) -> str:
         "The evaluator `handx eval run` uses when no `--evaluator` is given. Its identity is the corpus recipe:",
         "",
         f"- generator version **{rec['generator']}**, seed **{rec['seed']}**, **{rec['clips']:,}** clips, default "
-        f"build options (`handx standard corpus --out DIR` = `handx data synth --clips {rec['clips']} --seed "
-        f"{rec['seed']} --annotation {rec.get('annotation', 'reference')}"
-        + ("" if rec.get("motion", "oscillate") == "oscillate" else f" --motion {rec['motion']}") + "`)",
+        f"build options (`handx standard corpus --out DIR` = `handx data synth --clips {rec['clips']} "
+        f"{Recipe(**rec).synth_flags()}`)",
         f"- splits {c['split_sizes']}; content hash on the packaging machine `{c['fingerprint']}` (another "
         f"numpy/jax build may give other float bytes: the check compares ids, captions and motion within "
         f"{MOTION_ATOL:g} m instead)",

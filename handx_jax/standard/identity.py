@@ -15,7 +15,7 @@ import numpy as np
 # change to the generator moves them by millimetres.
 from handx_jax.data.dataset import MOTION_ATOL
 from handx_jax.io import DataError
-from handx_jax.standard.assets import ASSETS, CARD_JSON, MANIFEST, NAME, archived, assets_folder, read_card, versions
+from handx_jax.standard.assets import MANIFEST, NAME, assets_folder, read_card, version_folder, versions
 from handx_jax.standard.recipe import Recipe, recipe_of
 
 
@@ -50,15 +50,14 @@ def read_manifest(assets: Path | None = None) -> dict[str, np.ndarray]:
 def _other_version(got: Recipe, opts: Mapping[str, Any], assets: Path) -> str:
     """", but it is the recipe of standard evaluator vN: score it with --evaluator standard-vN" when another
     packaged standard evaluator was trained on this recipe (a corpus-v2 prefix scored by v6, say), else ""."""
-    folders = [ASSETS] + [archived(v) for v in versions() if (archived(v) / CARD_JSON).exists()]
-    for folder in folders:
-        if Path(folder).resolve() == Path(assets).resolve() or not (folder / CARD_JSON).exists():
+    for v in versions():
+        folder = version_folder(v)
+        if folder.resolve() == Path(assets).resolve():
             continue
         card = read_card(folder)
-        rec = Recipe(**card["recipe"])
-        if card["recipe_options"] == dict(opts) and (rec.generator, rec.seed) == (got.generator, got.seed):
-            return (f", but it is the recipe of standard evaluator v{card['version']}: score it with "
-                    f"--evaluator {NAME}-v{card['version']}")
+        if card["recipe_options"] == dict(opts) and \
+                (card["recipe"]["generator"], card["recipe"]["seed"]) == (got.generator, got.seed):
+            return f", but it is the recipe of standard evaluator v{v}: score it with --evaluator {NAME}-v{v}"
     return ""
 
 

@@ -38,6 +38,13 @@ class Recipe:
     # build.TRANSITION_TAU, which the gist reading's level 0 needs (docs/results/validity/corpus-v3/).
     motion: str = "oscillate"
 
+    def synth_flags(self) -> str:
+        """The ``handx data synth`` flags that build this recipe but for its clip count (``--clips``), in one
+        place for the card's reproduction command and the maintainers' scripts (scripts/build_standard.sh,
+        scripts/gpu_lease.sh). A field at its old default is left out, as the recipe's options leave it out."""
+        return (f"--seed {self.seed} --annotation {self.annotation}"
+                + ("" if self.motion == "oscillate" else f" --motion {self.motion}"))
+
     def build_config(self, clips: int | None = None, workers: int = 0):
         from handx_jax.data.build import BuildConfig, with_motion, with_reading
 
