@@ -27,7 +27,7 @@ from handx_jax.data.events import AnnotationConfig, annotate
 from handx_jax.data.parallel import map_ordered
 from handx_jax.io import check_free_space
 from handx_jax.data.caption import TemplateCaptioner
-from handx_jax.data.synth import GENERATOR_VERSION, SynthConfig, synth_chunk
+from handx_jax.data.synth import GENERATOR_VERSION, MOTIONS, SynthConfig, synth_chunk
 
 
 @dataclass(frozen=True)
@@ -97,12 +97,12 @@ TRANSITION_TAU = 7.0
 def with_motion(cfg: BuildConfig, name: str) -> BuildConfig:
     """``cfg`` with the named motion (``handx data synth --motion``): "oscillate" (corpora v1–v2: the defaults)
     or "transition" (corpus v3: one segment per sequence, and the clip filter's thresholds for motion that
-    holds still around each move, ``TRANSITION_TAU``)."""
+    holds still around each move, ``TRANSITION_TAU``) or "chain" (corpus v4: the same, with a second move)."""
     if name == "oscillate":
         return dataclasses.replace(cfg, synth=dataclasses.replace(cfg.synth, motion="oscillate"))
-    if name != "transition":
-        raise ValueError(f"unknown motion {name!r}; choose oscillate or transition")
-    return dataclasses.replace(cfg, synth=dataclasses.replace(cfg.synth, motion="transition", segments_per_sequence=1),
+    if name not in MOTIONS:
+        raise ValueError(f"unknown motion {name!r}; choose {', '.join(MOTIONS)}")
+    return dataclasses.replace(cfg, synth=dataclasses.replace(cfg.synth, motion=name, segments_per_sequence=1),
                                clip=dataclasses.replace(cfg.clip, tau_hand=TRANSITION_TAU, tau_avg=TRANSITION_TAU))
 
 
@@ -141,7 +141,7 @@ def process_chunk(cfg: BuildConfig, chunk_index: int) -> ChunkResult:
     programs: dict[str, int] = {}
     for q, seq in enumerate(chunk.joints):
         for seg in chunk.programs[q]:
-            for key in ("left", "right", "interaction"):
+            for key in ("left", "right", "interaction", "left_then", "right_then"):
                 if seg.get(key):
                     programs[f"{key}:{seg[key]}"] = programs.get(f"{key}:{seg[key]}", 0) + 1
         f0 = first_valid_frame(seq)

@@ -18,6 +18,7 @@ def _data_arg(s) -> None:
 
 def add_parser(subparsers) -> None:
     from handx_jax.data.clips import defect_reasons_help
+    from handx_jax.data.synth import MOTIONS
 
     p = subparsers.add_parser("data", help="datasets: synthesise, import/export HandX .npz, stats, render",
                               description="Build, import, export, inspect and render datasets.")
@@ -39,10 +40,10 @@ def add_parser(subparsers) -> None:
                         "built before issue 40), 'stable' (smoothed, hysteretic states, per-fact wording; "
                         "docs/validity.md) or 'gist' (stable, plus each finger's curl swings, which level 0 "
                         "says; corpus v3)")
-    s.add_argument("--motion", default="oscillate", choices=("oscillate", "transition"),
-                   help="what a segment's actions do: 'oscillate' (go back and forth; every corpus before v3) or "
+    s.add_argument("--motion", default="oscillate", choices=MOTIONS,
+                   help="what a segment's actions do: 'oscillate' (go back and forth; every corpus before v3), "
                         "'transition' (go once from one pose to another, one segment per sequence, the clip filter at 7 deg/s; "
-                        "corpus v3)")
+                        "corpus v3) or 'chain' (the same, then once more to another pose: A to B to C; corpus v4)")
     s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_synth)

@@ -29,8 +29,12 @@ import numpy as np
 from handx_jax import skeleton as sk
 from handx_jax.data import clips
 from handx_jax.data import synth_hand as H
-from handx_jax.data.synth_programs import (ACTION_FNS, ACTIONS, FREE_FINGERS, INTERACTION_SPECS, INTERACTIONS,
-                                          NATURAL_ORIENTATION, ActionContext, Programs, sample_programs, smoothstep)
+from handx_jax.data.synth_programs import (ACTION_FNS, ACTIONS, CHAINED_ACTIONS, FREE_FINGERS, INTERACTION_SPECS,
+                                          INTERACTIONS, NATURAL_ORIENTATION, ActionContext, Programs, sample_programs,
+                                          CHAIN_MIDS_S, finger_ways, next_move, smoothstep)
+
+# What a segment's actions do (SynthConfig.motion): corpora v1-v2, v3 and v4.
+MOTIONS = ("oscillate", "transition", "chain")
 
 
 # Bumped whenever the same (seed, SynthConfig) would give different motion; part of a corpus's recipe
@@ -70,15 +74,16 @@ class SynthConfig:
     global_translation_m: float = 0.3        # random sequence offset (x, y) and height jitter
     # "oscillate" (corpora v1–v2): a segment's two-pose actions go back and forth. "transition" (corpus v3,
     # issue 40): each goes once from one pose to the other, at full amplitude, and no intensity top-up moves
-    # the fingers an action leaves free; see synth_programs.ActionContext.profile.
+    # the fingers an action leaves free; see synth_programs.ActionContext.profile. "chain" (corpus v4): the
+    # transition early in the clip, then two more moves to other poses (synth_programs.next_move).
     motion: str = "oscillate"
 
     def __post_init__(self):
-        if self.motion not in ("oscillate", "transition"):
-            raise ValueError(f"SynthConfig.motion must be 'oscillate' or 'transition', not {self.motion!r}")
-        if self.motion == "transition" and self.segments_per_sequence != 1:
+        if self.motion not in MOTIONS:
+            raise ValueError(f"SynthConfig.motion must be one of {', '.join(MOTIONS)}, not {self.motion!r}")
+        if self.motion != "oscillate" and self.segments_per_sequence != 1:
             # The boundary blend between segments would put half of a pose change at each clip's edges.
-            raise ValueError("SynthConfig.motion='transition' needs segments_per_sequence=1")
+            raise ValueError(f"SynthConfig.motion={self.motion!r} needs segments_per_sequence=1")
 
 
 @dataclass
@@ -92,6 +97,33 @@ class SynthChunk:
 def _sample_orientation(rng: np.random.Generator, ranges: tuple, n: int) -> np.ndarray:
     lo, hi = np.array(ranges, dtype=np.float64).T
     return rng.uniform(lo, hi, (n, 3))
+
+
+def _chain(rng: np.random.Generator, prog: Programs, pose: np.ndarray, s: int, t_L: np.ndarray,
+           cfg: SynthConfig) -> None:
+    """Corpus v4: every hand whose action made one move goes on twice more (synth_programs.next_move), where its
+    interaction lets it (``Interaction.chain_hands``: not out of a grip or pressed palms). A paired left hand
+    makes the right hand's second move too, shifted in time as its first ("alternate")."""
+    a_Nx2 = prog.act_NxSx2[:, s]
+    allowed_Ix2 = np.array([INTERACTION_SPECS[n].chain_hands for n in INTERACTIONS] + [(True, True)])
+    paired = prog.pairing_NxS[:, s] > 0
+    chain_Nx2 = np.isin(a_Nx2, [ACTIONS.index(a) for a in CHAINED_ACTIONS]) & allowed_Ix2[prog.inter_NxS[:, s]]
+    own_Nx2 = chain_Nx2 & np.stack([~paired, np.ones_like(paired)], 1)  # a paired left hand follows its right
+    seq, hand = np.nonzero(own_Nx2)
+    if seq.size == 0:
+        return
+    sec = np.flatnonzero((hand == 1) & paired[seq] & chain_Nx2[seq, 0])
+    held, ways = pose[seq, s, -1, hand], finger_ways(pose[seq, s, 0, hand], pose[seq, s, -1, hand])
+    for m, mid_range in enumerate(CHAIN_MIDS_S[1:]):
+        target, which, ways, mid, dur = next_move(rng, ways, held, mid_range, cfg)
+        prog.then_NxSxMx2[seq, s, m, hand] = which
+        prog.then_NxSxMx2[seq[sec], s, m, 0] = which[sec]
+        for rows, side, shift in ((np.arange(seq.size), hand, np.zeros(seq.size)),
+                                  (sec, 0, prog.offset_NxS[seq[sec], s])):
+            s2 = smoothstep((t_L[None] + shift[:, None] - mid[rows, None]) / dur[rows, None] + 0.5)[..., None]
+            q = seq[rows]
+            pose[q, s, :, side] = pose[q, s, :, side] * (1.0 - s2) + target[rows, None] * s2
+        held = target
 
 
 def _segment_channels(rng: np.random.Generator, prog: Programs, cfg: SynthConfig):
@@ -120,6 +152,8 @@ def _segment_channels(rng: np.random.Generator, prog: Programs, cfg: SynthConfig
                 out = ACTION_FNS[name](ActionContext(state, tt + prog.offset_NxS[seq, s][:, None], cfg))
                 for arr, o in zip((pose, rot, pos), out):
                     arr[seq[sec], s, :, 0] = o[sec]
+        if cfg.motion == "chain":
+            _chain(rng, prog, pose, s, t_L, cfg)
         _fill_idle(rng, prog, pose, s, cfg)
     # Pressed or clapping palms leave no room for curled fingers (they would meet first).
     flat = prog.flat_NxS[:, :, None, None, None]
@@ -484,7 +518,7 @@ def synth_chunk(seed: int, chunk_index: int, cfg: SynthConfig = SynthConfig()) -
     pose = _blend_boundaries(pose.reshape(N, S, L, -1), prog.idle_NxS, cfg.transition_frames).reshape(pose.shape)
     rot = _blend_boundaries(rot.reshape(N, S, L, -1), prog.idle_NxS, cfg.transition_frames).reshape(rot.shape)
     pose = H.clip_to_limits(pose)
-    if cfg.motion != "transition":  # corpus v3 adds no incidental finger motion (the clip filter decides)
+    if cfg.motion == "oscillate":  # corpora v3-v4 add no incidental finger motion (the clip filter decides)
         pose = _raise_intensity(rng, pose, prog, cfg)
 
     # FK in each hand's frame, then wrist rotation (with a slow orientation drift), then mirroring

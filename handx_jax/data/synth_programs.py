@@ -47,8 +47,9 @@ class ActionContext:
     @property
     def transition(self) -> bool:
         """Corpus v3's motion (``SynthConfig.motion == "transition"``): a segment goes ONCE from one pose to
-        another and holds, instead of oscillating between them (see ``profile``)."""
-        return self.cfg.motion == "transition"
+        another and holds, instead of oscillating between them (see ``profile``). Corpus v4's ``"chain"`` moves
+        the same way, then twice more (``next_move``)."""
+        return self.cfg.motion in ("transition", "chain")
 
     def amp(self) -> np.ndarray:
         if self.transition:  # a transition reaches its target pose: no partial swings near a threshold
@@ -67,8 +68,13 @@ class ActionContext:
         """
         if not self.transition:
             return _plateau(self.t, self.freq(*fr), self.phase(), sharp)
-        dur = (self.u(0.35, 0.8) / self.u(*self.cfg.speed_range))[:, None]
-        mid = self.u(0.7, 1.3)[:, None]
+        if self.cfg.motion == "chain":  # corpus v4: the first of three moves (CHAIN_MIDS_S)
+            dur = (self.u(*CHAIN_DURATION_S) / self.u(*self.cfg.speed_range))[:, None]
+            mid = self.u(*CHAIN_MIDS_S[0])[:, None]
+            dur = np.minimum(dur, 2.0 * (mid - CHAIN_EDGE_S))
+        else:
+            dur = (self.u(0.35, 0.8) / self.u(*self.cfg.speed_range))[:, None]
+            mid = self.u(0.7, 1.3)[:, None]
         s = smoothstep((self.t - mid) / dur + 0.5)
         return np.where(self.rng.random(self.n)[:, None] < 0.5, s, 1.0 - s)
 
@@ -277,6 +283,92 @@ FREE_FINGERS = {a: np.array([f not in _FIXED_FINGERS.get(a, ()) for f in range(4
 _FINGER_ONLY = tuple(a for a in ACTIONS if a not in ("wave", "wrist_roll", "wrist_flex"))
 
 
+# ---- corpus v4's second move ("chain") --------------------------------------------------------
+# A hand whose action makes one move in the clip's first half (every action but the rhythmic finger ones, which
+# move all clip long) then goes once more, from where it holds to one of these poses: A → B → C. Two moves in a
+# row give the clip an order that reversal changes, and each finger's record more events (issue 40: corpus v3
+# held one move per hand, 35 events per clip against the reference corpus's 59).
+CHAIN_TARGETS: tuple[str, ...] = ("flat", "spread", "fist", "claw", "grasp", "point", "thumbs_up",
+                                  "pinch_index", "pinch_middle", "pinch_ring", "pinch_pinky")
+CHAINED_ACTIONS: tuple[str, ...] = tuple(a for a in ACTIONS if a not in ("finger_tap", "finger_wiggle", "count"))
+# A finger's curl changes by under CHAIN_STILL_DEG or over CHAIN_MOVE_DEG in a second move, never in between:
+# the gist's 20° swing threshold sits in the gap (the same gap corpus v3's first moves keep,
+# docs/results/validity/corpus-v3/ranges.txt). A target that would put a finger in it is skipped.
+CHAIN_STILL_DEG, CHAIN_MOVE_DEG = 12.0, 32.0
+# Three moves in the 2 s clip: the action's own (``ActionContext.profile``), then two more, each a smoothstep of
+# CHAIN_DURATION_S (scaled by the speed draw) centred in its window; none runs off the clip's edge.
+CHAIN_MIDS_S: tuple[tuple[float, float], ...] = ((0.3, 0.5), (0.95, 1.1), (1.5, 1.65))
+CHAIN_DURATION_S = (0.25, 0.45)
+CHAIN_EDGE_S = 0.07
+
+
+def curl_of_pose(pose_x16: np.ndarray) -> np.ndarray:
+    """Each finger's whole curl (…, 4) in degrees from its pose channels: the mean flexion of MCP, PIP and DIP
+    (DIP = 2/3 PIP), hyperextension counted as flexion, as the annotation's interior angles read it
+    (events.finger_curl_deg). Coupling and noise move it by a few degrees."""
+    return (np.abs(pose_x16[..., H.MCP]) + pose_x16[..., H.PIP] * (1.0 + H.DIP_PER_PIP)) / 3.0
+
+
+def _chain_target(c: ActionContext, name: str, held_nx16: np.ndarray) -> np.ndarray:
+    if name.startswith("pinch_"):  # only the pinching finger and the thumb travel; the others hold
+        finger = ("index", "middle", "ring", "pinky").index(name[6:])
+        b = c.jitter(np.array(H.pinch_pose(finger)), 5)
+        out = held_nx16.copy()
+        keep = [finger, 4 + finger, 8 + finger, H.T_CMC_FLEX, H.T_CMC_ABD, H.T_MCP, H.T_IP]
+        out[:, keep] = b[:, keep]
+        return out
+    pose = {"flat": lambda: c.jitter(H.FLAT), "spread": lambda: c.jitter(H.SPREAD, 4),
+            "fist": lambda: c.jitter(H.FIST, 4), "claw": lambda: c.jitter(H.CLAW, 5),
+            "grasp": lambda: c.jitter(H.GRASP, 5), "point": lambda: _point_pose(c),
+            "thumbs_up": lambda: _thumbs_up_pose(c)}[name]
+    return pose()
+
+
+def finger_ways(start_nx16: np.ndarray, held_nx16: np.ndarray) -> np.ndarray:
+    """Which way each finger (n, 4) has travelled in a first move: +1 curled, −1 straightened, 0 stayed (a curl
+    change under CHAIN_MOVE_DEG); ``next_move`` adds each later move (2: both ways)."""
+    d = curl_of_pose(held_nx16) - curl_of_pose(start_nx16)
+    return np.where(np.abs(d) > CHAIN_MOVE_DEG, np.sign(d), 0).astype(np.int64)
+
+
+def _add_way(ways: np.ndarray, d: np.ndarray) -> np.ndarray:
+    step = np.where(np.abs(d) > CHAIN_MOVE_DEG, np.sign(d), 0).astype(np.int64)
+    return np.where(step == 0, ways, np.where((ways == 0) | (ways == step), step, 2))
+
+
+def next_move(rng: np.random.Generator, ways_nx4: np.ndarray, held_nx16: np.ndarray, mid_range: tuple[float, float],
+              cfg: SynthConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Corpus v4's next move for n hands that hold ``held_nx16``, whose fingers have gone ``ways_nx4`` so far
+    (``finger_ways``): the target pose (n, 16), its index into CHAIN_TARGETS (−1: none qualifies, and the hand
+    holds), the fingers' ways after it, and the smoothstep's centre and duration (n,), in seconds, centred in
+    ``mid_range`` and ending inside the clip.
+
+    Targets are tried in a random order per hand; the first that qualifies is taken:
+    - every finger either stays (curl change under CHAIN_STILL_DEG) or travels (over CHAIN_MOVE_DEG), and at
+      least one travels: the gist's 20° threshold sits in the gap;
+    - at least one finger has gone one way only (+1 or −1). A hand whose every moving finger goes and comes
+      back ("curls, then straightens") reads the same played backwards; one such finger beside a one-way
+      finger keeps the order visible."""
+    n = held_nx16.shape[0]
+    c = ActionContext(rng, np.zeros((n, 1)), cfg)
+    cand_nxKx16 = np.stack([_chain_target(c, k, held_nx16) for k in CHAIN_TARGETS], 1)
+    d_nxKx4 = curl_of_pose(H.clip_to_limits(cand_nxKx16)) - curl_of_pose(held_nx16)[:, None]
+    a = np.abs(d_nxKx4)
+    ways_nxKx4 = _add_way(ways_nx4[:, None], d_nxKx4)
+    ok_nxK = (((a < CHAIN_STILL_DEG) | (a > CHAIN_MOVE_DEG)).all(-1) & (a > CHAIN_MOVE_DEG).any(-1)
+              & (np.abs(ways_nxKx4) == 1).any(-1))
+    order_nxK = rng.random((n, len(CHAIN_TARGETS))).argsort(1)
+    ok_sorted = np.take_along_axis(ok_nxK, order_nxK, 1)
+    first = np.where(ok_sorted.any(1), order_nxK[np.arange(n), ok_sorted.argmax(1)], -1)
+    k = np.maximum(first, 0)
+    target = np.where((first >= 0)[:, None], cand_nxKx16[np.arange(n), k], held_nx16)
+    ways = np.where((first >= 0)[:, None], ways_nxKx4[np.arange(n), k], ways_nx4)
+    dur = c.u(*CHAIN_DURATION_S) / c.u(*cfg.speed_range)
+    mid = c.u(*mid_range)
+    dur = np.minimum(dur, 2.0 * (cfg.segment_len / cfg.fps - CHAIN_EDGE_S - mid))  # the move ends in the clip
+    return target, first, ways, mid, dur
+
+
 # ---- interactions ------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Interaction:
@@ -289,6 +381,10 @@ class Interaction:
     gap: str | None = None                    # gap schedule (see synth._gap_schedule)
     half_sep: tuple[float, float] = (0.06, 0.12)
     flat_fingers: bool = False                # palms meet: fingers may spread or bend back, not curl
+    # Corpus v4: which hands (left, right) may move on after their action (next_move). Contact that the hands' points
+    # keep whatever the fingers do (tips, knuckles) allows it; a grip, interlocked fingers or pressed palms
+    # would let go, so the hands that hold stay with their action.
+    chain_hands: tuple[bool, bool] = (True, True)
 
 
 NATURAL_ORIENTATION = ((-20.0, 25.0), (-20.0, 20.0), (-10.0, 60.0))
@@ -296,18 +392,20 @@ INTERACTION_SPECS: dict[str, Interaction] = {
     "fingertip_touch": Interaction(("point",), None, "mirror", ((75, 100), (-10, 15), (-20, 40)), None,
                                     "index_tips", "touch"),
     "palm_press": Interaction(("spread_close", "finger_wiggle", "hyperextend"), None, "mirror",
-                               ((-10, 15), (50, 85), (80, 95)), None, "palms", "touch", flat_fingers=True),
+                               ((-10, 15), (50, 85), (80, 95)), None, "palms", "touch", flat_fingers=True,
+                               chain_hands=(False, False)),
     "clap": Interaction(("spread_close", "finger_wiggle", "hyperextend"), None, "mirror",
-                         ((-5, 20), (15, 60), (80, 95)), None, "palms", "clap", (0.10, 0.16), flat_fingers=True),
+                         ((-5, 20), (15, 60), (80, 95)), None, "palms", "clap", (0.10, 0.16), flat_fingers=True,
+                         chain_hands=(False, False)),
     "tap_palm": Interaction(("finger_tap", "finger_wiggle"), ("spread_close", "finger_wiggle", "hyperextend"),
                              "independent", ((-15, 15), (-40, -20), (-10, 10)),
-                             ((-10, 15), (-5, 15), (160, 185)), "tips_on_palm", "tap"),
+                             ((-10, 15), (-5, 15), (160, 185)), "tips_on_palm", "tap", chain_hands=(True, False)),
     "interlock": Interaction(("grasp", "fist", "claw"), None, "mirror", ((5, 30), (20, 50), (82, 95)), None,
-                              "interlock", "grip"),
+                              "interlock", "grip", chain_hands=(False, False)),
     "grip_finger": Interaction(("point",), ("grasp", "fist"), "independent", ((75, 100), (-10, 10), (-15, 25)),
-                                ((-15, 15), (-5, 15), (-10, 15)), "finger_in_hand", "grip"),
+                                ((-15, 15), (-5, 15), (-10, 15)), "finger_in_hand", "grip", chain_hands=(False, False)),
     "grip_wrist": Interaction(("grasp", "fist"), _FINGER_ONLY, "independent", ((75, 100), (-15, 5), (-10, 10)),
-                               ((-15, 15), (-10, 20), (-10, 30)), "wrist_in_hand", "grip"),
+                               ((-15, 15), (-10, 20), (-10, 30)), "wrist_in_hand", "grip", chain_hands=(True, False)),
     "steeple": Interaction(("claw", "spread_close", "finger_wiggle"), None, "mirror",
                             ((-5, 15), (55, 85), (65, 85)), None, "all_tips", "touch"),
     "fist_bump": Interaction(("fist", "thumbs_up"), None, "mirror", ((80, 100), (-10, 10), (-10, 30)), None,
@@ -329,6 +427,7 @@ class Programs:
     pairing_NxS: np.ndarray   # _PAIRING code: left hand shares the right hand's action parameters
     offset_NxS: np.ndarray    # time offset (s) of the left hand in "alternate" pairing
     flat_NxS: np.ndarray      # bool: fingers must stay straight or bend back (palm contact)
+    then_NxSxMx2: np.ndarray | None = None  # corpus v4: CHAIN_TARGETS index of each hand's later moves, −1: none
 
     def to_dicts(self) -> list[list[dict]]:
         out = []
@@ -337,8 +436,12 @@ class Programs:
             for s in range(self.idle_NxS.shape[1]):
                 idle, i = bool(self.idle_NxS[n, s]), int(self.inter_NxS[n, s])
                 left, right = (ACTIONS[a] if a >= 0 else "idle" for a in self.act_NxSx2[n, s])
-                row.append({"left": left, "right": right, "interaction": INTERACTIONS[i] if i >= 0 else None,
-                            "idle": idle})
+                seg = {"left": left, "right": right, "interaction": INTERACTIONS[i] if i >= 0 else None, "idle": idle}
+                for side, k in (("left", 0), ("right", 1)) if self.then_NxSxMx2 is not None else ():
+                    then = [CHAIN_TARGETS[i] for i in self.then_NxSxMx2[n, s, :, k] if i >= 0]
+                    if then:
+                        seg[f"{side}_then"] = ", ".join(then)
+                row.append(seg)
             out.append(row)
         return out
 
@@ -364,4 +467,5 @@ def sample_programs(rng: np.random.Generator, cfg: SynthConfig) -> Programs:
     act[idle] = -1
     offset = np.where(pairing == _PAIRING["alternate"], rng.uniform(0.25, 0.6, (N, S)), 0.0)
     flat_ids = [i for i, n in enumerate(INTERACTIONS) if INTERACTION_SPECS[n].flat_fingers]
-    return Programs(idle, inter, act, pairing, offset, np.isin(inter, flat_ids))
+    return Programs(idle, inter, act, pairing, offset, np.isin(inter, flat_ids),
+                    np.full((N, S, len(CHAIN_MIDS_S) - 1, 2), -1))

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from handx_jax.io import DataError, sha256_file, verify_checksum
 
-VERSION = 6  # of the packaged assets; bumped whenever the recipe or any weight changes
+VERSION = 7  # of the packaged assets; bumped whenever the recipe or any weight changes
 ASSETS = Path(__file__).resolve().parent.parent / "assets" / "standard"  # handx_jax/assets/standard
 CARD_JSON, CARD_MD, MANIFEST = "card.json", "CARD.md", "test_manifest.npz"
 CARD_SHA = CARD_JSON + ".sha256"  # io.write_checksum's sidecar: the card's own checksum

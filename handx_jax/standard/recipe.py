@@ -13,7 +13,7 @@ from handx_jax.io import DataError
 from handx_jax.standard.assets import CARD_JSON, CARD_MD, assets_folder, read_card
 
 STANDARD_ANNOTATION = "gist"  # the standard corpus's annotation reading (Recipe.annotation; v1-v4 "reference", v5 "stable")
-STANDARD_MOTION = "transition"  # its generator motion (Recipe.motion; v1-v5 "oscillate")
+STANDARD_MOTION = "chain"  # its generator motion (Recipe.motion; v1-v5 "oscillate", v6 "transition")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,7 +35,8 @@ class Recipe:
     annotation: str = "reference"
     # The generator's motion (data.build.with_motion). v1-v5: "oscillate" (the default here, so their cards
     # read back unchanged); v6 (corpus v3): "transition", one pose change per action with the clip filter at
-    # build.TRANSITION_TAU, which the gist reading's level 0 needs (docs/results/validity/corpus-v3/).
+    # build.TRANSITION_TAU, which the gist reading's level 0 needs (docs/results/validity/corpus-v3/); v7
+    # (corpus v4): "chain", the same with up to two more moves per hand (docs/results/validity/corpus-v4/).
     motion: str = "oscillate"
 
     def synth_flags(self) -> str:
@@ -60,8 +61,9 @@ def generator_version() -> str:
 
 
 def code_recipe() -> Recipe:
-    """The recipe this code builds as the standard corpus: corpus v3 since evaluator v6 (transition motion,
-    gist reading; issue 40). v5 was corpus v2 (stable reading), v1-v4 corpus v1 (reference reading)."""
+    """The recipe this code builds as the standard corpus: corpus v4 since evaluator v7 (chain motion, gist
+    reading; issue 40). v6 was corpus v3 (transition motion), v5 corpus v2 (stable reading), v1-v4 corpus v1
+    (reference reading)."""
     return Recipe(generator=generator_version(), annotation=STANDARD_ANNOTATION, motion=STANDARD_MOTION)
 
 
