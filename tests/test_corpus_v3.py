@@ -1,6 +1,8 @@
 """Corpus v3's parts (issue 40, level-0 stability): the transition motion, the finger-curl swings of the
 "gist" annotation and the gist level 0, through the real generator, annotation, captioner and CLI."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -123,15 +125,22 @@ def test_gist_level0_words_one_decision_per_finger():
     assert gist.interaction(rel, 60) == "the palms touch"
 
 
+def level0_clean_noisy_reversed(cfg: SynthConfig, clips: int = 40):
+    """The first ``clips`` whole clips of chunk (0, 1) and their gist level-0 triples through the real
+    annotation and captioner: clean, under 1 mm of white finger noise, and played backwards."""
+    chunk = synth_chunk(0, 1, cfg)
+    ok = np.isfinite(chunk.joints).reshape(len(chunk.joints), -1).all(1)
+    x = chunk.joints[ok][:clips]
+    cap = TemplateCaptioner("per_fact")
+    l0 = lambda c: [tuple(cap.caption(r, seed=7)[0].values()) for r in E.annotate(c, E.ANNOTATIONS["gist"])]
+    return x, l0(x), l0(P.apply("white", x, 0.001, 0)), l0(x[:, ::-1].copy())
+
+
 def test_gist_reading_is_stable_under_noise_and_turns_with_time():
     """Through the real annotation and captioner: 1 mm of white finger noise leaves the gist level 0 of
     corpus v3 clips unchanged, and playing them backwards changes it (closes ↔ opens)."""
-    chunk = synth_chunk(0, 1, V3)
-    ok = np.isfinite(chunk.joints).reshape(len(chunk.joints), -1).all(1)
-    x = chunk.joints[ok][:40]
-    cfg, cap = E.ANNOTATIONS["gist"], TemplateCaptioner("per_fact")
-    l0 = lambda clips: [tuple(cap.caption(r, seed=7)[0].values()) for r in E.annotate(clips, cfg)]
-    clean, noisy, rev = l0(x), l0(P.apply("white", x, 0.001, 0)), l0(x[:, ::-1].copy())
+    x, clean, noisy, rev = level0_clean_noisy_reversed(V3)
+    cfg = E.ANNOTATIONS["gist"]
     assert all("finger_curl" in r["left_hand_events"] for r in E.annotate(x[:2], cfg))
     assert np.mean([a == b for a, b in zip(clean, noisy)]) >= 0.9
     assert np.mean([a != b for a, b in zip(clean, rev)]) >= 0.6
@@ -148,14 +157,18 @@ def test_gist_reading_is_stable_under_noise_and_turns_with_time():
     assert "finger_curl" not in E.annotate(x[:1], E.ANNOTATIONS["stable"])[0]["left_hand_events"]
 
 
-def test_corpus_v3_through_the_cli(tmp_path, capsys):
-    out = tmp_path / "v3"
+@pytest.mark.parametrize("motion", ["transition", "chain"])  # corpus v3, and corpus v4 (tests/test_corpus_v4.py)
+def test_corpus_v3_through_the_cli(tmp_path, motion):
+    out = tmp_path / motion
     assert handx(["data", "synth", "--clips", "48", "--out", str(out), "--workers", "1", "--quiet",
-                  "--motion", "transition", "--annotation", "gist"]) == 0
+                  "--motion", motion, "--annotation", "gist"]) == 0
     ds = Dataset.open(out)
     opts = ds.meta["recipe"]["options"]
-    assert opts["synth"]["motion"] == "transition" and opts["synth"]["segments_per_sequence"] == 1
+    assert opts["synth"]["motion"] == motion and opts["synth"]["segments_per_sequence"] == 1
     assert opts["clip"]["tau_hand"] == opts["clip"]["tau_avg"] == 7.0
+    # The build's report counts each hand's later moves (corpus v4 only).
+    counts = json.loads((out / "report.json").read_text())["program_counts"]
+    assert any(k.startswith("right_then:") for k in counts) == (motion == "chain")
     from handx_jax.data.build import reading_of
     assert reading_of(ds) == ("gist", "per_fact")
     hands = {t[k][0] for t in ds.texts for k in ("left", "right")}
