@@ -291,39 +291,48 @@ def test_training_augmentation_is_finger_only_bounded_and_resumable():
 
 
 def test_standard_evaluators_by_id_and_the_recipe_each_accepts(tmp_path):
-    """v6 is the packaged standard evaluator; v4 and v5 stay loadable as `standard-v4` / `standard-v5` (old
+    """v7 is the packaged standard evaluator; v4, v5 and v6 stay loadable as `standard-v4` … `standard-v6` (old
     numbers re-scored), and each accepts only prefixes of its own recipe: v4 the reference reading, v5 the
-    stable one, v6 the gist reading on transition motion (corpus v3)."""
+    stable one, v6 the gist reading on transition motion (corpus v3), v7 on chain motion (corpus v4). v6's
+    acceptance of a corpus-v3 prefix built by this code also says corpus v3 is unchanged (its test captions and
+    motion moments against v6's manifest)."""
     from handx_jax.io import DataError
 
-    assert standard.VERSION == 6
-    assert (standard.code_recipe().annotation, standard.code_recipe().motion) == ("gist", "transition")
-    v4, v5 = standard.assets_for("standard-v4"), standard.assets_for("standard-v5")
-    assert (v4, v5) == (standard.archived(4), standard.archived(5))
-    assert standard.verify_assets(v4)["version"] == 4 and standard.verify_assets(v5)["version"] == 5
-    assert standard.assets_for(None) == standard.assets_for("standard") == standard.assets_for("standard-v6") == standard.ASSETS
+    assert standard.VERSION == 7
+    assert (standard.code_recipe().annotation, standard.code_recipe().motion) == ("gist", "chain")
+    v4, v5, v6 = (standard.assets_for(f"standard-v{v}") for v in (4, 5, 6))
+    assert (v4, v5, v6) == (standard.archived(4), standard.archived(5), standard.archived(6))
+    assert [standard.verify_assets(v)["version"] for v in (v4, v5, v6)] == [4, 5, 6]
+    assert standard.assets_for(None) == standard.assets_for("standard") == standard.assets_for("standard-v7") == standard.ASSETS
     assert standard.assets_for(standard.evaluator_dir(v4)) == v4 and standard.is_standard("standard-v5")
     assert standard.assets_for(tmp_path) is None
-    with pytest.raises(DataError, match="no such standard evaluator; this package has standard-v4, standard-v5, standard-v6"):
+    with pytest.raises(DataError, match="no such standard evaluator; this package has standard-v4, standard-v5, standard-v6, standard-v7"):
         standard.assets_for("standard-v9")
     assert standard.reference_cache_dir(v4).parent.name == "standard-v4"
-    assert standard.reference_cache_dir().parent.name == "standard-v6"
+    assert standard.reference_cache_dir().parent.name == "standard-v7"
     old = standard.Recipe(**standard.read_card(v4)["recipe"])
     assert (old.annotation, old.motion) == ("reference", "oscillate")  # v4's card predates both fields
     mid = standard.Recipe(**standard.read_card(v5)["recipe"])
     assert (mid.annotation, mid.motion) == ("stable", "oscillate")  # v5's predates the motion
+    v3 = standard.Recipe(**standard.read_card(v6)["recipe"])
+    assert (v3.annotation, v3.motion) == ("gist", "transition")
     p1 = standard.build_standard_corpus(tmp_path / "v1", 120, recipe=dataclasses.replace(old, clips=120000),
                                         assets=tmp_path / "none", workers=1, progress=False)
-    p3 = standard.build_standard_corpus(tmp_path / "v3", 120, workers=1, progress=False)
-    d1, d3 = Dataset.open(p1), Dataset.open(p3)
-    assert standard.recipe_of(d3)[0] == dataclasses.replace(standard.code_recipe(), clips=120)
-    assert standard.check_reference(d1, assets=v4)["prefix"] and standard.check_reference(d3)["prefix"]
+    p3 = standard.build_standard_corpus(tmp_path / "v3", 120, recipe=v3, assets=tmp_path / "none", workers=1,
+                                        progress=False)
+    p4 = standard.build_standard_corpus(tmp_path / "v4", 120, workers=1, progress=False)
+    d1, d3, d4 = Dataset.open(p1), Dataset.open(p3), Dataset.open(p4)
+    assert standard.recipe_of(d4)[0] == dataclasses.replace(standard.code_recipe(), clips=120)
+    assert standard.check_reference(d1, assets=v4)["prefix"] and standard.check_reference(d4)["prefix"]
+    assert standard.check_reference(d3, assets=v6)["prefix"]
     # A prefix of another packaged version's recipe is refused, naming the evaluator that scores it.
     with pytest.raises(DataError, match="build option.*recipe of standard evaluator v4: score it with --evaluator standard-v4"):
-        standard.check_reference(d1)  # a corpus-v1 prefix is not v6's recipe
-    for assets in (v4, v5):
-        with pytest.raises(DataError, match="build option.*score it with --evaluator standard-v6"):
-            standard.check_reference(d3, assets=assets)
+        standard.check_reference(d1)  # a corpus-v1 prefix is not v7's recipe
+    with pytest.raises(DataError, match="build option.*recipe of standard evaluator v6: score it with --evaluator standard-v6"):
+        standard.check_reference(d3)
+    for assets in (v4, v5, v6):
+        with pytest.raises(DataError, match="build option.*score it with --evaluator standard-v7"):
+            standard.check_reference(d4, assets=assets)
 
 
 def test_order_test_scores_a_reader_of_order_one_and_a_blind_one_zero():
