@@ -13,8 +13,8 @@ clone, install included; README).
    a time, each sampled 4 times for all the prefix's 196 standard test prompts (DDIM, 25 steps) and scored
    by the standard evaluator; then the log-linear fit of top-3 R-Precision against training compute and
    its plot, with the chance level drawn, and a verdict: does the curve rise, beside the committed
-   ``make sweep-cpu`` curve. Measured (seed 42, evaluator v6 on corpus v3): top-3 0.118 / 0.179 / 0.247,
-   slope +0.068 per decade (95% CI [0.056, 0.081]), r 0.996; the largest run's interval [0.212, 0.282] is
+   ``make sweep-cpu`` curve. Measured (seed 42, evaluator v7 on corpus v4): top-3 0.110 / 0.145 / 0.161,
+   slope +0.028 per decade (95% CI [0.020, 0.035]), r 0.991; the largest run's interval [0.147, 0.175] is
    above chance (0.094).
 
 Each stage is the same ``handx`` command a user would run (printed before it runs). The models are
@@ -168,7 +168,7 @@ def verdict(sweep: Path, out: Path) -> bool:
         # clone, install included), but its slope's interval still holds 0. Say so, and show the study.
         print(("" if ok else "This sweep's curve does not show the scaling on this yardstick; ")
               + "a mini sweep short enough for 10 minutes on 2 cores is too noisy to pin the slope down (this "
-              "demo takes 7–8½ min with its install on 2 quiet cores, measured; 6 min 49 s under v6); the committed `make sweep-cpu` study "
+              "demo takes 7–8½ min with its install on 2 quiet cores, measured; 6 min 54 s under v7); the committed `make sweep-cpu` study "
               f"(6 configurations x {'3 seeds' if STUDY.name == 'replicates' else 'one seed'}, ~20 min per seed, "
               f"{yardstick}; {STUDY.relative_to(STUDIES.parents[2])}) gives, beside the demo's:\n"
               + "".join("    " + ln + "\n" for ln in (STUDY / "fit.txt").read_text().splitlines()[:5])
