@@ -97,7 +97,7 @@ TRANSITION_TAU = 7.0
 def with_motion(cfg: BuildConfig, name: str) -> BuildConfig:
     """``cfg`` with the named motion (``handx data synth --motion``): "oscillate" (corpora v1–v2: the defaults)
     or "transition" (corpus v3: one segment per sequence, and the clip filter's thresholds for motion that
-    holds still around each move, ``TRANSITION_TAU``) or "chain" (corpus v4: the same, with a second move)."""
+    holds still around each move, ``TRANSITION_TAU``) or "chain" (corpus v4: the same, with up to two more moves per hand)."""
     if name == "oscillate":
         return dataclasses.replace(cfg, synth=dataclasses.replace(cfg.synth, motion="oscillate"))
     if name not in MOTIONS:

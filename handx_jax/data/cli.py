@@ -43,7 +43,7 @@ def add_parser(subparsers) -> None:
     s.add_argument("--motion", default="oscillate", choices=MOTIONS,
                    help="what a segment's actions do: 'oscillate' (go back and forth; every corpus before v3), "
                         "'transition' (go once from one pose to another, one segment per sequence, the clip filter at 7 deg/s; "
-                        "corpus v3) or 'chain' (the same, then once more to another pose: A to B to C; corpus v4)")
+                        "corpus v3) or 'chain' (the same, then up to twice more to other poses: A to B to C to D; corpus v4)")
     s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_synth)

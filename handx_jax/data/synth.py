@@ -103,7 +103,7 @@ def _chain(rng: np.random.Generator, prog: Programs, pose: np.ndarray, s: int, t
            cfg: SynthConfig) -> None:
     """Corpus v4: every hand whose action made one move goes on twice more (synth_programs.next_move), where its
     interaction lets it (``Interaction.chain_hands``: not out of a grip or pressed palms). A paired left hand
-    makes the right hand's second move too, shifted in time as its first ("alternate")."""
+    makes the right hand's later moves too, shifted in time as its first ("alternate")."""
     a_Nx2 = prog.act_NxSx2[:, s]
     allowed_Ix2 = np.array([INTERACTION_SPECS[n].chain_hands for n in INTERACTIONS] + [(True, True)])
     paired = prog.pairing_NxS[:, s] > 0

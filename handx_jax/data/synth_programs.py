@@ -128,12 +128,17 @@ def _thumbs_up_pose(c: ActionContext) -> np.ndarray:
     return p
 
 
+def _pinch_channels(finger: int) -> list[int]:
+    """The channels a pinch with ``finger`` sets: that finger's MCP, PIP and abduction, and the thumb's."""
+    return [finger, 4 + finger, 8 + finger, H.T_CMC_FLEX, H.T_CMC_ABD, H.T_MCP, H.T_IP]
+
+
 def _pinch(finger: int, others_flat: bool = False) -> Callable[[ActionContext], ActionOut]:
     """Open hand ↔ thumb-tip on finger-tip; the contact channels are not jittered (geometry)."""
     def action(c: ActionContext) -> ActionOut:
         target = np.array(H.pinch_pose(finger, others_flat))
         b = c.jitter(target, 5)
-        keep = [finger, 4 + finger, 8 + finger, H.T_CMC_FLEX, H.T_CMC_ABD, H.T_MCP, H.T_IP]
+        keep = _pinch_channels(finger)
         b[:, keep] = target[keep]
         a = c.hyperextend(c.jitter(H.SPREAD if others_flat else H.FLAT, 6))
         if others_flat or c.transition:
@@ -283,15 +288,20 @@ FREE_FINGERS = {a: np.array([f not in _FIXED_FINGERS.get(a, ()) for f in range(4
 _FINGER_ONLY = tuple(a for a in ACTIONS if a not in ("wave", "wrist_roll", "wrist_flex"))
 
 
-# ---- corpus v4's second move ("chain") --------------------------------------------------------
-# A hand whose action makes one move in the clip's first half (every action but the rhythmic finger ones, which
-# move all clip long) then goes once more, from where it holds to one of these poses: A → B → C. Two moves in a
-# row give the clip an order that reversal changes, and each finger's record more events (issue 40: corpus v3
-# held one move per hand, 35 events per clip against the reference corpus's 59).
-CHAIN_TARGETS: tuple[str, ...] = ("flat", "spread", "fist", "claw", "grasp", "point", "thumbs_up",
-                                  "pinch_index", "pinch_middle", "pinch_ring", "pinch_pinky")
+# ---- corpus v4's later moves ("chain") --------------------------------------------------------
+# A hand whose action makes one move early in the clip (every action but the rhythmic finger ones, which move all
+# clip long) then goes on up to twice more, each time from where it holds to one of these poses: A → B → C → D.
+# Moves in a row give the clip an order that reversal changes, and each finger's record more events (issue 40:
+# corpus v3 held one move per hand, 35 events per clip against the reference corpus's 59). The poses are the
+# actions' own end poses, drawn as the actions draw them.
+_CHAIN_POSES: dict[str, Callable[[ActionContext], np.ndarray]] = {
+    "flat": lambda c: c.jitter(H.FLAT), "spread": lambda c: c.jitter(H.SPREAD, 4),
+    "fist": lambda c: c.jitter(H.FIST, 4), "claw": lambda c: c.jitter(H.CLAW, 5),
+    "grasp": lambda c: c.jitter(H.GRASP, 5), "point": _point_pose, "thumbs_up": _thumbs_up_pose}
+_PINCH_FINGERS = ("index", "middle", "ring", "pinky")
+CHAIN_TARGETS: tuple[str, ...] = tuple(_CHAIN_POSES) + tuple(f"pinch_{f}" for f in _PINCH_FINGERS)
 CHAINED_ACTIONS: tuple[str, ...] = tuple(a for a in ACTIONS if a not in ("finger_tap", "finger_wiggle", "count"))
-# A finger's curl changes by under CHAIN_STILL_DEG or over CHAIN_MOVE_DEG in a second move, never in between:
+# A finger's curl changes by under CHAIN_STILL_DEG or over CHAIN_MOVE_DEG in a later move, never in between:
 # the gist's 20° swing threshold sits in the gap (the same gap corpus v3's first moves keep,
 # docs/results/validity/corpus-v3/ranges.txt). A target that would put a finger in it is skipped.
 CHAIN_STILL_DEG, CHAIN_MOVE_DEG = 12.0, 32.0
@@ -310,30 +320,28 @@ def curl_of_pose(pose_x16: np.ndarray) -> np.ndarray:
 
 
 def _chain_target(c: ActionContext, name: str, held_nx16: np.ndarray) -> np.ndarray:
-    if name.startswith("pinch_"):  # only the pinching finger and the thumb travel; the others hold
-        finger = ("index", "middle", "ring", "pinky").index(name[6:])
-        b = c.jitter(np.array(H.pinch_pose(finger)), 5)
-        out = held_nx16.copy()
-        keep = [finger, 4 + finger, 8 + finger, H.T_CMC_FLEX, H.T_CMC_ABD, H.T_MCP, H.T_IP]
-        out[:, keep] = b[:, keep]
-        return out
-    pose = {"flat": lambda: c.jitter(H.FLAT), "spread": lambda: c.jitter(H.SPREAD, 4),
-            "fist": lambda: c.jitter(H.FIST, 4), "claw": lambda: c.jitter(H.CLAW, 5),
-            "grasp": lambda: c.jitter(H.GRASP, 5), "point": lambda: _point_pose(c),
-            "thumbs_up": lambda: _thumbs_up_pose(c)}[name]
-    return pose()
+    if name in _CHAIN_POSES:
+        return _CHAIN_POSES[name](c)
+    finger = _PINCH_FINGERS.index(name.removeprefix("pinch_"))  # only the pinching finger and the thumb travel
+    b = c.jitter(np.array(H.pinch_pose(finger)), 5)
+    out, keep = held_nx16.copy(), _pinch_channels(finger)
+    out[:, keep] = b[:, keep]
+    return out
+
+
+def _add_way(ways_x4: np.ndarray, curl_change_x4: np.ndarray) -> np.ndarray:
+    """The fingers' ways after one more move that changes their curl by ``curl_change_x4`` degrees: a finger
+    travels when the change is over CHAIN_MOVE_DEG (+1 curling, −1 straightening); one that has travelled both
+    ways reads 2."""
+    step = np.where(np.abs(curl_change_x4) > CHAIN_MOVE_DEG, np.sign(curl_change_x4), 0).astype(np.int64)
+    return np.where(step == 0, ways_x4, np.where((ways_x4 == 0) | (ways_x4 == step), step, 2))
 
 
 def finger_ways(start_nx16: np.ndarray, held_nx16: np.ndarray) -> np.ndarray:
     """Which way each finger (n, 4) has travelled in a first move: +1 curled, −1 straightened, 0 stayed (a curl
     change under CHAIN_MOVE_DEG); ``next_move`` adds each later move (2: both ways)."""
-    d = curl_of_pose(held_nx16) - curl_of_pose(start_nx16)
-    return np.where(np.abs(d) > CHAIN_MOVE_DEG, np.sign(d), 0).astype(np.int64)
-
-
-def _add_way(ways: np.ndarray, d: np.ndarray) -> np.ndarray:
-    step = np.where(np.abs(d) > CHAIN_MOVE_DEG, np.sign(d), 0).astype(np.int64)
-    return np.where(step == 0, ways, np.where((ways == 0) | (ways == step), step, 2))
+    return _add_way(np.zeros(start_nx16.shape[:-1] + (4,), np.int64),
+                    curl_of_pose(held_nx16) - curl_of_pose(start_nx16))
 
 
 def next_move(rng: np.random.Generator, ways_nx4: np.ndarray, held_nx16: np.ndarray, mid_range: tuple[float, float],
