@@ -1,0 +1,1 @@
+"""Procedural motion synthesis: the two-hand corpus and the hand–object corpus (BimArt)."""
