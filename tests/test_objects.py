@@ -12,7 +12,7 @@ import pytest
 
 from handx_jax import objects as O
 from handx_jax.objects import primitives as prim
-from handx_jax.objects.rotation import rotvec_to_matrix
+from scipy.spatial.transform import Rotation
 
 RNG = np.random.default_rng(7)
 
@@ -59,7 +59,7 @@ CASES = [("box", prim.BOX, (0.05, 0.02, 0.035), _np_box), ("cylinder", prim.CYLI
 
 
 def _pose():
-    return np.asarray(rotvec_to_matrix(jnp.asarray(RNG.normal(size=3), jnp.float32)), float), RNG.normal(size=3) * 0.05
+    return Rotation.from_rotvec(RNG.normal(size=3)).as_matrix(), RNG.normal(size=3) * 0.05
 
 
 # A few programs, each compiled once for every object here (tables padded to one shape, names stripped) and
@@ -70,6 +70,7 @@ _canon_grad = jax.jit(jax.vmap(jax.grad(lambda o, part, x: O.canonical_part_sdf(
                                (None, None, 0)))
 _world = jax.jit(O.object_sdf)
 _to_world = jax.jit(O.to_world)
+_pose_jit = jax.jit(O.part_pose)
 
 
 def canon(obj, part, x):
@@ -105,7 +106,7 @@ def test_primitive_sdf_matches_independent_geometry(sdf_fn, name, kind, size, re
     assert (d < 0).sum() > 20 and (d > 0).sum() > 20
 
 
-def _np_surface_grid(kind, s, k=160):
+def _np_surface_grid(kind, s, k=120):
     """Dense surface points from each shape's own parameterisation (numpy, not the sampler under test)."""
     u = np.linspace(0, 1, k)
     U, V = [a.ravel() for a in np.meshgrid(u, u)]
@@ -138,10 +139,11 @@ def test_primitive_distance_is_the_brute_force_nearest_surface_point(sdf_fn, nam
     grid = _np_surface_grid(kind, s)
     q = RNG.uniform(-0.07, 0.07, size=(N, 3))[:60]
     q = np.concatenate([q, np.zeros((N - 60, 3))])
-    brute = np.min(np.linalg.norm(q[:, None] - grid[None], axis=2), axis=1)
+    brute = np.array([np.sqrt(((grid - x) ** 2).sum(1).min()) for x in q[:60]])
     d = sdf_fn(_single(kind, size), q)
-    # The grid's spacing is under 2.4 mm on every shape here, so the nearest grid point is within 1.2 mm.
-    assert np.all(np.abs(np.abs(d) - brute) < 1.2e-3) and np.all(np.abs(d) <= brute + 1e-6)
+    # The grid's cells are under 2.7 mm x 1.6 mm on every shape here, so a grid point lies within 1.6 mm of
+    # the nearest surface point; and no surface point is nearer than the exact distance.
+    assert np.all(np.abs(np.abs(d[:60]) - brute) < 1.6e-3) and np.all(np.abs(d[:60]) <= brute + 1e-6)
 
 
 @pytest.mark.parametrize("name,kind,size,reference", CASES, ids=[c[0] for c in CASES])
@@ -196,22 +198,26 @@ def test_samples_are_uniform_by_area_on_a_union():
 
 def test_hinge_is_arctic_convention_and_poses_invert():
     box = O.sample_instance("box", 2)
-    st = jnp.array([math.pi / 2, 0, 0, 0, 0, 0, 0], jnp.float32)
+    st = np.array([math.pi / 2, 0, 0, 0, 0, 0, 0], np.float32)
     # Rotation about -z by 90 degrees: -x -> +y (a lid lying along -x from the hinge stands up), z fixed.
-    pts = jnp.zeros((N, 3)).at[:3].set(jnp.array([[-1.0, 0, 0], [0, 0, 0.3], [0, 1.0, 0]]))
+    pts = np.zeros((N, 3), np.float32)
+    pts[:3] = [[-1.0, 0, 0], [0, 0, 0.3], [0, 1.0, 0]]
     np.testing.assert_allclose(np.asarray(to_world(box, O.TOP, st, pts))[:3], [[0, 1, 0], [0, 0, 0.3], [1, 0, 0]],
                                atol=1e-6)
     np.testing.assert_allclose(np.asarray(to_world(box, O.BOTTOM, st, pts)), np.asarray(pts), atol=0)
-    state = jnp.asarray(np.r_[0.7, RNG.normal(size=3), RNG.normal(size=3)], jnp.float32)
-    x = jnp.asarray(RNG.normal(size=(N, 3)) * 0.1, jnp.float32)
+    state = np.r_[0.7, RNG.normal(size=3), RNG.normal(size=3)].astype(np.float32)
+    x = (RNG.normal(size=(N, 3)) * 0.1).astype(np.float32)
     for part in (O.TOP, O.BOTTOM):
-        np.testing.assert_allclose(np.asarray(O.to_part(box, part, state, to_world(box, part, state, x))),
-                                   np.asarray(x), atol=1e-5)
+        R, t = (np.asarray(v) for v in _pose_jit(O.anonymous(box), state))
+        np.testing.assert_allclose((np.asarray(to_world(box, part, state, x)) - t[part]) @ R[part], np.asarray(x),
+                                   atol=1e-5)
         # A rigid motion moves the distance field with the part.
         np.testing.assert_allclose(world_sdf(box, state, to_world(box, part, state, x))[1][part],
                                    canon(box, part, x), atol=1e-5)
-    R, _ = O.part_pose(box, state)
-    np.testing.assert_allclose(np.asarray(R[0] @ R[0].T), np.eye(3), atol=1e-5)
+    np.testing.assert_allclose(R[0] @ R[0].T, np.eye(3), atol=1e-5)
+    np.testing.assert_allclose(R[1], Rotation.from_rotvec(state[1:4]).as_matrix(), atol=1e-5)  # axis-angle
+    np.testing.assert_allclose(np.asarray(_pose_jit(O.anonymous(box), np.zeros(7, np.float32))[0]),
+                               np.stack([np.eye(3)] * 2), atol=0)  # the identity, where Rodrigues is 0 / 0
     # The top part's rotation relative to the bottom is about the hinge (-z) by the angle.
     rel = np.asarray(R[1].T @ R[0])
     np.testing.assert_allclose(rel @ [0, 0, 1], [0, 0, 1], atol=1e-5)
@@ -233,7 +239,7 @@ def test_categories_are_realistic_and_parts_do_not_interpenetrate(name):
     top, _ = O.surface_samples(a, O.TOP, N, 0)
     bottom, _ = O.surface_samples(a, O.BOTTOM, N, 0)
     for angle in np.linspace(lo, hi, 5):
-        st = jnp.asarray([angle, 0.3, -0.2, 0.1, 0.5, 0.0, 0.2], jnp.float32)
+        st = np.array([angle, 0.3, -0.2, 0.1, 0.5, 0.0, 0.2], np.float32)
         _, d_top = world_sdf(a, st, to_world(a, O.TOP, st, top))
         _, d_bot = world_sdf(a, st, to_world(a, O.BOTTOM, st, bottom))
         assert d_top[1].min() > -1e-5 and d_bot[0].min() > -1e-5
@@ -243,20 +249,27 @@ def test_categories_are_realistic_and_parts_do_not_interpenetrate(name):
 
 
 def test_jit_vmap_grad():
-    objs = [O.sample_instance("laptop", s) for s in range(3)]
-    stacked = jax.tree.map(lambda *x: jnp.stack(x), *objs)
-    pts = jnp.asarray(RNG.normal(size=(3, 4, 10, 3)) * 0.1, jnp.float32)
-    st = jnp.asarray(np.c_[np.linspace(0, 3, 4), RNG.normal(size=(4, 6)) * 0.1], jnp.float32)
-    f = jax.jit(jax.vmap(O.object_sdf_frames, (0, None, 0)))
-    d, per_part = f(stacked, st, pts)
-    assert d.shape == (3, 4, 10) and per_part.shape == (3, 4, 2, 10)
-    np.testing.assert_allclose(np.asarray(d[1]), np.asarray(O.object_sdf_frames(objs[1], st, pts[1])[0]), atol=1e-6)
-    # Gradients w.r.t. the state (the guidance needs them) match central differences.
-    x = pts[0, 0]
-    loss = lambda s: jnp.sum(O.object_sdf(objs[0], s, x)[0])
-    g = np.asarray(jax.grad(loss)(st[1]))
-    eps = 1e-3
-    fd = [(float(loss(st[1].at[i].add(eps))) - float(loss(st[1].at[i].add(-eps)))) / (2 * eps) for i in range(7)]
-    np.testing.assert_allclose(g, fd, atol=5e-3)
-    gs = jax.grad(lambda size: jnp.sum(O.canonical_part_sdf(dataclasses.replace(objs[0], size_Px3=size), O.TOP, x)))
-    assert np.isfinite(np.asarray(gs(objs[0].size_Px3))).all()
+    objs = [O.anonymous(O.sample_instance(name, 4)) for name in ("laptop", "scissors", "bottle")]
+    stacked = jax.tree.map(lambda *x: jnp.stack(x), *objs)  # categories share one padded table shape
+    x = (RNG.normal(size=(N, 3)) * 0.1).astype(np.float32)
+    st = np.r_[0.4, RNG.normal(size=6) * 0.1].astype(np.float32)
+
+    def loss(obj, s, pts):
+        return jnp.sum(jnp.tanh(O.object_sdf(obj, s, pts)[0] / 0.05))
+
+    # One program, vmapped over instances and differentiated w.r.t. the state (the guidance needs that).
+    value, g_state = jax.jit(jax.vmap(jax.value_and_grad(loss, 1), (0, None, None)))(stacked, st, x)
+    eps, st_np = 1e-3, np.asarray(st)
+    for i, obj in enumerate(objs):
+        d = world_sdf(obj, st, x)[0]
+        np.testing.assert_allclose(float(value[i]), np.sum(np.tanh(d / 0.05)), rtol=1e-5)
+        fd = []
+        for j in range(7):
+            hi, lo = st_np.copy(), st_np.copy()
+            hi[j] += eps
+            lo[j] -= eps
+            fd.append((np.sum(np.tanh(world_sdf(obj, hi, x)[0] / 0.05))
+                       - np.sum(np.tanh(world_sdf(obj, lo, x)[0] / 0.05))) / (2 * eps))
+        # float32 differences of a 512-point sum, and the few points whose nearest face changes within eps
+        # (a distance field has kinks on its medial axes), allow a few percent.
+        np.testing.assert_allclose(np.asarray(g_state[i]), fd, atol=0.04 * np.abs(fd).max())

@@ -46,9 +46,16 @@ def _sdf_torus(q_x3, size_3):
 
 def local_sdf(kind, size_3, q_Nx3):
     """Signed distance of local points to one primitive (kind is a traced int): (N,)."""
-    d = jnp.stack([_sdf_box(q_Nx3, size_3), _sdf_cylinder(q_Nx3, size_3),
-                   _sdf_capsule(q_Nx3, size_3), _sdf_torus(q_Nx3, size_3)], 0)
-    return jnp.take(d, kind, axis=0)
+    fns = (_sdf_box, _sdf_cylinder, _sdf_capsule, _sdf_torus)
+    return _select(kind, [f(q_Nx3, size_3) for f in fns])
+
+
+def _select(kind, values):
+    """values[kind] by elementwise selects (a traced kind; no gather in the compiled program)."""
+    out = values[0]
+    for i, v in enumerate(values[1:], start=1):
+        out = jnp.where(kind == i, v, out)
+    return out
 
 
 def primitive_sdf(kind_P, size_Px3, rot_Px3x3, trans_Px3, p_Nx3):
@@ -68,22 +75,23 @@ def surface_area(kind, size_3):
     cyl = 2.0 * math.pi * a * (2.0 * b) + 2.0 * math.pi * a * a
     cap = 2.0 * math.pi * a * (2.0 * b) + 4.0 * math.pi * a * a
     tor = 4.0 * math.pi ** 2 * a * b
-    return jnp.take(jnp.stack([box, cyl, cap, tor]), kind)
+    return _select(kind, [box, cyl, cap, tor])
 
 
 def _box_sample(size_3, u_4):
     a, b, c = size_3[0], size_3[1], size_3[2]
-    # Face pairs normal to x, y, z have areas 4bc, 4ac, 4ab; pick a pair by area, a side by a coin.
+    # Face pairs normal to x, y, z have areas 4bc, 4ac, 4ab; pick a pair by area, a side by a coin. One-hot
+    # arithmetic instead of indexing by the traced axis keeps the program free of gathers (XLA compiles it fast).
     w = jnp.stack([b * c, a * c, a * b])
     cum = jnp.cumsum(w) / jnp.sum(w)
     axis = (u_4[0] >= cum[0]).astype(jnp.int32) + (u_4[0] >= cum[1]).astype(jnp.int32)
+    k = jnp.arange(3)
+    e = (k == axis).astype(size_3.dtype)
+    o1 = (k == (axis + 1) % 3).astype(size_3.dtype)  # the two in-face axes, in cyclic order after ``axis``
+    o2 = (k == (axis + 2) % 3).astype(size_3.dtype)
     sign = jnp.where(u_4[1] < 0.5, -1.0, 1.0)
-    uv = jnp.stack([u_4[2], u_4[3]]) * 2.0 - 1.0
-    e = jnp.eye(3)[axis]
-    # The two in-face axes, in cyclic order after ``axis``.
-    i1, i2 = (axis + 1) % 3, (axis + 2) % 3
-    p = e * sign * size_3[axis] + jnp.eye(3)[i1] * uv[0] * size_3[i1] + jnp.eye(3)[i2] * uv[1] * size_3[i2]
-    return p, e * sign, True
+    coords = e * sign + o1 * (2.0 * u_4[2] - 1.0) + o2 * (2.0 * u_4[3] - 1.0)
+    return coords * size_3, e * sign, True
 
 
 def _cylinder_sample(size_3, u_4):
@@ -131,7 +139,4 @@ def local_sample(kind, size_3, u_4):
     """One candidate surface point of a primitive, from 4 uniforms: (point_3, normal_3, valid).
     ``valid`` is False for a rejected torus candidate; other kinds always accept."""
     outs = [f(size_3, u_4) for f in (_box_sample, _cylinder_sample, _capsule_sample, _torus_sample)]
-    p = jnp.take(jnp.stack([o[0] for o in outs]), kind, axis=0)
-    n = jnp.take(jnp.stack([o[1] for o in outs]), kind, axis=0)
-    ok = jnp.take(jnp.stack([jnp.asarray(o[2]) for o in outs]), kind)
-    return p, n, ok
+    return tuple(_select(kind, [jnp.asarray(o[i]) for o in outs]) for i in range(3))
