@@ -23,7 +23,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from handx_jax.objects import primitives
+from handx_jax.objects import mesh, primitives
 from handx_jax.objects.rotation import hinge_matrix, rotvec_to_matrix
 
 TOP, BOTTOM = 0, 1
@@ -50,6 +50,11 @@ class ArticulatedObject:
     angle_range_2: jax.Array
     up_3: jax.Array
     category: str = dataclasses.field(default="custom", metadata=dict(static=True))
+    # A mesh object (ARCTIC's, interop/arctic.py): triangles in the canonical frame, each with its part, padded
+    # to a multiple of mesh.TRI_CHUNK (part NO_PART); None for a procedural object. A part's signed distance is
+    # the min over its primitives and its mesh (mesh.py: exact distance, winding-number sign).
+    tri_Fx3x3: jax.Array | None = None
+    tri_part_F: jax.Array | None = None
 
     @property
     def n_primitives(self):
@@ -83,11 +88,19 @@ def directions_to_world(obj, part, state_7, vectors_Nx3):
     return vectors_Nx3 @ R[part].T
 
 
+def _mesh_part_sdf(obj, part, points_Nx3):
+    return mesh.mesh_sdf(obj.tri_Fx3x3, obj.tri_part_F == part, points_Nx3)
+
+
 def canonical_part_sdf(obj, part, points_Nx3):
-    """Signed distance of part-canonical points to one part: (N,). ``part`` is a Python int."""
-    d_PxN = primitives.primitive_sdf(obj.kind_P, obj.size_Px3, obj.rot_Px3x3, obj.trans_Px3, points_Nx3)
-    d_PxN = jnp.where((obj.part_P == part)[:, None], d_PxN, jnp.inf)
-    return jnp.min(d_PxN, axis=0)
+    """Signed distance of part-canonical points to one part: (N,)."""
+    d = jnp.full(points_Nx3.shape[:1], jnp.inf, points_Nx3.dtype)
+    if obj.n_primitives:
+        d_PxN = primitives.primitive_sdf(obj.kind_P, obj.size_Px3, obj.rot_Px3x3, obj.trans_Px3, points_Nx3)
+        d = jnp.min(jnp.where((obj.part_P == part)[:, None], d_PxN, jnp.inf), axis=0)
+    if obj.tri_Fx3x3 is not None:
+        d = jnp.minimum(d, _mesh_part_sdf(obj, part, points_Nx3))
+    return d
 
 
 def part_sdf(obj, part, state_7, points_Nx3):
@@ -99,10 +112,15 @@ def object_sdf(obj, state_7, points_Nx3):
     """Signed distance of world points to the whole object: (min over parts (N,), per part (2, N))."""
     R, t = part_pose(obj, state_7)
     q_2xNx3 = jnp.einsum("kni,kij->knj", points_Nx3[None] - t[:, None], R)
-    # One pass over all primitives, each reading the points in its own part's frame.
-    d_PxN = primitives.primitive_sdf(obj.kind_P, obj.size_Px3, obj.rot_Px3x3, obj.trans_Px3, q_2xNx3[obj.part_P])
-    per_part = jnp.stack([jnp.min(jnp.where((obj.part_P == p)[:, None], d_PxN, jnp.inf), axis=0)
-                          for p in (TOP, BOTTOM)])
+    per_part = jnp.full((2,) + points_Nx3.shape[:1], jnp.inf, points_Nx3.dtype)
+    if obj.n_primitives:
+        # One pass over all primitives, each reading the points in its own part's frame.
+        d_PxN = primitives.primitive_sdf(obj.kind_P, obj.size_Px3, obj.rot_Px3x3, obj.trans_Px3,
+                                         q_2xNx3[jnp.maximum(obj.part_P, 0)])
+        per_part = jnp.stack([jnp.min(jnp.where((obj.part_P == p)[:, None], d_PxN, jnp.inf), axis=0)
+                              for p in (TOP, BOTTOM)])
+    if obj.tri_Fx3x3 is not None:
+        per_part = jnp.minimum(per_part, jnp.stack([_mesh_part_sdf(obj, p, q_2xNx3[p]) for p in (TOP, BOTTOM)]))
     return jnp.min(per_part, axis=0), per_part
 
 
@@ -112,9 +130,15 @@ def object_sdf_frames(obj, states_Tx7, points_TxNx3):
 
 
 def part_areas(obj):
-    """Total primitive area per part, (2,) (overlaps counted twice; the samplers discard covered points)."""
-    area_P = jax.vmap(primitives.surface_area)(obj.kind_P, obj.size_Px3)
-    return jnp.stack([jnp.sum(jnp.where(obj.part_P == p, area_P, 0.0)) for p in (TOP, BOTTOM)])
+    """Total primitive and mesh area per part, (2,) (overlapping primitives counted twice)."""
+    out = jnp.zeros(2)
+    if obj.n_primitives:
+        area_P = jax.vmap(primitives.surface_area)(obj.kind_P, obj.size_Px3)
+        out = out + jnp.stack([jnp.sum(jnp.where(obj.part_P == p, area_P, 0.0)) for p in (TOP, BOTTOM)])
+    if obj.tri_Fx3x3 is not None:
+        area_F = mesh.triangle_areas(obj.tri_Fx3x3)
+        out = out + jnp.stack([jnp.sum(jnp.where(obj.tri_part_F == p, area_F, 0.0)) for p in (TOP, BOTTOM)])
+    return out
 
 
 # Candidates drawn per requested sample: enough for the torus's rejection (acceptance R/(R+r) >= 1/2 for the
@@ -141,6 +165,8 @@ def _surface_samples(obj, part, n, seed):
     of the same part (not on the union's surface) are dropped, which keeps the density uniform on the union.
     """
     key = jax.random.PRNGKey(seed) if jnp.ndim(seed) == 0 else seed
+    if not obj.n_primitives:  # a mesh object: area-uniform on its triangles, face normals
+        return mesh.mesh_samples(obj.tri_Fx3x3, obj.tri_part_F == part, jax.random.uniform(key, (n, 3)))
     m = _OVERSAMPLE * n
     # One uniform draw feeds everything (each jax.random call costs seconds of XLA compile on CPU): column 0
     # picks the primitive by inverse CDF of the areas, 1-4 the point on it, 5 the order among valid points.
