@@ -16,6 +16,16 @@ def _data_arg(s) -> None:
     deprecated_positional(s, s.add_argument("--data", required=True, metavar="DIR", help="dataset directory"), "data")
 
 
+def _build_args(s) -> None:
+    """The options every corpus build takes (``handx data synth``, ``handx data objects``)."""
+    s.add_argument("--clips", type=int, required=True, help="number of clips to keep")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--out", required=True, help="dataset directory to create")
+    s.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
+    s.add_argument("--val-fraction", type=float, default=0.05)
+    s.add_argument("--test-fraction", type=float, default=0.05)
+
+
 def add_parser(subparsers) -> None:
     from handx_jax.data.clips import defect_reasons_help
     from handx_jax.data.synth import MOTIONS
@@ -29,12 +39,7 @@ def add_parser(subparsers) -> None:
                        description="Synthesise two-hand motion with forward kinematics, cut and filter clips "
                                    "(paper A.3-A.4), annotate them (App. B) and write a dataset.",
                        epilog="Cut report: " + defect_reasons_help())
-    s.add_argument("--clips", type=int, required=True, help="number of clips to keep")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--out", required=True, help="dataset directory to create")
-    s.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
-    s.add_argument("--val-fraction", type=float, default=0.05)
-    s.add_argument("--test-fraction", type=float, default=0.05)
+    _build_args(s)
     s.add_argument("--annotation", default="reference", choices=("reference", "stable", "gist"),
                    help="annotation reading: 'reference' (§6.1-6.2, no smoothing; the default, and every corpus "
                         "built before issue 40), 'stable' (smoothed, hysteretic states, per-fact wording; "
@@ -53,12 +58,7 @@ def add_parser(subparsers) -> None:
                                    "cabinet, bottle) and lift it (grab) or open and close it (use), keep the clips "
                                    "whose physics holds on every frame, annotate contact maps, held parts and "
                                    "captions, and write a dataset (synthesis/object_build.py).")
-    s.add_argument("--clips", type=int, required=True, help="number of clips to keep")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--out", required=True, help="dataset directory to create")
-    s.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
-    s.add_argument("--val-fraction", type=float, default=0.05)
-    s.add_argument("--test-fraction", type=float, default=0.05)
+    _build_args(s)
     s.add_argument("--categories", default=None,
                    help="comma-separated object categories (default: all of objects.CATEGORIES)")
     s.add_argument("--force", action="store_true", help="replace an existing dataset directory")

@@ -48,7 +48,13 @@ def part_bps_points(obj, basis_Kx3, n_samples=2048, seed=0, scale_angle=None):
     pts = jnp.stack([surface_samples(obj, p, n_samples, seed + p)[0] for p in (TOP, BOTTOM)])   # (2, N, 3)
     a = SCALE_ANGLE.get(obj.category, DEFAULT_SCALE_ANGLE) if scale_angle is None else scale_angle
     s_o = object_scale(obj, pts, a)
-    # Nearest sample to each basis point in the normalised frame (Eq. 2: the object scaled by s_o into the ball).
-    d2 = jnp.sum((pts[:, None, :, :] * s_o - basis_Kx3[None, :, None, :]) ** 2, -1)               # (2, K, N)
-    nearest = jnp.argmin(d2, axis=-1)
-    return jnp.take_along_axis(pts, nearest[..., None], axis=1), s_o
+    return map_basis(pts, basis_Kx3, s_o), s_o
+
+
+def map_basis(samples_2xNx3, basis_Kx3, s_o):
+    """Eq. 2: the nearest sample of each part to each basis point, the object scaled by s_o into the unit ball;
+    (2, K, 3) in metres. Plain array arithmetic: numpy in, numpy out (no compile), or jnp under jit."""
+    xp = jnp if isinstance(samples_2xNx3, jax.Array) else __import__("numpy")
+    d2 = xp.sum((samples_2xNx3[:, None, :, :] * s_o - basis_Kx3[None, :, None, :]) ** 2, -1)      # (2, K, N)
+    nearest = xp.argmin(d2, axis=-1)
+    return xp.take_along_axis(samples_2xNx3, nearest[..., None], axis=1)

@@ -29,8 +29,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 from handx_jax import skeleton as sk
@@ -38,8 +36,8 @@ from handx_jax.data.build import _jsonable, caption_seed, sequence_split
 from handx_jax.data.dataset import DEFAULT_FRACTIONS, write_dataset
 from handx_jax.data.parallel import map_ordered
 from handx_jax.io import DataError, check_free_space, read_jsonl
-from handx_jax.objects import CATEGORIES, sample_instance
-from handx_jax.objects.bps import basis_points, part_bps_points
+from handx_jax.objects import BOTTOM, CATEGORIES, TOP, sample_instance
+from handx_jax.objects.bps import D_MARGIN, basis_points, map_basis
 from handx_jax.synthesis import object_physics as phys
 from handx_jax.synthesis.object_captions import caption_clip
 from handx_jax.synthesis.object_motion import ObjectSynthConfig, pad_object, stack_objects, synth_object_chunk
@@ -73,7 +71,17 @@ def _scale_angle(category: str) -> float:
     return float(SCALE_ANGLE.get(category, DEFAULT_SCALE_ANGLE))
 
 
-_bps = jax.jit(jax.vmap(lambda obj, basis, a: part_bps_points(obj, basis, 2048, 0, a)[0], (0, None, 0)))
+def bps_points(samples_Nx2xSx3: np.ndarray, basis_Kx3: np.ndarray, scale_angles_N: np.ndarray) -> np.ndarray:
+    """objects/bps.py's mapping (Eq. 1-2) from the surface samples the synthesizer drew, in numpy (no compile):
+    the points (N, 2, K, 3) each basis point maps to on each part."""
+    from scipy.spatial.transform import Rotation
+
+    out = np.empty(samples_Nx2xSx3.shape[:2] + basis_Kx3.shape, np.float32)
+    for i, (pts, a) in enumerate(zip(np.asarray(samples_Nx2xSx3, np.float64), scale_angles_N)):
+        top = pts[TOP] @ Rotation.from_rotvec([0.0, 0.0, -float(a)]).as_matrix().T
+        s_o = (1.0 - D_MARGIN) / max(np.linalg.norm(top, axis=-1).max(), np.linalg.norm(pts[BOTTOM], axis=-1).max())
+        out[i] = map_basis(pts, basis_Kx3, s_o)
+    return out
 
 
 @dataclass
@@ -93,7 +101,7 @@ def process_chunk(cfg: ObjectBuildConfig, chunk_index: int) -> ObjectChunkResult
     ch = synth_object_chunk(cfg.seed, chunk_index, cfg.synth)
     objs = stack_objects(ch.objects)
     m = phys.measure(objs, ch.states, ch.joints)
-    dr = phys.drift(phys.joints_in_part(objs, ch.states, ch.joints, ch.held), ch.held)
+    dr = phys.drift(phys.joints_in_part(ch.states, ch.joints, ch.held), ch.held)
     held = ch.held >= 0
     first = np.argmax(held, axis=1)                                                   # (N, 2)
     pad0 = np.take_along_axis(m["pad"], first[:, None, :, None], 1)[:, 0]             # (N, 2, 5)
@@ -106,7 +114,7 @@ def process_chunk(cfg: ObjectBuildConfig, chunk_index: int) -> ObjectChunkResult
 
     basis = _basis(cfg.bps_k)
     angles = np.array([_scale_angle(p["category"]) for p in ch.programs], np.float32)
-    bps = np.asarray(_bps(objs, jnp.asarray(basis, jnp.float32), jnp.asarray(angles)), np.float32)   # (N, 2, K, 3)
+    bps = bps_points(ch.samples, basis, angles)                                     # (N, 2, K, 3)
     cmap = phys.contact_maps(objs, bps, ch.states, ch.joints)
 
     idx = np.flatnonzero(keep)

@@ -32,16 +32,22 @@ from scipy.spatial.transform import Rotation
 
 from handx_jax import skeleton as sk
 from handx_jax.data import synth_hand as H
-from handx_jax.objects import BOTTOM, CATEGORIES, TOP, part_pose, sample_instance, surface_samples
+from handx_jax.objects import BOTTOM, CATEGORIES, TOP, sample_instance, surface_samples
 from handx_jax.synthesis import object_grasp as G
 from handx_jax.synthesis import object_templates as OT
 from handx_jax.data.synth_programs import smoothstep
 
 PROGRAMS = ("grab", "use")
-# Every object is padded to this many primitives (rows of part -1, which no part mask selects), so one compiled
-# program serves all categories and instances (they have 2-6 primitives).
-MAX_PRIMITIVES = 8
 NO_PART = -1
+ANGLE_SAMPLES = 4
+
+
+@lru_cache(maxsize=None)
+def max_primitives() -> int:
+    """Every object is padded to this many primitives (rows of part -1, which no part mask selects), so one
+    compiled program serves all categories and instances: the most any category has (a category's primitive
+    count does not depend on its sizes)."""
+    return max(int(sample_instance(c, 0).n_primitives) for c in CATEGORIES)
 
 
 @dataclass(frozen=True)
@@ -66,13 +72,14 @@ class ObjectSynthConfig:
     yaw_deg: float = 25.0                # rest heading, uniform +-
 
 
-def pad_object(obj, n=MAX_PRIMITIVES):
+def pad_object(obj, n=None):
     """``obj`` with its primitive table padded to ``n`` rows (tiny boxes of part -1 far away) and the category
     "mixed": one jit trace for every category."""
+    n = max_primitives() if n is None else n
     P = obj.kind_P.shape[-1]
     k = n - P
     if k < 0:
-        raise ValueError(f"{obj.category} has {P} primitives; MAX_PRIMITIVES is {n}")
+        raise ValueError(f"{obj.category} has {P} primitives; the padding is {n}")
     pad = lambda a, v: jnp.concatenate([a, jnp.broadcast_to(jnp.asarray(v, a.dtype), (k,) + a.shape[1:])])
     return dataclasses.replace(
         obj, kind_P=pad(obj.kind_P, 0), part_P=pad(obj.part_P, NO_PART), size_Px3=pad(obj.size_Px3, 1e-3),
@@ -94,13 +101,17 @@ def _sampler(n: int):
 
 
 _solve = jax.jit(jax.vmap(G.solve_grasp))
-_poses = jax.jit(jax.vmap(jax.vmap(part_pose, (None, 0)), (0, 0)))
-
-
-def part_poses(objs, states_NxTx7):
-    """World-from-canonical transforms of both parts per frame: R (N, T, 2, 3, 3), t (N, T, 2, 3), float64."""
-    R, t = _poses(objs, jnp.asarray(states_NxTx7, jnp.float32))
-    return np.asarray(R, np.float64), np.asarray(t, np.float64)
+def part_poses(states_NxTx7: np.ndarray):
+    """World-from-canonical transforms of both parts per frame, float64 (objects.part_pose's rule, in numpy: the
+    top part turns by the angle about -z, then both take the global rotation and translation): R (N, T, 2, 3, 3),
+    t (N, T, 2, 3)."""
+    s = np.asarray(states_NxTx7, np.float64)
+    lead = s.shape[:-1]
+    Rg = Rotation.from_rotvec(s[..., 1:4].reshape(-1, 3)).as_matrix()
+    Rh = Rotation.from_rotvec(np.outer(-s[..., 0].reshape(-1), [0.0, 0.0, 1.0])).as_matrix()
+    R = np.stack([Rg @ Rh, Rg], 1).reshape(lead + (2, 3, 3))
+    t = np.broadcast_to(s[..., None, 4:7], lead + (2, 3))
+    return R, t
 
 
 @dataclass
@@ -112,6 +123,7 @@ class ObjectChunk:
     objects: list            # per clip: the padded ArticulatedObject
     programs: list[dict]     # per clip: category, instance seed, program, layout, per hand part and template
     ok: np.ndarray           # (N,) bool: every hand found a grasp with >= 2 touching fingers
+    samples: np.ndarray      # (N, 2, S, 3) the parts' surface samples (canonical frames) the anchors came from
 
 
 def _phase_profiles(rng, n, cfg):
@@ -241,8 +253,10 @@ def synth_object_chunk(seed: int, chunk_index: int, cfg: ObjectSynthConfig = Obj
     clip_r = np.array([r[0] for r in rows])
     hand_r = np.array([r[1] for r in rows])
     part_r = np.array([r[2] for r in rows], np.int32)
+    # The grasp must clear the other part at every angle of the clip: four angles across its range (the rest is
+    # checked on every frame by the physics filter, object_physics.py).
     ang_lo, ang_hi = angle.min(1), angle.max(1)
-    angles = np.stack([ang_lo[clip_r], ang_hi[clip_r]], -1)
+    angles = ang_lo[clip_r, None] + np.linspace(0.0, 1.0, ANGLE_SAMPLES)[None] * (ang_hi - ang_lo)[clip_r, None]
     g_rows = {k: v[clip_r] for k, v in geom.items()}
     shapes = [G.SHAPES[r[6]] for r in rows]
     res = _solve(jax.tree.map(lambda a: a[clip_r], batch), jnp.asarray(part_r), jnp.asarray(angles, jnp.float32),
@@ -283,7 +297,7 @@ def synth_object_chunk(seed: int, chunk_index: int, cfg: ObjectSynthConfig = Obj
 
     states = np.concatenate([angle[..., None], Rotation.from_matrix(R_obj.reshape(-1, 3, 3)).as_rotvec()
                              .reshape(N, T, 3), t_obj], -1)
-    Rp, tp = part_poses(batch, states)                                              # (N, T, 2, 3, 3)
+    Rp, tp = part_poses(states)                                              # (N, T, 2, 3, 3)
     hp = np.array([[h["part"] for h in pr["hands"]] for pr in progs])                # (N, 2)
     Rh = np.take_along_axis(Rp, hp[:, None, :, None, None], 2)                       # (N, T, 2, 3, 3)
     th = np.take_along_axis(tp, hp[:, None, :, None], 2)
@@ -295,7 +309,8 @@ def synth_object_chunk(seed: int, chunk_index: int, cfg: ObjectSynthConfig = Obj
         for h in range(2):
             pr["hands"][h]["contact_fingers"] = int(contact[i, h].sum())
     return ObjectChunk(joints=joints_c.astype(np.float32), states=states_c.astype(np.float32), held=held,
-                       contact_fingers=contact, objects=objs, programs=progs, ok=ok)
+                       contact_fingers=contact, objects=objs, programs=progs, ok=ok,
+                       samples=pts.astype(np.float32))
 
 
 def canonical_frame(joints_NxTx2x21x3: np.ndarray, states_NxTx7: np.ndarray):

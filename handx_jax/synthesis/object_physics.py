@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from handx_jax import hand_surface as hs
-from handx_jax.objects import object_sdf, to_part, to_world
+from handx_jax.objects import object_sdf, to_world
 from handx_jax.synthesis.object_grasp import PAD_POINTS
 
 # Issue 52 item 3: no surface point more than 2 mm inside either part; inter-hand overlap below 1 cm; the pads
@@ -66,21 +66,17 @@ def drift(joints_in_part_NxTx2x21x3: np.ndarray, held_NxTx2: np.ndarray) -> np.n
     return np.where(held, d, 0.0).max(1)
 
 
-@jax.jit
-def _in_part(objs, states_NxTx7, joints_NxTx2x21x3, part_N2):
-    def frame(obj, s, j, p):
-        return jnp.stack([to_part(obj, p[h], s, j[h]) for h in range(2)])
-    return jax.vmap(jax.vmap(frame, (None, 0, 0, None)), (0, 0, 0, 0))(objs, states_NxTx7, joints_NxTx2x21x3, part_N2)
-
-
-def joints_in_part(objs, states_NxTx7, joints_NxTx2x21x3, held_NxTx2) -> np.ndarray:
+def joints_in_part(states_NxTx7, joints_NxTx2x21x3, held_NxTx2) -> np.ndarray:
     """Each hand's joints in the frame of the part it holds during the clip (its first held part; BOTTOM where it
-    holds none), (N, T, 2, 21, 3), float64 of float32 arithmetic."""
+    holds none), (N, T, 2, 21, 3), float64."""
+    from handx_jax.synthesis.object_motion import part_poses
+
     held = np.asarray(held_NxTx2)
     part = np.where((held >= 0).any(1), np.take_along_axis(held, np.argmax(held >= 0, 1)[:, None], 1)[:, 0], 1)
-    out = _in_part(objs, jnp.asarray(states_NxTx7, jnp.float32), jnp.asarray(joints_NxTx2x21x3, jnp.float32),
-                   jnp.asarray(part, jnp.int32))
-    return np.asarray(out, np.float64)
+    R, t = part_poses(states_NxTx7)                                                   # (N, T, 2, ...)
+    R = np.take_along_axis(R, part[:, None, :, None, None], 2)
+    t = np.take_along_axis(t, part[:, None, :, None], 2)
+    return np.einsum("nthkj,nthji->nthki", np.asarray(joints_NxTx2x21x3, np.float64) - t[:, :, :, None], R)
 
 
 @jax.jit

@@ -52,11 +52,13 @@ TEMPLATES = {
                            (-1, 0, 0), band=(X, -1, 0.015, 0.08)),
     },
     "scissors": {
-        # Two hands cannot share the rings (2-3 cm apart): the other hand takes the upper blade near its tip.
-        "top": Template("tip of the upper blade", TOP, "wrap", "knuckles", ((0, 0, 1),), (1, 0, 0),
-                        band=(X, 1, 0.012, 0.025)),
-        "bottom": Template("lower handle", BOTTOM, "wrap", "knuckles", ((0, 0, 1),), (-1, 0, 0),
-                           band=(X, -1, 0.0, 0.012)),
+        # Two hands cannot share the rings (2-3 cm apart): one takes the lower ring, the other the upper blade near
+        # its tip, each from above with its fingers across the scissors (its palm then spans ~8 cm along them, so
+        # the two hands keep to their own ends).
+        "top": Template("tip of the upper blade", TOP, "wrap", "knuckles", ((0, 0, 1),), (0, 1, 0),
+                        band=(X, 1, 0.01, 0.025)),
+        "bottom": Template("lower handle", BOTTOM, "wrap", "knuckles", ((0, 0, 1),), (0, -1, 0),
+                           band=(X, -1, 0.0, 0.015)),
     },
     "cabinet": {
         "top": Template("free edge of the door", TOP, margin=((Z, 0.05),), keep_out=((Z, 0.06),), **_LID_EDGE | dict(
