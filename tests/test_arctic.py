@@ -39,7 +39,9 @@ def _states(T):
 def release(tmp_path_factory):
     """A fake release: two procedural objects and one sequence each, in ARCTIC's layout."""
     root = tmp_path_factory.mktemp("arctic") / "data"
-    objs = {"box": O.sample_instance("box", 3), "scissors": O.sample_instance("scissors", 3)}
+    # Box-made objects: their tessellation is exact, so the mesh distance must equal the analytic one, and their
+    # padded triangle tables share one compiled program (tests/test_objects.py checks curved primitives).
+    objs = {"box": O.sample_instance("box", 3), "laptop": O.sample_instance("laptop", 3)}
     seqs = {}
     for name, obj in objs.items():
         A.write_object(root, name, obj, k=24)
@@ -74,9 +76,8 @@ def test_round_trip_states_mano_and_meshes(release):
             x = RNG.normal(size=(N, 3)) * 0.06
             d_mesh = np.asarray(_sdf(O.anonymous(got), part, x.astype(np.float32)))
             d_true = np.asarray(_sdf(O.anonymous(obj), part, x.astype(np.float32)))
-            tol = 1e-5 if name == "box" else 1.5e-3  # 24 segments: chord error r (1 - cos(pi / 24)) < 0.2 mm
-            np.testing.assert_allclose(d_mesh, d_true, atol=tol)
-            assert (np.sign(d_mesh) == np.sign(d_true)).mean() > 0.99
+            np.testing.assert_allclose(d_mesh, d_true, atol=1e-5)
+            assert np.array_equal(d_mesh < 0, d_true < 0) and (d_true < 0).sum() > 5
 
 
 def test_part_labels_follow_arctic_code_not_docs(release, tmp_path):
