@@ -94,7 +94,8 @@ def test_part_labels_follow_arctic_code_not_docs(release, tmp_path):
     arti = Rotation.from_rotvec(np.array([0, 0, -1.0]) * state[0])
     glob = Rotation.from_rotvec(state[1:4])
     want = glob.apply(arti.apply(v[labels == 0] / 1000)) + state[4:7]
-    got = np.asarray(O.to_world(obj, O.TOP, state.astype(np.float32), (v[labels == 0] / 1000).astype(np.float32)))
+    got = np.asarray(jax.jit(O.to_world)(O.anonymous(obj), O.TOP, state.astype(np.float32),
+                                         (v[labels == 0] / 1000).astype(np.float32)))
     np.testing.assert_allclose(got, want, atol=1e-6)
     # Without top.obj / bottom.obj the parts come from mesh.obj split by the labels: the same triangles.
     alt = tmp_path / "data"

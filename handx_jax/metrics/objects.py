@@ -66,7 +66,7 @@ def hand_part_distances(obj, states_Tx7, points_TxHxPx3) -> np.ndarray:
 
 def hand_points_from_joints(joints_Tx2x21x3) -> np.ndarray:
     """(T, 2, P, 3): hand_surface.py's surface points of both hands (P = hand_surface.N_SURFACE_POINTS)."""
-    j = jnp.asarray(joints_Tx2x21x3, jnp.float32)
+    j = np.asarray(joints_Tx2x21x3, np.float32)
     pts, _ = hs.surface_points(j.reshape(-1, sk.NUM_JOINTS, 3))
     return np.asarray(pts).reshape(j.shape[0], j.shape[1], -1, 3)
 
