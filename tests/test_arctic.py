@@ -51,7 +51,7 @@ def release(tmp_path_factory):
     return root, objs, seqs
 
 
-_sdf = jax.jit(O.canonical_part_sdf)
+_sdf = jax.jit(O.object_sdf)
 
 
 def test_round_trip_states_mano_and_meshes(release):
@@ -72,12 +72,13 @@ def test_round_trip_states_mano_and_meshes(release):
             v, f = mesh_lib.tessellate_part(obj, part, k=24)
             tri = np.asarray(got.tri_Fx3x3)[np.asarray(got.tri_part_F) == part]
             np.testing.assert_allclose(tri, v[f], atol=1e-6)
-            # The mesh's signed distance is the analytic one up to the tessellation (exact for boxes).
-            x = RNG.normal(size=(N, 3)) * 0.06
-            d_mesh = np.asarray(_sdf(O.anonymous(got), part, x.astype(np.float32)))
-            d_true = np.asarray(_sdf(O.anonymous(obj), part, x.astype(np.float32)))
-            np.testing.assert_allclose(d_mesh, d_true, atol=1e-5)
-            assert np.array_equal(d_mesh < 0, d_true < 0) and (d_true < 0).sum() > 5
+        # The mesh's signed distance, posed (world frame, both parts), is the analytic one: boxes tessellate exactly.
+        state = np.r_[0.7, RNG.normal(size=3), 0.1, 0.0, 0.2].astype(np.float32)
+        x = (RNG.normal(size=(N, 3)) * 0.06 + state[4:]).astype(np.float32)
+        d_mesh = np.asarray(_sdf(O.anonymous(got), state, x)[1])
+        d_true = np.asarray(_sdf(O.anonymous(obj), state, x)[1])
+        np.testing.assert_allclose(d_mesh, d_true, atol=1e-5)
+        assert np.array_equal(d_mesh < 0, d_true < 0) and (d_true < 0).sum() > 5
 
 
 def test_part_labels_follow_arctic_code_not_docs(release, tmp_path):
