@@ -79,19 +79,15 @@ class _SparseCSR(_SparseMatrix):
     fmt = "csr"
 
 
+class _PickleRefused(Exception):
+    """A call the restricted unpickler will not make (turned into a DataError naming the file)."""
+
+
 def _reconstructor(cls, base, state):
     """copyreg._reconstructor, restricted to the inert stand-ins (protocol 0/1 pickles of new-style objects)."""
     if not (isinstance(cls, type) and issubclass(cls, _Inert)) or base is not object or state is not None:
-        raise pickle_refusal(f"copyreg._reconstructor({cls!r}, {base!r}, ...)")
+        raise _PickleRefused(f"copyreg._reconstructor({cls!r}, {base!r}, ...)")
     return object.__new__(cls)
-
-
-class _PickleRefused(Exception):
-    pass
-
-
-def pickle_refusal(what):
-    return _PickleRefused(what)
 
 
 class _ManoUnpickler(_ArcticUnpickler):

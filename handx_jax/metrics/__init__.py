@@ -15,6 +15,7 @@ One kind of metric per module:
     motion.py       MPJPE, acceleration, jitter, contact labels and their P/R/F1 (on joints)
     hand_papers.py  G-HTT's MPJPE-RA / -PA and APD, BimArt's inter-hand penetration (geometry: hand_surface.py)
     contact.py      contact feasibility: the contacts a clip's captions name, realised or not
+    objects.py      BimArt's hand -> object metrics (obj_pen_1cm, Con, Art, Mul, Accel, CM, part F1); import the module
     intervals.py    confidence intervals: over generation groups, or a bootstrap over prompts
     replicate.py    the evaluation's rows: every metric over G groups as (point value, ± half-width)
     chunking.py     the chunked map the per-frame scans share
