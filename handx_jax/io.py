@@ -488,7 +488,7 @@ def remove_stale_temporaries(path: str | os.PathLike) -> list[str]:
     """Remove what killed writers of ``path`` left beside it (``.NAME.<8 random chars>.tmp``, ``.NAME.old-PID``), and
     say so in one line on stderr. Call only while holding ``path``'s output lock (:func:`exclusive_output`):
     then no live writer owns them."""
-    from handx_jax.runlock import pid_alive
+    from handx_jax.infra.runlock import pid_alive
 
     path = Path(path)
     pat, removed = _tmp_pattern(path.name), []
@@ -519,7 +519,7 @@ def exclusive_output(path: str | os.PathLike, *, overwrite: bool = False, flag: 
     """Hold ``path``'s output lock (``runlock.RunLock.for_output``: a second writer of the same output is
     refused, naming the first), refuse an existing ``path`` without ``overwrite`` and remove the temporaries
     of killed writers. The writes themselves go through the atomic writers inside the block."""
-    from handx_jax.runlock import RunLock
+    from handx_jax.infra.runlock import RunLock
 
     path = Path(path)
     refuse_existing(path, overwrite=overwrite, flag=flag)  # before the lock: nothing is created to refuse

@@ -17,10 +17,10 @@ from handx_jax.io import append_jsonl, atomic_write_json, read_jsonl
 
 
 def _versions_record(config_path: Path) -> dict:
-    """config.json's ``versions`` (handx_jax.provenance: python, jax, jaxlib, flax, optax, orbax, numpy):
+    """config.json's ``versions`` (handx_jax.infra.provenance: python, jax, jaxlib, flax, optax, orbax, numpy):
     those that started the run. A resume under other versions keeps them and adds ``versions_at_resume``,
     so the record never claims a single stack for a run trained on two."""
-    from handx_jax.provenance import versions
+    from handx_jax.infra.provenance import versions
 
     now = versions()
     try:

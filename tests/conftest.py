@@ -20,7 +20,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 #   float rounding may differ in the last bits). A user's own XLA_FLAGS level is kept.
 # - one CPU device in every process of the session: the tests' own processes have one anyway (JAX's
 #   default), and the `handx` subprocesses (CLI tests, sweep stages, notebook kernels) would otherwise
-#   configure one per core (handx_jax.hostdevices). The compilation cache's key includes the device count
+#   configure one per core (handx_jax.infra.hostdevices). The compilation cache's key includes the device count
 #   (not the flag), so with one count everywhere a program compiled in a test process serves a sweep stage
 #   and the reverse (the evaluator's metric programs, a tiny tokenizer's or denoiser's training step).
 #   tests/test_hostdevices.py removes the flag and checks the several-device path itself.

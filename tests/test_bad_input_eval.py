@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from handx_jax.cli import main
-from handx_jax.data.handx_npz import HandXClip, write_handx_npz
+from handx_jax.interop.handx_npz import HandXClip, write_handx_npz
 from handx_jax.evaluation import align_generated
 from handx_jax.evaluation.scoring import MAX_ABS_METRES, check_motion_range
 from handx_jax.io import DataError

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from handx_jax.cli import main as handx
-from handx_jax.data.build import BuildConfig, build_corpus
-from handx_jax.data.dataset import Dataset
-from handx_jax.data.handx_npz import read_handx_npz
+from handx_jax.dataset.build import BuildConfig, build_corpus
+from handx_jax.dataset.format import Dataset
+from handx_jax.interop.handx_npz import read_handx_npz
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +39,7 @@ def test_build_is_deterministic_across_processes(corpus, tmp_path):
     import os
 
     # 48 clips (several sequences, every split non-empty) are enough to reach every code path of the build.
-    code = ("import sys; from handx_jax.data.build import BuildConfig, build_corpus; "
+    code = ("import sys; from handx_jax.dataset.build import BuildConfig, build_corpus; "
             "build_corpus(sys.argv[1], BuildConfig(clips=48, seed=3, workers=1, val_fraction=0.2, "
             "test_fraction=0.2), progress=False)")
     prints = {}

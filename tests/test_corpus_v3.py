@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 
 from handx_jax.cli import main as handx
-from handx_jax.data import events as E
-from handx_jax.data import features as ft
-from handx_jax.data.build import BuildConfig, recipe
-from handx_jax.data.caption import TemplateCaptioner
-from handx_jax.data.caption import gist
-from handx_jax.data.dataset import Dataset
-from handx_jax.data.segment import swings
-from handx_jax.data.synth import SynthConfig, synth_chunk
+from handx_jax.annotation import events as E
+from handx_jax.annotation import descriptors as ft
+from handx_jax.dataset.build import BuildConfig, recipe
+from handx_jax.annotation.caption import TemplateCaptioner
+from handx_jax.annotation.caption import gist
+from handx_jax.dataset.format import Dataset
+from handx_jax.annotation.segment import swings
+from handx_jax.synthesis.bimanual import SynthConfig, synth_chunk
 from handx_jax.validity import perturb as P
 
 V3 = SynthConfig(motion="transition", segments_per_sequence=1)
@@ -49,7 +49,7 @@ def test_the_recipe_of_older_corpora_is_unchanged():
     # keeps its identity); a v3 recipe records both.
     old = recipe(BuildConfig(clips=10))["options"]
     assert "motion" not in old["synth"] and "finger_curl_swing_deg" not in old["annotation"]
-    from handx_jax.data.build import with_reading
+    from handx_jax.dataset.build import with_reading
     new = recipe(with_reading(BuildConfig(clips=10, synth=V3), "gist"))["options"]
     assert new["synth"]["motion"] == "transition" and new["annotation"]["finger_curl_swing_deg"] == 20.0
 
@@ -169,7 +169,7 @@ def test_corpus_v3_through_the_cli(tmp_path, motion):
     # The build's report counts each hand's later moves (corpus v4 only).
     counts = json.loads((out / "report.json").read_text())["program_counts"]
     assert any(k.startswith("right_then:") for k in counts) == (motion == "chain")
-    from handx_jax.data.build import reading_of
+    from handx_jax.dataset.build import reading_of
     assert reading_of(ds) == ("gist", "per_fact")
     hands = {t[k][0] for t in ds.texts for k in ("left", "right")}
     words = ("The hand ", "The index", "The middle", "The ring", "The pinky", "The fingers hold")
@@ -181,8 +181,8 @@ def test_corpus_v3_through_the_cli(tmp_path, motion):
 def test_transition_clips_that_move_at_all_pass_the_filter():
     """With corpus v3's clip filter (7 °/s) a pinch passes, which the paper's 25 °/s drops, and an idle hand
     still does not (it is what the filter is for)."""
-    from handx_jax.data import clips as C
-    from handx_jax.data.build import with_motion
+    from handx_jax.dataset import clips as C
+    from handx_jax.dataset.build import with_motion
     cfg = with_motion(BuildConfig(clips=10), "transition")
     chunk = synth_chunk(0, 0, cfg.synth)
     ok = np.isfinite(chunk.joints).reshape(len(chunk.joints), -1).all(1)

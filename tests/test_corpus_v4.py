@@ -5,12 +5,12 @@ accepted by the archived evaluator v6: tests/test_validity.py)."""
 import numpy as np
 import pytest
 
-from handx_jax.data import events as E
-from handx_jax.data import features as ft
-from handx_jax.data import synth_hand as H
-from handx_jax.data import synth_programs as P
-from handx_jax.data.segment import swings
-from handx_jax.data.synth import SynthConfig, synth_chunk
+from handx_jax.annotation import events as E
+from handx_jax.annotation import descriptors as ft
+from handx_jax.synthesis import hand as H
+from handx_jax.synthesis import programs as P
+from handx_jax.annotation.segment import swings
+from handx_jax.synthesis.bimanual import SynthConfig, synth_chunk
 from tests.test_corpus_v3 import level0_clean_noisy_reversed
 
 V3 = SynthConfig(motion="transition", segments_per_sequence=1)

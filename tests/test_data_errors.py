@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from handx_jax.cli import main as handx
-from handx_jax.data.dataset import write_dataset
-from handx_jax.data.handx_npz import HandXClip, write_handx_npz
+from handx_jax.dataset.format import write_dataset
+from handx_jax.interop.handx_npz import HandXClip, write_handx_npz
 from handx_jax.io import DataError
 
 

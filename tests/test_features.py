@@ -1,13 +1,13 @@
-"""Known-answer tests for the kinematic descriptors (handx_jax/data/features.py)."""
+"""Known-answer tests for the kinematic descriptors (handx_jax/annotation/descriptors.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from handx_jax.data import features as ft
-from handx_jax.data.events import FLEXING
-from handx_jax.data.segment import _labels
+from handx_jax.annotation import descriptors as ft
+from handx_jax.annotation.events import FLEXING
+from handx_jax.annotation.segment import _labels
 from handmade_hands import clip, mirror, pair, right_hand, still
 
 FLEX = {n: i for i, n in enumerate(ft.FLEX_JOINTS)}
@@ -151,7 +151,7 @@ def test_descriptors_survive_an_ulp_change_in_float_kernels(monkeypatch):
     are computed in float64 and rounded to float32, so such a change leaves (almost) every descriptor
     bit-identical and the captions with them; computed in float32, it changed most of them (and one
     caption record in 2000 of a corpus)."""
-    from handx_jax.data import synth
+    from handx_jax.synthesis import bimanual as synth
 
     class UlpNumpy:
         def __getattr__(self, name):

@@ -18,7 +18,7 @@ import pytest
 
 from handx_jax import io as hio
 from handx_jax.cli import main as handx
-from handx_jax.data.handx_npz import HandXClip, write_handx_npz
+from handx_jax.interop.handx_npz import HandXClip, write_handx_npz
 
 SMALL = 2 << 20
 
@@ -73,7 +73,7 @@ def test_import_on_a_full_disk_is_a_clean_error(small_disk, tmp_path):
 def test_write_that_hits_enospc_removes_its_folder(small_disk, tmp_path, monkeypatch, capsys):
     """Past the up-front check (space taken meanwhile), the failing write itself is the clean error."""
     disk, real = small_disk
-    for where in ("handx_jax.data.dataset.check_free_space", "handx_jax.io.check_free_space"):
+    for where in ("handx_jax.dataset.format.check_free_space", "handx_jax.io.check_free_space"):
         monkeypatch.setattr(where, lambda *a, **k: None)
     if not real:
         def append(self, rows):
@@ -89,7 +89,7 @@ def test_write_that_hits_enospc_removes_its_folder(small_disk, tmp_path, monkeyp
 
 def test_every_command_reports_enospc_in_one_line(monkeypatch, capsys, tmp_path):
     """A bare OSError 28 from anywhere (a library's own write) becomes one line, exit 2."""
-    from handx_jax.data import cli as data_cli
+    from handx_jax.commands import data as data_cli
 
     def full(a):
         raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "x.bin"))

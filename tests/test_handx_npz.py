@@ -1,4 +1,4 @@
-"""Tests for handx_jax.data.handx_npz: official .npz format round trips and the restricted unpickler."""
+"""Tests for handx_jax.interop.handx_npz: official .npz format round trips and the restricted unpickler."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from numpy.lib import format as npy_format
 
-from handx_jax.data.handx_npz import (
+from handx_jax.interop.handx_npz import (
     HandXClip,
     read_handx_mano_npz,
     read_handx_npz,

@@ -117,7 +117,7 @@ def test_run_lock_taken_when_a_torn_lock_is_released_during_the_wait(tmp_path):
     FileNotFoundError (a sweep's parallel runs sharing one step did, in scripts/gpu_lease_ar.sh's dry run)."""
     import threading
 
-    from handx_jax.runlock import LOCK_NAME, RunLock, read_holder
+    from handx_jax.infra.runlock import LOCK_NAME, RunLock, read_holder
 
     lock_file = tmp_path / LOCK_NAME
     lock_file.write_text("")  # torn: opened, not yet written

@@ -1,4 +1,4 @@
-"""Tests for the procedural two-hand corpus (handx_jax/data/synth.py, synth_hand.py)."""
+"""Tests for the procedural two-hand corpus (handx_jax/synthesis/bimanual.py, synth_hand.py)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 
 from handx_jax import skeleton as sk
-from handx_jax.data import clips, synth, synth_programs
-from handx_jax.data import synth_hand as H
+from handx_jax.dataset import clips
+from handx_jax.synthesis import bimanual as synth
+from handx_jax.synthesis import programs as synth_programs
+from handx_jax.synthesis import hand as H
 
 SMALL = synth.SynthConfig(chunk_size=16)
 CLEAN = dataclasses.replace(SMALL, noise_deg=0.0, white_noise_deg=0.0, wrist_noise_m=0.0, white_noise_m=0.0, defect_prob=0.0)

@@ -9,7 +9,7 @@ import pytest
 
 from random_params import random_params
 
-from handx_jax.data.dataset import TEXT_FIELDS, Dataset
+from handx_jax.dataset.format import TEXT_FIELDS, Dataset
 from handx_jax.io import DataError
 from handx_jax.text import cli
 from handx_jax.text import tokenizer as tk
@@ -169,7 +169,7 @@ def test_cache_follows_check_compatible_on_captions(setup, tmp_path):
     """Issue 14.5: the cache depends only on the clip ids and captions, so a dataset whose motion
     differs by float rounding keeps it (dataset.check_compatible, parts ids + captions); other
     captions are refused."""
-    from handx_jax.data.dataset import write_dataset
+    from handx_jax.dataset.format import write_dataset
 
     data, enc_dir, _ = setup
     root = build_cache(data, enc_dir, dtype="float32", max_len=48, batch_size=32, log=lambda s: None)

@@ -82,7 +82,7 @@ class TrainedEvaluator:
         recipe that differs only by float rounding is accepted and reported (data.dataset.check_compatible)."""
         import sys
 
-        from handx_jax.data.dataset import check_compatible
+        from handx_jax.dataset.format import check_compatible
 
         c = check_compatible(self.meta.get("dataset"), ds, what="this evaluator", made="trained on",
                              fix=f"evaluate against the dataset the evaluator was trained on "

@@ -169,7 +169,7 @@ class Generated:
 
 
 def align_generated(entries: Sequence, ds, split: str = "test") -> Generated:
-    """Arrange generated :class:`~handx_jax.data.handx_npz.HandXClip` entries as (group, prompt).
+    """Arrange generated :class:`~handx_jax.interop.handx_npz.HandXClip` entries as (group, prompt).
 
     With ``source_clip`` on every entry, it names the reference clip (any split); ``group`` defaults
     to the entry's occurrence index among entries of the same source clip. Without ``source_clip`` on

@@ -120,7 +120,7 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
     """
     import shutil
 
-    from handx_jax.data.dataset import Dataset, dataset_record
+    from handx_jax.dataset.format import Dataset, dataset_record
     from handx_jax.evaluation.scoring import evaluate_ground_truth, format_table, write_eval_json
     from handx_jax.models.layers import count_params
     from handx_jax.text.cache import build_cache, open_cache
@@ -257,7 +257,7 @@ def _start_from(path: str, mcfg: EvaluatorConfig, enc):
 
 def _companion(path: str, ds, enc, policy: TextPolicy, levels: Sequence[int], log):
     """(dataset, joined cache) of the reversed copy ``path`` of ``ds`` (``handx data reverse``)."""
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.text.cache import build_cache, open_cache
 
     rds = Dataset.open(path)

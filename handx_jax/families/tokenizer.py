@@ -248,7 +248,7 @@ def train(run_dir: str | os.PathLike, cfg: TokenizerRunConfig, *, stop_at: int |
     """Train (or resume) a tokenizer in ``run_dir`` (``encoder`` is unused: no text)."""
     from handx_jax import representation as rep
     from handx_jax import train as loop
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
 
     cfg.validate()
     if not cfg.data.path:
@@ -346,7 +346,7 @@ def tokenize(tokenizer_dir: str | os.PathLike, data_dir: str | os.PathLike, *, o
     """Encode every clip of the dataset (all splits) into ``DATA/token_cache/<fp>/`` (atomic):
     ``codes.npy`` (N, 30) int32 in dataset clip order and ``meta.json`` (provenance: the tokenizer
     folder, its fingerprint, step, nominal and real codebook size, levels, quantizer; the dataset)."""
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.io import atomic_dir, atomic_write_json
 
     tok = load(tokenizer_dir)
@@ -426,7 +426,7 @@ def read_codes(path: Path, meta: dict) -> np.ndarray:
 
 def open_token_cache(data_dir: str | os.PathLike, tokenizer_dir: str | os.PathLike) -> TokenCache:
     """The cache of this dataset + tokenizer, verified; a clear error naming the command if absent."""
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
 
     ds = Dataset.open(data_dir)
     fp = token_cache_fingerprint(ds.fingerprint, load(tokenizer_dir).fingerprint)

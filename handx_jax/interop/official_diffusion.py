@@ -274,7 +274,7 @@ def read_stats(*, data: str | os.PathLike | None = None, stats: str | os.PathLik
     if (data is None) == (stats is None):
         raise DataError("give exactly one of --data DATASET or --stats FILE for the normalisation statistics")
     if data is not None:
-        from handx_jax.data.dataset import Dataset
+        from handx_jax.dataset.format import Dataset
 
         return rep.NormStats.from_npz_dict(Dataset.open(data).stats, "diffusion")
     from handx_jax.interop import checks

@@ -37,7 +37,7 @@ def package(data: str | os.PathLike, encoder: str | os.PathLike, evaluator: str 
             validity: Mapping[str, Any] | None = None, log=print) -> Path:
     """Copy the encoder and evaluator trained on the standard corpus ``data`` into ``out``, score the
     Ground Truth rows (blocks 32 and 16) on the full test split, and write the manifest and the card."""
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.evaluation import EVAL_FILE, META_FILE, PARAMS_FILE, STATS_FILE, evaluate_ground_truth, \
         read_meta
     from handx_jax.metrics import MetricConfig
@@ -66,7 +66,7 @@ def package(data: str | os.PathLike, encoder: str | os.PathLike, evaluator: str 
     atomic_write_json(tmp / EVALUATOR_DIR / META_FILE, meta)
     man = test_manifest(ds)
     np.savez_compressed(tmp / MANIFEST, **man)
-    from handx_jax.data.dataset import dataset_record
+    from handx_jax.dataset.format import dataset_record
 
     card = {"version": VERSION, "recipe": dataclasses.asdict(rec), "recipe_options": opts,
             "corpus": {"record": dataset_record(ds), "fingerprint": ds.fingerprint, "clips": len(ds), "split_sizes": ds.meta["split_sizes"],

@@ -118,7 +118,7 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
     existing cache with the same fingerprint is complete by construction (atomic write) and is reused
     unless ``overwrite``.
     """
-    from handx_jax.data.dataset import TEXT_FIELDS, Dataset, dataset_record
+    from handx_jax.dataset.format import TEXT_FIELDS, Dataset, dataset_record
     from handx_jax.text.hf import as_encoder
 
     if dtype not in DTYPES:
@@ -244,7 +244,7 @@ class TextCache:
                                 missing="not a text cache (missing meta.json); build one with `handx text cache`",
                                 upgrade="; rebuild it with `handx text cache`")
         if dataset is not None:
-            from handx_jax.data.dataset import check_compatible
+            from handx_jax.dataset.format import check_compatible
 
             check_compatible(meta.get("dataset", {"fingerprint": meta.get("dataset_fingerprint")}), dataset,
                              what=f"text cache {root}", parts=("ids", "captions"),
@@ -294,7 +294,7 @@ def open_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, m
                dtype: str = "float16", joined: bool = False, levels: Sequence[int] | None = None) -> TextCache:
     """The cache for this dataset + encoder folder, verified; a clear error if there is none. ``levels``:
     the caption levels the caller reads; the full cache serves them, else one built for exactly them."""
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.text.hf import as_encoder
 
     ds = Dataset.open(data_dir)

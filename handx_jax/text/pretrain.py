@@ -255,7 +255,7 @@ def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainC
     time slice) and returns None; rerunning the same call continues from there. The encoder is
     exported once all ``cfg.steps`` are done.
     """
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.runlog import trainable_renamed
     from handx_jax.train import TrainConfig, TrainSpec, check_resume, train
 

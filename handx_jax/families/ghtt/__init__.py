@@ -167,7 +167,7 @@ def recognition_scores(params, cfg: G.GHTTConfig, M_first_NxSxD, text_NxD, block
 
 def train(run_dir: str | os.PathLike, cfg: GHTTRunConfig, *, stop_at=None, on_log=None, encoder=None) -> dict:
     from handx_jax import train as loop
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.text.cache import open_cache
     from handx_jax.text.t5 import T5Config
     cfg.validate()

@@ -12,10 +12,10 @@ import functools
 import numpy as np
 
 from handx_jax import skeleton as sk
-from handx_jax.data.clips import ClipConfig, hand_intensity
-from handx_jax.data.dataset import Dataset
-from handx_jax.data.features import contact_frames, contact_segments_stats
-from handx_jax.data.parallel import map_ordered
+from handx_jax.dataset.clips import ClipConfig, hand_intensity
+from handx_jax.dataset.format import Dataset
+from handx_jax.annotation.descriptors import contact_frames, contact_segments_stats
+from handx_jax.dataset.parallel import map_ordered
 
 
 def dataset_stats(ds: Dataset, *, chunk: int = 2048, workers: int = 1) -> dict:

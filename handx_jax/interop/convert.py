@@ -18,8 +18,8 @@ from typing import Sequence
 
 import numpy as np
 
-from handx_jax.data.dataset import DEFAULT_FRACTIONS, Dataset, write_dataset
-from handx_jax.data.handx_npz import HandXClip, read_handx_npz, write_handx_npz
+from handx_jax.dataset.format import DEFAULT_FRACTIONS, Dataset, write_dataset
+from handx_jax.interop.handx_npz import HandXClip, read_handx_npz, write_handx_npz
 from handx_jax.io import DataError, sha256_file
 
 
@@ -73,7 +73,7 @@ def import_handx(files: Sequence[str | os.PathLike], out: str | os.PathLike, *, 
         splits_val_is_test = False
     events = None
     if annotate_events:
-        from handx_jax.data.events import annotate
+        from handx_jax.annotation.events import annotate
         events = [e for s in range(0, len(motion), 1024) for e in annotate(motion[s:s + 1024])]
     report = {"dropped_nonfinite_clips": {k: len(v) for k, v in dropped.items()},
               "dropped_keys": dropped, "imported": len(motion)}

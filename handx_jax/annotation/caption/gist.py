@@ -17,8 +17,8 @@ palms that come together and stay count from the frame they meet, not only palms
 
 from __future__ import annotations
 
-from handx_jax.data.caption.inter import contact_periods
-from handx_jax.data.caption.words import FOUR, capitalise, finger_group, join_words
+from handx_jax.annotation.caption.inter import contact_periods
+from handx_jax.annotation.caption.words import FOUR, capitalise, finger_group, join_words
 
 TOUCH_FRAMES = 6
 # Swing patterns → (singular, plural) verb. A single swing carries its depth; three swings or more are a

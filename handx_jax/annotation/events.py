@@ -23,8 +23,8 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
 from handx_jax import skeleton as sk
-from handx_jax.data import features as ft
-from handx_jax.data.segment import SPEEDS, Events, SegmentSpec, contact_runs, segment, segment_states, swings
+from handx_jax.annotation import descriptors as ft
+from handx_jax.annotation.segment import SPEEDS, Events, SegmentSpec, contact_runs, segment, segment_states, swings
 
 AXES = ("left-right", "front-back", "down-up")  # world x, y, z of the canonical frame (A.2)
 # Wrist direction names by axis and sign (reference §6.2): x+ left-to-right, y+ back-to-front, z+ down-to-up.

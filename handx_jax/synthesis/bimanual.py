@@ -27,9 +27,9 @@ from functools import lru_cache
 import numpy as np
 
 from handx_jax import skeleton as sk
-from handx_jax.data import clips
-from handx_jax.data import synth_hand as H
-from handx_jax.data.synth_programs import (ACTION_FNS, ACTIONS, CHAINED_ACTIONS, FREE_FINGERS, INTERACTION_SPECS,
+from handx_jax.dataset import clips
+from handx_jax.synthesis import hand as H
+from handx_jax.synthesis.programs import (ACTION_FNS, ACTIONS, CHAINED_ACTIONS, FREE_FINGERS, INTERACTION_SPECS,
                                           INTERACTIONS, NATURAL_ORIENTATION, ActionContext, Programs, sample_programs,
                                           CHAIN_MIDS_S, finger_ways, next_move, smoothstep)
 

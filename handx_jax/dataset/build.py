@@ -21,13 +21,13 @@ from typing import Iterator
 import numpy as np
 
 from handx_jax import skeleton as sk
-from handx_jax.data.clips import ClipConfig, ClipReport, extract_clips
-from handx_jax.data.dataset import DEFAULT_FRACTIONS, write_dataset
-from handx_jax.data.events import AnnotationConfig, annotate
-from handx_jax.data.parallel import map_ordered
+from handx_jax.dataset.clips import ClipConfig, ClipReport, extract_clips
+from handx_jax.dataset.format import DEFAULT_FRACTIONS, write_dataset
+from handx_jax.annotation.events import AnnotationConfig, annotate
+from handx_jax.dataset.parallel import map_ordered
 from handx_jax.io import check_free_space
-from handx_jax.data.caption import TemplateCaptioner
-from handx_jax.data.synth import GENERATOR_VERSION, MOTIONS, SynthConfig, synth_chunk
+from handx_jax.annotation.caption import TemplateCaptioner
+from handx_jax.synthesis.bimanual import GENERATOR_VERSION, MOTIONS, SynthConfig, synth_chunk
 
 
 @dataclass(frozen=True)
@@ -54,7 +54,7 @@ WORDING = {"reference": "shared", "stable": "per_fact", "gist": "per_fact"}
 def reading_of_options(options: dict) -> str | None:
     """The named annotation reading a corpus's recipe options record (``meta.json`` ``recipe.options``),
     or None when its annotation is none of them (a custom AnnotationConfig)."""
-    from handx_jax.data.events import ANNOTATIONS
+    from handx_jax.annotation.events import ANNOTATIONS
 
     ann = (options or {}).get("annotation")
     for name, cfg in ANNOTATIONS.items():
@@ -81,7 +81,7 @@ def corpus_seed(ds) -> int:
 
 def with_reading(cfg: BuildConfig, name: str) -> BuildConfig:
     """``cfg`` annotated and captioned with the named reading (``handx data synth --annotation``)."""
-    from handx_jax.data.events import annotation_config
+    from handx_jax.annotation.events import annotation_config
 
     return dataclasses.replace(cfg, annotation=annotation_config(name), wording=WORDING[name])
 

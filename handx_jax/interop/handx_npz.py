@@ -13,7 +13,7 @@ MANO archives (``*_mano.npz``, §1.9) hold ``{left,right}_pose (60, 48)``, ``{le
 
 Reading never calls plain ``pickle``/``np.load(allow_pickle=True)``: the zip is opened directly, each
 ``.npy`` header is parsed with ``numpy.lib.format`` and the object payload is unpickled by
-:class:`_RestrictedUnpickler` (``handx_jax.safe_pickle``), whose ``find_class`` admits only what NumPy needs
+:class:`_RestrictedUnpickler` (``handx_jax.infra.safe_pickle``), whose ``find_class`` admits only what NumPy needs
 to rebuild arrays, dtypes and scalars, and plain containers. Any other global (``os.system``, ``builtins.eval``, …) is refused before it is
 resolved, with a :class:`~handx_jax.io.DataError` naming the file and key. Every validation error is a
 ``DataError`` naming the file, the clip key and the field.
@@ -39,7 +39,7 @@ from numpy.lib import format as npy_format
 
 from handx_jax import skeleton as sk
 from handx_jax.io import DataError, atomic_write_bytes
-from handx_jax.safe_pickle import RestrictedUnpickler
+from handx_jax.infra.safe_pickle import RestrictedUnpickler
 
 MOTION_FIELD = "motion"
 ANNOTATION_FIELDS = ("left_annotation", "right_annotation", "interaction_annotation")
@@ -58,7 +58,7 @@ MANO_FIELDS = {
 # restricted unpickling
 
 class _RestrictedUnpickler(RestrictedUnpickler):
-    """NumPy reconstruction and plain containers only (``handx_jax.safe_pickle``, the one home of
+    """NumPy reconstruction and plain containers only (``handx_jax.infra.safe_pickle``, the one home of
     restricted unpickling); any other global is refused naming the file and key."""
 
     what = "HandX archives"

@@ -1,6 +1,6 @@
 """The fact composer: a fact is one thing worth saying, with a salience, a time span and a renderer for
 detail 0 … 4; a level's text takes facts by salience into its word budget and tells them in temporal
-order, at most two clauses per sentence (module docstring of ``handx_jax.data.caption``)."""
+order, at most two clauses per sentence (module docstring of ``handx_jax.annotation.caption``)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import random
 from dataclasses import dataclass
 from typing import Callable
 
-from handx_jax.data.caption.words import capitalise, join_words, pick, word_count
+from handx_jax.annotation.caption.words import capitalise, join_words, pick, word_count
 # Word budget of one text field per level (the mean over a corpus lands a little below, since
 # simple motions say less) and the cap no field may exceed (≈ 1.35 T5 tokens per word → 120).
 BUDGET_WORDS = (10, 27, 44, 61, 80)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 from typing import Callable
 
-from handx_jax.data.caption.protocol import LEVELS
+from handx_jax.annotation.caption.protocol import LEVELS
 from handx_jax.io import DataError
 
 _PROMPT_HEAD = """You are annotating a short clip of two human hands moving together. You will not see the

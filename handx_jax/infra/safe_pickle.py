@@ -2,7 +2,7 @@
 
 Pickle runs code by design: a ``GLOBAL`` opcode imports any ``module.name`` and ``REDUCE`` calls it, so
 ``pickle.load`` on a file from elsewhere can run a command. Every reader of pickled data in handx-jax
-(the official HandX ``.npz`` archives, ``data/handx_npz.py``; PyTorch checkpoints,
+(the official HandX ``.npz`` archives, ``interop/handx_npz.py``; PyTorch checkpoints,
 ``interop/torch_pickle.py``) goes through :class:`RestrictedUnpickler`, whose ``find_class`` resolves
 only the globals listed here, never imports a module on the pickle's say-so, and refuses anything
 else before it is resolved with a :class:`~handx_jax.io.DataError` naming the file (and key).

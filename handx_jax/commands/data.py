@@ -17,8 +17,8 @@ def _data_arg(s) -> None:
 
 
 def add_parser(subparsers) -> None:
-    from handx_jax.data.clips import defect_reasons_help
-    from handx_jax.data.synth import MOTIONS
+    from handx_jax.dataset.clips import defect_reasons_help
+    from handx_jax.synthesis.bimanual import MOTIONS
 
     p = subparsers.add_parser("data", help="datasets: synthesise, import/export HandX .npz, stats, render",
                               description="Build, import, export, inspect and render datasets.")
@@ -114,9 +114,9 @@ def _clip_index(ds, clip: str) -> int:
 
 
 def _synth(a: argparse.Namespace) -> int:
-    from handx_jax.data.build import BuildConfig, build_corpus, with_motion, with_reading
-    from handx_jax.data.dataset import Dataset
-    from handx_jax.data.stats import dataset_stats, format_stats
+    from handx_jax.dataset.build import BuildConfig, build_corpus, with_motion, with_reading
+    from handx_jax.dataset.format import Dataset
+    from handx_jax.dataset.stats import dataset_stats, format_stats
 
     cfg = with_reading(with_motion(BuildConfig(clips=a.clips, seed=a.seed, workers=a.workers,
                                                val_fraction=a.val_fraction, test_fraction=a.test_fraction),
@@ -133,7 +133,7 @@ def _synth(a: argparse.Namespace) -> int:
 
 
 def _reverse(a: argparse.Namespace) -> int:
-    from handx_jax.data.reverse import build_reversed
+    from handx_jax.dataset.reverse import build_reversed
 
     if a.clips is not None and a.clips < 1:
         raise SystemExit(f"handx: error: --clips is {a.clips}; it must be a whole number >= 1")
@@ -143,8 +143,8 @@ def _reverse(a: argparse.Namespace) -> int:
 
 
 def _stats(a: argparse.Namespace) -> int:
-    from handx_jax.data.dataset import Dataset
-    from handx_jax.data.stats import dataset_stats, format_stats
+    from handx_jax.dataset.format import Dataset
+    from handx_jax.dataset.stats import dataset_stats, format_stats
 
     st = dataset_stats(Dataset.open(a.data))
     print(json.dumps(st, indent=2) if a.json else format_stats(st))
@@ -154,8 +154,8 @@ def _stats(a: argparse.Namespace) -> int:
 def _show(a: argparse.Namespace) -> int:
     import numpy as np
 
-    from handx_jax.data.dataset import Dataset
-    from handx_jax.data.render import render_gif
+    from handx_jax.dataset.format import Dataset
+    from handx_jax.dataset.render import render_gif
 
     ds = Dataset.open(a.data)
     i = _clip_index(ds, a.clip)
@@ -174,9 +174,9 @@ def _show(a: argparse.Namespace) -> int:
 def _prompt(a: argparse.Namespace) -> int:
     import numpy as np
 
-    from handx_jax.data.caption import build_prompt
-    from handx_jax.data.dataset import Dataset
-    from handx_jax.data.events import annotate
+    from handx_jax.annotation.caption import build_prompt
+    from handx_jax.dataset.format import Dataset
+    from handx_jax.annotation.events import annotate
     from handx_jax.io import atomic_write_text
 
     ds = Dataset.open(a.data)
@@ -192,8 +192,8 @@ def _prompt(a: argparse.Namespace) -> int:
 
 
 def _import(a: argparse.Namespace) -> int:
-    from handx_jax.data.convert import import_handx
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.interop.convert import import_handx
+    from handx_jax.dataset.format import Dataset
 
     out = import_handx(a.files, a.out, split=a.split, annotate_events=not a.no_events, overwrite=a.force)
     ds = Dataset.open(out)
@@ -202,14 +202,14 @@ def _import(a: argparse.Namespace) -> int:
 
 
 def _export(a: argparse.Namespace) -> int:
-    from handx_jax.data.convert import export_handx
+    from handx_jax.interop.convert import export_handx
 
     print(f"wrote {export_handx(a.data, a.out, split=a.split)}")
     return 0
 
 
 def _verify(a: argparse.Namespace) -> int:
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
 
     ds = Dataset.open(a.data)
     ds.verify()

@@ -4,7 +4,7 @@ BimArt (§3.3, §3.5) steers each denoising step with the gradient of a contact 
 motion x̂0 and scales it by the gradient's norm (λ_c = 1 / ‖∇‖). Here the contacts are hand–hand ones, in
 the vocabulary of the project's event records and of the contact-feasibility metric
 (:data:`handx_jax.metrics.CONTACT_CHANNELS`): 8 intra-hand thumb-tip pairs, 25 left × right tip pairs, 10
-tip → other palm (the mean of the k closest palm-cloud points, as data/features.py measures it). A request
+tip → other palm (the mean of the k closest palm-cloud points, as annotation/descriptors.py measures it). A request
 is a (T, 43) weight per frame and channel (1 where a named contact should hold, 0 elsewhere; see
 :func:`request_from_named`), and the energy is the mean over requested (frame, channel) cells of the
 squared amount by which the distance exceeds TARGET_FRACTION × the channel's contact threshold: zero once

@@ -38,7 +38,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from handx_jax import skeleton as sk
-from handx_jax.data.parallel import map_ordered
+from handx_jax.dataset.parallel import map_ordered
 from handx_jax.io import (DataError, NpyWriter, atomic_dir, atomic_write_json, check_free_space, disk_full_as_error,
                           read_format_meta, read_jsonl)
 

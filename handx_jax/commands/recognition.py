@@ -38,7 +38,7 @@ def _recognize(args: argparse.Namespace) -> int:
     import numpy as np
 
     from handx_jax import standard
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.evaluation import load_evaluator
     from handx_jax.families import entry, family_of, load_run
     from handx_jax.generation import split_prompts

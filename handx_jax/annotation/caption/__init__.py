@@ -29,13 +29,13 @@ One concern per module:
     template.py   ``TemplateCaptioner``: both hands' facts and their relation into five levels
     llm.py        the LLM prompt, its reply's parser and ``LLMCaptioner``
 
-This package's names below are its public surface: ``from handx_jax.data.caption import X``.
+This package's names below are its public surface: ``from handx_jax.annotation.caption import X``.
 """
 
-from handx_jax.data.caption.compose import BUDGET_WORDS, HARD_CAP_WORDS
-from handx_jax.data.caption.llm import LLMCaptioner, build_prompt, parse_llm_reply
-from handx_jax.data.caption.protocol import LEVELS, Captioner
-from handx_jax.data.caption.template import WORDINGS, TemplateCaptioner
+from handx_jax.annotation.caption.compose import BUDGET_WORDS, HARD_CAP_WORDS
+from handx_jax.annotation.caption.llm import LLMCaptioner, build_prompt, parse_llm_reply
+from handx_jax.annotation.caption.protocol import LEVELS, Captioner
+from handx_jax.annotation.caption.template import WORDINGS, TemplateCaptioner
 
 __all__ = ["BUDGET_WORDS", "HARD_CAP_WORDS", "LEVELS", "WORDINGS", "Captioner", "LLMCaptioner", "TemplateCaptioner",
            "build_prompt", "parse_llm_reply"]

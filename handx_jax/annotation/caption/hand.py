@@ -1,4 +1,4 @@
-"""Facts about one hand (module docstring of ``handx_jax.data.caption``): whole-finger moves merged from
+"""Facts about one hand (module docstring of ``handx_jax.annotation.caption``): whole-finger moves merged from
 joint events, fingers doing the same thing grouped, repetitions, whole-hand gestures, held fingers,
 thumb pinches and taps, finger spacing and wrist travel.
 
@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import random
 
-from handx_jax.data.caption.compose import Fact
-from handx_jax.data.caption.words import (FINGER_VERBS, FINGERS, FLEX_ORDER, FOUR, GESTURE_WORDS, HAND_VERBS,
+from handx_jax.annotation.caption.compose import Fact
+from handx_jax.annotation.caption.words import (FINGER_VERBS, FINGERS, FLEX_ORDER, FOUR, GESTURE_WORDS, HAND_VERBS,
                                           REPEAT_VERBS, SHAPE_WORDS, SPEED_ADV, SPEED_FACTOR, SPEED_RANK, SWING,
                                           DIR_WORDS, THUMB_SHAPE_WORDS, THUMB_VERBS, Timing, finger_group,
                                           join_words, pick, times, verb_form)

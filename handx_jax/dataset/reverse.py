@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from handx_jax.data.build import caption_seed, corpus_seed, reading_of
-from handx_jax.data.dataset import TEXT_FIELDS, Dataset, write_dataset
-from handx_jax.data.parallel import map_ordered
+from handx_jax.dataset.build import caption_seed, corpus_seed, reading_of
+from handx_jax.dataset.format import TEXT_FIELDS, Dataset, write_dataset
+from handx_jax.dataset.parallel import map_ordered
 from handx_jax.io import DataError
 
 SUFFIX = "~rev"
@@ -34,8 +34,8 @@ CHUNK = 512  # clips per annotation task
 
 
 def _annotate_chunk(reading: str, wording: str, seed: int, item: tuple[np.ndarray, list[str]]):
-    from handx_jax.data.caption import TemplateCaptioner
-    from handx_jax.data.events import annotate, annotation_config
+    from handx_jax.annotation.caption import TemplateCaptioner
+    from handx_jax.annotation.events import annotate, annotation_config
 
     joints, ids = item
     records = annotate(joints, annotation_config(reading))

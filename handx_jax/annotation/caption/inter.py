@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import random
 
-from handx_jax.data.caption.compose import Fact
-from handx_jax.data.caption.hand import _HandFacts
-from handx_jax.data.caption.words import (DIR_WORDS, FINGERS, PALM_DIST_WORDS, PALM_ORDER, REL_PHRASE, SPEED_ADV,
+from handx_jax.annotation.caption.compose import Fact
+from handx_jax.annotation.caption.hand import _HandFacts
+from handx_jax.annotation.caption.words import (DIR_WORDS, FINGERS, PALM_DIST_WORDS, PALM_ORDER, REL_PHRASE, SPEED_ADV,
                                           SPEED_FACTOR, SPEED_RANK, SWING, Timing, join_words, pick, times)
 
 

@@ -12,10 +12,10 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from handx_jax.data import synth_hand as H
+from handx_jax.synthesis import hand as H
 
 if TYPE_CHECKING:
-    from handx_jax.data.synth import SynthConfig
+    from handx_jax.synthesis.bimanual import SynthConfig
 
 
 # ---- time profiles ---------------------------------------------------------------------------

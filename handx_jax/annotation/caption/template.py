@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import random
 
-from handx_jax.data.caption import gist
-from handx_jax.data.caption.compose import compose
-from handx_jax.data.caption.hand import _HandFacts
-from handx_jax.data.caption.inter import _coordination, _InterFacts
-from handx_jax.data.caption.protocol import LEVELS
-from handx_jax.data.caption.words import Timing
+from handx_jax.annotation.caption import gist
+from handx_jax.annotation.caption.compose import compose
+from handx_jax.annotation.caption.hand import _HandFacts
+from handx_jax.annotation.caption.inter import _coordination, _InterFacts
+from handx_jax.annotation.caption.protocol import LEVELS
+from handx_jax.annotation.caption.words import Timing
 
 
 WORDINGS = ("shared", "per_fact")
