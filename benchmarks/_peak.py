@@ -72,6 +72,6 @@ def emit(doc: dict, out: str | None = None, indent: int = 2) -> None:
     text = json.dumps(doc, indent=indent)
     print(text)
     if out:
-        from handx_jax.io import atomic_write_text
+        from handx_jax.infra.atomic import atomic_write_text
 
         atomic_write_text(out, text + "\n")

@@ -71,7 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from handx_jax.io import DataError, disk_full_message
+    from handx_jax.infra.diskspace import disk_full_message
+    from handx_jax.infra.errors import DataError
     from handx_jax.infra.runlock import RunLocked
 
     parser = build_parser()

@@ -46,7 +46,7 @@ def data_stage(out: Path, clips: int) -> Path:
     from handx_jax.dataset.format import Dataset
     from handx_jax.dataset.render import render_gif
     from handx_jax.dataset.stats import dataset_stats, format_stats
-    from handx_jax.io import atomic_write_json, atomic_write_text
+    from handx_jax.infra.atomic import atomic_write_json, atomic_write_text
     from handx_jax.standard import build_standard_corpus
 
     t0 = time.perf_counter()
@@ -149,7 +149,7 @@ def verdict(sweep: Path, out: Path) -> bool:
     import json
     import shutil
 
-    from handx_jax.io import read_jsonl
+    from handx_jax.infra.readers import read_jsonl
 
     r = subprocess.run([sys.executable, "-m", "handx_jax", "analyze", "fit", str(sweep / "results.jsonl"), "--x",
                         "compute", "--y", "rprec_top3", "--json"], check=True, capture_output=True, text=True)

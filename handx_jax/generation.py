@@ -12,7 +12,7 @@ from typing import Sequence
 import numpy as np
 
 from handx_jax.dataset.format import TEXT_FIELDS
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,8 @@ from typing import Callable
 
 import jax
 
-from handx_jax.io import append_jsonl, atomic_write_json, read_jsonl
+from handx_jax.infra.atomic import append_jsonl, atomic_write_json
+from handx_jax.infra.readers import read_jsonl
 
 
 def _versions_record(config_path: Path) -> dict:
@@ -68,7 +69,7 @@ class RunLogger:
         """On resume, drop metric lines logged after the checkpoint we restart from."""
         if self.enabled and self.metrics_path.exists():
             rows = [r for r in read_jsonl(self.metrics_path, strict=False) if r.get("step", 0) <= step]
-            from handx_jax.io import atomic_write_jsonl
+            from handx_jax.infra.atomic import atomic_write_jsonl
 
             atomic_write_jsonl(self.metrics_path, rows)
 

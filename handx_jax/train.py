@@ -45,7 +45,9 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from handx_jax.io import TREE_CHECKSUMS, DataError, check_finite_params, verify_tree_checksum, write_tree_checksum
+from handx_jax.infra.checksums import TREE_CHECKSUMS, verify_tree_checksum, write_tree_checksum
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.param_files import check_finite_params
 from handx_jax.optim import OptimConfig, effective_warmup, learning_rate, optimizer_for, schedule_values
 from handx_jax.runlog import RunLogger
 

@@ -18,7 +18,8 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from handx_jax.io import DataError, atomic_write_json
+from handx_jax.infra.atomic import atomic_write_json
+from handx_jax.infra.errors import DataError
 from handx_jax.infra.provenance import versions
 from handx_jax.infra.runlock import RunLock, RunLocked, pdeathsig_preexec
 from sweeps.spec import REPO, RunSpec, Step, SweepConfig, check_name

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from handx_jax.cli import main
-from handx_jax.io import read_jsonl
+from handx_jax.infra.readers import read_jsonl
 from tests.diffusion_fixtures import ENCODER, make_dataset
 
 LOOP = ["--set", "train.batch_size=8", "--set", "train.log_every=2", "--set", "train.ckpt_every=4",

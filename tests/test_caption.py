@@ -12,7 +12,7 @@ from handx_jax.annotation import caption as cap
 from handx_jax.annotation.caption.hand import finger_moves
 from handx_jax.annotation import events as ev
 from handx_jax.synthesis import bimanual as synth
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handmade_hands import clip, mirror, pair, right_hand
 
 

@@ -7,7 +7,7 @@ import pytest
 from handx_jax.cli import main as handx
 from handx_jax.dataset.format import write_dataset
 from handx_jax.interop.handx_npz import HandXClip, write_handx_npz
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 
 def _clips(levels):

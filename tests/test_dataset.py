@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from handx_jax.dataset.format import Dataset, nested_fractions, write_dataset
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 
 def _texts(n, levels=5):

@@ -15,7 +15,7 @@ from handx_jax.interop.handx_npz import HandXClip, read_handx_npz, write_handx_n
 from handx_jax.evaluation import (JOINED, REFERENCE_CACHE_DIR, TextPolicy, TrainingData, align_generated,
                                   evaluate_generated, evaluate_ground_truth, evaluator_stats, load_evaluator,
                                   reference_embeddings, train_evaluator, write_reference_cache)
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.metrics import MetricConfig
 
 ENCODER = Path(__file__).parent / "fixtures" / "t5_tiny_gated"

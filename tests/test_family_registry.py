@@ -151,7 +151,7 @@ def test_a_third_family_trains_generates_runs_in_a_sweep_and_lands_in_the_table(
     from handx_jax.dataset.format import Dataset
     from handx_jax.interop.handx_npz import read_handx_npz
     from handx_jax.families import register
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
     from sweeps.launcher import RunSpec, SweepConfig, launch
 
     data = make_dataset(tmp_path, joined=True)

@@ -19,7 +19,7 @@ from handx_jax.interop.handx_npz import (
     read_npz_dicts,
     write_handx_npz,
 )
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 
 def _clips(n: int = 12, seed: int = 0) -> list[HandXClip]:

@@ -4,65 +4,65 @@ import os
 import numpy as np
 import pytest
 
-from handx_jax import io
+from handx_jax.infra import atomic, errors, readers
 
 
 def test_atomic_write_leaves_no_temp_and_replaces(tmp_path):
     p = tmp_path / "a" / "f.json"
-    io.atomic_write_json(p, {"x": 1})
-    io.atomic_write_json(p, {"x": 2})
+    atomic.atomic_write_json(p, {"x": 1})
+    atomic.atomic_write_json(p, {"x": 2})
     assert json.loads(p.read_text()) == {"x": 2}
     assert os.listdir(p.parent) == ["f.json"]
 
 
 def test_atomic_dir_refuses_existing_and_keeps_old_on_failure(tmp_path):
     d = tmp_path / "ds"
-    with io.atomic_dir(d) as t:
+    with atomic.atomic_dir(d) as t:
         (t / "a.txt").write_text("old")
     with pytest.raises(FileExistsError):
-        with io.atomic_dir(d):
+        with atomic.atomic_dir(d):
             pass
     with pytest.raises(RuntimeError):
-        with io.atomic_dir(d, overwrite=True) as t:
+        with atomic.atomic_dir(d, overwrite=True) as t:
             (t / "a.txt").write_text("new")
             raise RuntimeError("killed mid-build")
     assert (d / "a.txt").read_text() == "old"  # nothing already written is lost
     assert sorted(os.listdir(tmp_path)) == ["ds"]  # and no temporary left behind
-    with io.atomic_dir(d, overwrite=True) as t:
+    with atomic.atomic_dir(d, overwrite=True) as t:
         (t / "a.txt").write_text("new")
     assert (d / "a.txt").read_text() == "new"
 
 
 def test_jsonl_torn_last_line(tmp_path):
     p = tmp_path / "m.jsonl"
-    io.append_jsonl(p, {"step": 1})
+    atomic.append_jsonl(p, {"step": 1})
     with open(p, "a") as f:
         f.write('{"step": 2, "lo')  # killed mid-write
-    assert io.read_jsonl(p, strict=False) == [{"step": 1}]
-    with pytest.raises(io.DataError, match="m.jsonl"):
-        io.read_jsonl(p)
+    assert readers.read_jsonl(p, strict=False) == [{"step": 1}]
+    with pytest.raises(errors.DataError, match="m.jsonl"):
+        readers.read_jsonl(p)
 
 
 def test_npy_roundtrip(tmp_path):
     a = np.arange(12, dtype=np.float32).reshape(3, 4)
-    io.atomic_save_npy(tmp_path / "a.npy", a)
+    atomic.atomic_save_npy(tmp_path / "a.npy", a)
     np.testing.assert_array_equal(np.load(tmp_path / "a.npy"), a)
 
 
 def test_data_error_names_file_clip_field():
-    e = io.DataError("bad", path="x.npz", clip="7", field="motion")
+    e = errors.DataError("bad", path="x.npz", clip="7", field="motion")
     assert "x.npz" in str(e) and "clip 7" in str(e) and "'motion'" in str(e)
 
 
 def test_atomic_files_get_normal_permissions(tmp_path):
-    p = io.atomic_write_text(tmp_path / "f.txt", "x")
+    p = atomic.atomic_write_text(tmp_path / "f.txt", "x")
     ref = tmp_path / "ref.txt"
     ref.write_text("x")
     assert (p.stat().st_mode & 0o777) == (ref.stat().st_mode & 0o777)
 
 
 def test_atomic_dir_gets_normal_permissions(tmp_path):
-    with io.atomic_dir(tmp_path / "d") as t:
+    with atomic.atomic_dir(tmp_path / "d") as t:
         (t / "x").write_text("1")
     ref = tmp_path / "ref"
     ref.mkdir()
@@ -70,7 +70,8 @@ def test_atomic_dir_gets_normal_permissions(tmp_path):
 
 
 def test_read_format_meta_names_the_file_and_the_problem(tmp_path):
-    from handx_jax.io import DataError, read_format_meta
+    from handx_jax.infra.errors import DataError
+    from handx_jax.infra.readers import read_format_meta
 
     p = tmp_path / "meta.json"
     with pytest.raises(DataError, match="build one first") as e:
@@ -91,7 +92,8 @@ def test_read_format_meta_names_the_file_and_the_problem(tmp_path):
 
 def test_tree_checksum_catches_a_changed_file(tmp_path):
     """For checkpoint folders written by a library (Orbax step directories): one SHA256SUMS listing."""
-    from handx_jax.io import DataError, verify_tree_checksum, write_tree_checksum
+    from handx_jax.infra.checksums import verify_tree_checksum, write_tree_checksum
+    from handx_jax.infra.errors import DataError
 
     d = tmp_path / "ckpt" / "10"
     (d / "state").mkdir(parents=True)

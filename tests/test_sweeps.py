@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.infra.provenance import versions
 from handx_jax.infra.runlock import RunLock, RunLocked, is_locked, pid_alive
 from sweeps.launcher import RunSpec, Step, SweepConfig, collect_results, launch, load_sweep, stage_state, status

@@ -302,7 +302,7 @@ def test_standard_evaluators_by_id_and_the_recipe_each_accepts(tmp_path):
     stable one, v6 the gist reading on transition motion (corpus v3), v7 on chain motion (corpus v4). v6's
     acceptance of a corpus-v3 prefix built by this code also says corpus v3 is unchanged (its test captions and
     motion moments against v6's manifest)."""
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
 
     assert standard.VERSION == 7
     assert (standard.code_recipe().annotation, standard.code_recipe().motion) == ("gist", "chain")

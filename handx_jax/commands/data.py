@@ -177,7 +177,7 @@ def _prompt(a: argparse.Namespace) -> int:
     from handx_jax.annotation.caption import build_prompt
     from handx_jax.dataset.format import Dataset
     from handx_jax.annotation.events import annotate
-    from handx_jax.io import atomic_write_text
+    from handx_jax.infra.atomic import atomic_write_text
 
     ds = Dataset.open(a.data)
     i = _clip_index(ds, a.clip)

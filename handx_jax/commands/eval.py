@@ -106,7 +106,7 @@ def _run(args: argparse.Namespace) -> int:
     cfg = MetricConfig(rprec_block=args.block, replications=args.replications, seed=args.seed,
                        mpjpe_root=args.mpjpe_root, apd_samples=args.samples or 0)
     cache = not args.no_reference_cache
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
 
     if args.generated:  # read and range-checked before any model is loaded: bad motion fails in a second
         from handx_jax.interop.handx_npz import read_handx_npz
@@ -177,7 +177,7 @@ def _predict(args: argparse.Namespace) -> int:
     from handx_jax.dataset.format import Dataset
     from handx_jax.evaluation import prediction as PR
     from handx_jax.generation import split_prompts
-    from handx_jax.io import atomic_write_json
+    from handx_jax.infra.atomic import atomic_write_json
     from handx_jax.metrics import MetricConfig
 
     N, K = args.observed_frames, args.samples

@@ -42,7 +42,7 @@ def _recognize(args: argparse.Namespace) -> int:
     from handx_jax.evaluation import load_evaluator
     from handx_jax.families import entry, family_of, load_run
     from handx_jax.generation import split_prompts
-    from handx_jax.io import atomic_write_json
+    from handx_jax.infra.atomic import atomic_write_json
     from handx_jax.metrics import MetricConfig, replicate_embedding_metrics
 
     if args.block < 2 or args.replications < 1:

@@ -25,7 +25,7 @@ from handx_jax.dataset.clips import ClipConfig, ClipReport, extract_clips
 from handx_jax.dataset.format import DEFAULT_FRACTIONS, write_dataset
 from handx_jax.annotation.events import AnnotationConfig, annotate
 from handx_jax.dataset.parallel import map_ordered
-from handx_jax.io import check_free_space
+from handx_jax.infra.diskspace import check_free_space
 from handx_jax.annotation.caption import TemplateCaptioner
 from handx_jax.synthesis.bimanual import GENERATOR_VERSION, MOTIONS, SynthConfig, synth_chunk
 

@@ -10,7 +10,7 @@ A dataset is a directory (see docs/architecture.md for the table):
     stats.npz     normalisation statistics of the train split
     report.json   what the build or import cut, and why
 
-Writers fill a temporary directory and rename it into place (``io.atomic_dir``), so a dataset on disk
+Writers fill a temporary directory and rename it into place (``infra.atomic.atomic_dir``), so a dataset on disk
 is always complete. Readers validate on open and raise ``DataError`` naming the file and clip.
 
 Identity (issue 14.5). ``fingerprint`` hashes the bytes of motion, texts and splits; a rebuild of the
@@ -39,8 +39,11 @@ import numpy as np
 
 from handx_jax import skeleton as sk
 from handx_jax.dataset.parallel import map_ordered
-from handx_jax.io import (DataError, NpyWriter, atomic_dir, atomic_write_json, check_free_space, disk_full_as_error,
-                          read_format_meta, read_jsonl)
+from handx_jax.infra.atomic import atomic_dir, atomic_write_json
+from handx_jax.infra.diskspace import check_free_space, disk_full_as_error
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.npy_writer import NpyWriter
+from handx_jax.infra.readers import read_format_meta, read_jsonl
 
 FORMAT = "handx-jax-dataset"
 IDENTITY_VERSION = 1

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from handx_jax import skeleton as sk
-from handx_jax.io import atomic_write_bytes
+from handx_jax.infra.atomic import atomic_write_bytes
 
 HAND_COLORS = ("#1f77b4", "#d95f02")  # left blue, right orange (colour-blind safe pair)
 CONTACT_COLOR = "#e7298a"

@@ -27,7 +27,7 @@ import numpy as np
 from handx_jax.dataset.build import caption_seed, corpus_seed, reading_of
 from handx_jax.dataset.format import TEXT_FIELDS, Dataset, write_dataset
 from handx_jax.dataset.parallel import map_ordered
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 SUFFIX = "~rev"
 CHUNK = 512  # clips per annotation task

@@ -16,7 +16,7 @@ import numpy as np
 
 from handx_jax import representation as rep
 from handx_jax.evaluation.features import TextPolicy, joined_caption, motion_features
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.models.evaluator import Evaluator, EvaluatorConfig
 from handx_jax.models.shape_cache import per_config
 from handx_jax.text.cache import bucket_length

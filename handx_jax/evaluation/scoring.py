@@ -14,7 +14,8 @@ import numpy as np
 from handx_jax.evaluation.checkpoint import evaluator_id
 from handx_jax.evaluation.model import TrainedEvaluator
 from handx_jax.evaluation.reference import ReferenceEmbeddings, _digest, reference_embeddings
-from handx_jax.io import DataError, atomic_write_json
+from handx_jax.infra.atomic import atomic_write_json
+from handx_jax.infra.errors import DataError
 from handx_jax.metrics import (MetricConfig, NamedContacts, ci_method, named_contacts, replicate_embedding_metrics,
                                replicate_motion_metrics)
 

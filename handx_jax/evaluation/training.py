@@ -26,7 +26,7 @@ from handx_jax.config import ConfigError, apply_overrides, get_preset, to_dict
 from handx_jax.evaluation.checkpoint import EVAL_FILE, FORMAT, FORMAT_VERSION, META_FILE, STATS_FILE, save_evaluator
 from handx_jax.evaluation.features import JOINED, TextPolicy, TrainingData, _level_index, evaluator_stats, joined_caption
 from handx_jax.evaluation.model import TrainedEvaluator, _init_params
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.metrics import MetricConfig
 from handx_jax.models.evaluator import PRESETS, Evaluator, EvaluatorConfig, evaluator_loss
 from handx_jax.train import OptimConfig, TrainConfig
@@ -207,7 +207,7 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
     last = {}
     mpath = out / "metrics.jsonl"
     if mpath.exists():
-        from handx_jax.io import read_jsonl
+        from handx_jax.infra.readers import read_jsonl
 
         rows = [r for r in read_jsonl(mpath, strict=False) if "loss" in r]
         last = rows[-1] if rows else {}

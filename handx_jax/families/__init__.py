@@ -250,7 +250,7 @@ def flops_columns(config: dict) -> dict:
 
 def family_of(run_dir: str | Path) -> str:
     """The family a run folder was trained as (``config.json["family"]``)."""
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
 
     p = Path(run_dir) / "config.json"
     if not p.exists():
@@ -269,7 +269,7 @@ def run_config(run_dir: str | Path, family: str) -> dict:
     the head of every family's ``load``."""
     found = family_of(run_dir)
     if found != family:
-        from handx_jax.io import DataError
+        from handx_jax.infra.errors import DataError
 
         raise DataError(f"not a {family} run folder (config.json names family {found!r})", path=run_dir)
     return json.loads((Path(run_dir) / "config.json").read_text())

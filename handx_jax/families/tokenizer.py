@@ -31,7 +31,7 @@ import numpy as np
 
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
 from handx_jax.families import entry, run_config
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.models import fsq as Q
 from handx_jax.optim import OptimConfig
 from handx_jax.train import TrainConfig
@@ -347,7 +347,7 @@ def tokenize(tokenizer_dir: str | os.PathLike, data_dir: str | os.PathLike, *, o
     ``codes.npy`` (N, 30) int32 in dataset clip order and ``meta.json`` (provenance: the tokenizer
     folder, its fingerprint, step, nominal and real codebook size, levels, quantizer; the dataset)."""
     from handx_jax.dataset.format import Dataset
-    from handx_jax.io import atomic_dir, atomic_write_json
+    from handx_jax.infra.atomic import atomic_dir, atomic_write_json
 
     tok = load(tokenizer_dir)
     ds = Dataset.open(data_dir)
@@ -384,7 +384,7 @@ class TokenCache:
 
     @classmethod
     def open(cls, root: str | os.PathLike, *, dataset_fingerprint: str | None = None) -> "TokenCache":
-        from handx_jax.io import read_format_meta
+        from handx_jax.infra.readers import read_format_meta
 
         root = Path(root)
         meta = read_format_meta(root / "meta.json", TOKEN_FORMAT, TOKEN_FORMAT_VERSION,

@@ -134,7 +134,7 @@ class RunLock:
 
     @classmethod
     def for_output(cls, out: str | os.PathLike) -> "RunLock":
-        """The lock of an output that does not exist yet (a folder written by ``io.atomic_dir``, a file):
+        """The lock of an output that does not exist yet (a folder written by ``infra.atomic.atomic_dir``, a file):
         ``.NAME.lock`` beside it, so two writers of one ``--out`` cannot both write it (issue 43)."""
         out = Path(out)
         return cls(out.parent, lock_file=out.parent / f".{out.name}.lock", what=str(out))

@@ -5,7 +5,7 @@ Pickle runs code by design: a ``GLOBAL`` opcode imports any ``module.name`` and 
 (the official HandX ``.npz`` archives, ``interop/handx_npz.py``; PyTorch checkpoints,
 ``interop/torch_pickle.py``) goes through :class:`RestrictedUnpickler`, whose ``find_class`` resolves
 only the globals listed here, never imports a module on the pickle's say-so, and refuses anything
-else before it is resolved with a :class:`~handx_jax.io.DataError` naming the file (and key).
+else before it is resolved with a :class:`~handx_jax.infra.errors.DataError` naming the file (and key).
 
 What is admitted: NumPy's array, dtype and scalar reconstructors (what ``np.save`` of object arrays
 and pickled NumPy values need), the plain containers and ``_codecs.encode`` (how protocol-2 pickles
@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 
 def _numpy_core(submodule: str, name: str) -> Any:

@@ -20,7 +20,8 @@ import numpy as np
 
 from handx_jax.dataset.format import DEFAULT_FRACTIONS, Dataset, write_dataset
 from handx_jax.interop.handx_npz import HandXClip, read_handx_npz, write_handx_npz
-from handx_jax.io import DataError, sha256_file
+from handx_jax.infra.checksums import sha256_file
+from handx_jax.infra.errors import DataError
 
 
 def split_from_filename(path: Path) -> str:

@@ -15,12 +15,12 @@ Reading never calls plain ``pickle``/``np.load(allow_pickle=True)``: the zip is 
 ``.npy`` header is parsed with ``numpy.lib.format`` and the object payload is unpickled by
 :class:`_RestrictedUnpickler` (``handx_jax.infra.safe_pickle``), whose ``find_class`` admits only what NumPy needs
 to rebuild arrays, dtypes and scalars, and plain containers. Any other global (``os.system``, ``builtins.eval``, …) is refused before it is
-resolved, with a :class:`~handx_jax.io.DataError` naming the file and key. Every validation error is a
+resolved, with a :class:`~handx_jax.infra.errors.DataError` naming the file and key. Every validation error is a
 ``DataError`` naming the file, the clip key and the field.
 
 Writing produces exactly what ``np.savez(path, **{key: np.array(entry, dtype=object)})`` produces
 (same member names, ``ZIP_STORED``, ``format.write_array``), built in memory and written atomically
-through :func:`handx_jax.io.atomic_write_bytes`, so ``np.load(path, allow_pickle=True)[k].item()``
+through :func:`handx_jax.infra.atomic.atomic_write_bytes`, so ``np.load(path, allow_pickle=True)[k].item()``
 returns the dicts.
 """
 
@@ -38,7 +38,8 @@ import numpy as np
 from numpy.lib import format as npy_format
 
 from handx_jax import skeleton as sk
-from handx_jax.io import DataError, atomic_write_bytes
+from handx_jax.infra.atomic import atomic_write_bytes
+from handx_jax.infra.errors import DataError
 from handx_jax.infra.safe_pickle import RestrictedUnpickler
 
 MOTION_FIELD = "motion"

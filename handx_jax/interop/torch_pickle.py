@@ -40,7 +40,8 @@ from typing import Any
 import ml_dtypes
 import numpy as np
 
-from handx_jax.io import DataError, atomic_write_bytes
+from handx_jax.infra.atomic import atomic_write_bytes
+from handx_jax.infra.errors import DataError
 from handx_jax.infra.safe_pickle import RestrictedUnpickler
 
 # PyTorch's typed storage names (as they appear in the pickle) and their little-endian dtypes.

@@ -14,7 +14,7 @@ import numpy as np
 # (data.dataset.MOTION_ATOL, 10 µm): float rounding of another numpy/jax build moves them by ~1e-7 m; any
 # change to the generator moves them by millimetres.
 from handx_jax.dataset.format import MOTION_ATOL
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.standard.assets import MANIFEST, NAME, assets_folder, read_card, version_folder, versions
 from handx_jax.standard.recipe import Recipe, recipe_of
 

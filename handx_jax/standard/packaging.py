@@ -14,7 +14,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from handx_jax.io import DataError, atomic_write_json, atomic_write_text, sha256_file, write_checksum
+from handx_jax.infra.atomic import atomic_write_json, atomic_write_text
+from handx_jax.infra.checksums import sha256_file, write_checksum
+from handx_jax.infra.errors import DataError
 from handx_jax.standard.assets import (CARD_JSON, CARD_MD, ENCODER_DIR, EVALUATOR_DIR, MANIFEST, VERSION, asset_files,
                                        assets_folder, verify_assets)
 from handx_jax.standard.card import card_markdown, validity_summary

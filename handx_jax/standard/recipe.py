@@ -9,7 +9,7 @@ import json
 import os
 from pathlib import Path
 
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.standard.assets import CARD_JSON, CARD_MD, assets_folder, read_card
 
 STANDARD_ANNOTATION = "gist"  # the standard corpus's annotation reading (Recipe.annotation; v1-v4 "reference", v5 "stable")

@@ -1,6 +1,6 @@
 """Frozen-encoder embedding cache: every caption of a dataset encoded once, memory-mapped on read.
 
-Layout of ``DATA/text_cache/<fingerprint>/`` (written atomically with ``io.atomic_dir``):
+Layout of ``DATA/text_cache/<fingerprint>/`` (written atomically with ``infra.atomic.atomic_dir``):
 
     meta.json    fingerprints (dataset, encoder weights, tokenizer), shapes, dtype, truncation count,
                  analytic encoder FLOPs per caption, build speed
@@ -27,7 +27,11 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from handx_jax.io import DataError, NpyWriter, atomic_dir, atomic_write_json, check_free_space, read_format_meta
+from handx_jax.infra.atomic import atomic_dir, atomic_write_json
+from handx_jax.infra.diskspace import check_free_space
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.npy_writer import NpyWriter
+from handx_jax.infra.readers import read_format_meta
 
 FORMAT, FORMAT_VERSION = "handx-jax-text-cache", 1
 CACHE_DIRNAME = "text_cache"

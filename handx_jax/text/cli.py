@@ -14,7 +14,7 @@ import numpy as np
 
 from handx_jax.cliargs import deprecated_command, deprecated_flag
 from handx_jax.config import add_config_args
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.text.prompts import EMPTY_HELP
 
 

@@ -30,7 +30,9 @@ import numpy as np
 import optax
 
 from handx_jax.config import ConfigError, get_preset
-from handx_jax.io import DataError, atomic_write_json, read_jsonl
+from handx_jax.infra.atomic import atomic_write_json
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import read_jsonl
 from handx_jax.text import tokenizer as tk
 from handx_jax.text.hf import save_hf_t5_encoder
 from handx_jax.text.t5 import T5Config, T5Model, count_params, encoder_params

@@ -26,7 +26,8 @@ from typing import Iterable, Sequence
 import numpy as np
 import sentencepiece as spm
 
-from handx_jax.io import DataError, atomic_write_bytes, atomic_write_json
+from handx_jax.infra.atomic import atomic_write_bytes, atomic_write_json
+from handx_jax.infra.errors import DataError
 
 PAD_ID, EOS_ID, UNK_ID = 0, 1, 2
 HF_EXTRA_IDS = 100  # number of sentinels Hugging Face appends after a stock T5 vocabulary

@@ -24,7 +24,7 @@ from typing import Sequence
 
 import numpy as np
 
-from handx_jax.io import atomic_write_text
+from handx_jax.infra.atomic import atomic_write_text
 from handx_jax.validity import perturb as P
 from handx_jax.validity import stability as S
 from handx_jax.dataset.build import corpus_seed, reading_of

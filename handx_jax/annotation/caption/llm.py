@@ -8,7 +8,7 @@ import json
 from typing import Callable
 
 from handx_jax.annotation.caption.protocol import LEVELS
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 _PROMPT_HEAD = """You are annotating a short clip of two human hands moving together. You will not see the
 motion itself; instead you receive kinematic events that were measured from it. Write descriptions of

@@ -42,7 +42,7 @@ from handx_jax.families.ar import decode as AD
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
 from handx_jax.families import tokenizer as T
 from handx_jax.families import entry, generation_config, run_config
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.models import prefix_lm as P
 from handx_jax.optim import OptimConfig
 from handx_jax.train import TrainConfig

@@ -36,7 +36,7 @@ import numpy as np
 from handx_jax.families.diffusion import process as D
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
 from handx_jax.families import entry, generation_config, run_config
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.models.dit import PRESETS, DiTConfig, TrebleDenoiser, forward_flops, init_denoiser, param_count, size_name
 from handx_jax.optim import OptimConfig
 from handx_jax.train import TrainConfig

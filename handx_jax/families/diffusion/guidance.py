@@ -204,7 +204,7 @@ def check_named(named: M.NamedContacts, n: int, what: str = "prompt") -> None:
         print(f"handx: --contact caption guides {guided} of the {n} prompts; the records of the other {n - guided} "
               "name no contact", file=sys.stderr)
     if len(named) == 0:
-        from handx_jax.io import DataError
+        from handx_jax.infra.errors import DataError
 
         whose = "the prompt's record names no" if n == 1 else f"none of the {n} prompts' records names a"
         raise DataError(f"--contact caption: {whose} contact (no fingertip touch among the events its captions "
