@@ -113,6 +113,14 @@ def _clip_index(ds, clip: str) -> int:
         raise SystemExit(f"handx: error: no clip with id {clip!r} in {ds.root}") from None
 
 
+def dataset_norms() -> tuple:
+    """The normalisation presets a dataset's ``stats.npz`` holds: every one the family registry declares,
+    asked for here, above the dataset room, and passed down to its writer."""
+    from handx_jax.families import norm_presets
+
+    return tuple(norm_presets().values())
+
+
 def _synth(a: argparse.Namespace) -> int:
     from handx_jax.dataset.build import BuildConfig, build_corpus, with_motion, with_reading
     from handx_jax.dataset.format import Dataset
@@ -121,7 +129,7 @@ def _synth(a: argparse.Namespace) -> int:
     cfg = with_reading(with_motion(BuildConfig(clips=a.clips, seed=a.seed, workers=a.workers,
                                                val_fraction=a.val_fraction, test_fraction=a.test_fraction),
                                    a.motion), a.annotation)
-    out = build_corpus(a.out, cfg, overwrite=a.force, progress=not a.quiet)
+    out = build_corpus(a.out, cfg, overwrite=a.force, progress=not a.quiet, stats=dataset_norms())
     ds = Dataset.open(out)
     rep = ds.report
     print(f"wrote {out}  ({len(ds)} clips in {rep.get('seconds')} s, {rep.get('clips_per_second')} clips/s)")
@@ -137,7 +145,8 @@ def _reverse(a: argparse.Namespace) -> int:
 
     if a.clips is not None and a.clips < 1:
         raise SystemExit(f"handx: error: --clips is {a.clips}; it must be a whole number >= 1")
-    out = build_reversed(a.data, a.out, split=a.split, limit=a.clips, workers=a.workers, overwrite=a.force)
+    out = build_reversed(a.data, a.out, split=a.split, limit=a.clips, workers=a.workers, overwrite=a.force,
+                         stats=dataset_norms())
     print(f"wrote {out}")
     return 0
 
@@ -195,7 +204,8 @@ def _import(a: argparse.Namespace) -> int:
     from handx_jax.interop.convert import import_handx
     from handx_jax.dataset.format import Dataset
 
-    out = import_handx(a.files, a.out, split=a.split, annotate_events=not a.no_events, overwrite=a.force)
+    out = import_handx(a.files, a.out, split=a.split, annotate_events=not a.no_events, overwrite=a.force,
+                       stats=dataset_norms())
     ds = Dataset.open(out)
     print(f"imported {len(ds)} clips into {out}; splits {ds.meta['split_sizes']}; report {json.dumps(ds.report.get('dropped_nonfinite_clips', {}))}")
     return 0

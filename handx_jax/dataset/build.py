@@ -16,7 +16,7 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator, Sequence
 
 import numpy as np
 
@@ -28,6 +28,9 @@ from handx_jax.dataset.parallel import map_ordered
 from handx_jax.infra.diskspace import check_free_space
 from handx_jax.annotation.caption import TemplateCaptioner
 from handx_jax.synthesis.bimanual import GENERATOR_VERSION, MOTIONS, SynthConfig, synth_chunk
+
+if TYPE_CHECKING:
+    from handx_jax.representation import NormPreset
 
 
 @dataclass(frozen=True)
@@ -185,8 +188,9 @@ def _chunks(cfg: BuildConfig, workers: int) -> Iterator[ChunkResult]:
 
 
 def build_corpus(out: str | os.PathLike, cfg: BuildConfig = BuildConfig(), *, overwrite: bool = False,
-                 progress: bool = True) -> Path:
-    """Synthesise and annotate ``cfg.clips`` clips and write them as a dataset at ``out``."""
+                 progress: bool = True, stats: bool | Sequence[NormPreset] = True) -> Path:
+    """Synthesise and annotate ``cfg.clips`` clips and write them as a dataset at ``out``; ``stats``: the
+    normalisation statistics it holds (:func:`~handx_jax.dataset.format.write_dataset`)."""
     out = Path(out)
     if out.exists() and not overwrite:  # refuse before spending minutes of work
         raise FileExistsError(f"{out} already exists; pass --force to replace it")
@@ -244,7 +248,7 @@ def build_corpus(out: str | os.PathLike, cfg: BuildConfig = BuildConfig(), *, ov
     source = {"kind": "synth", "seed": cfg.seed, "config": _jsonable(dataclasses.asdict(cfg))}
     return write_dataset(out, motion, texts, splits=splits, events=events, source=source,
                          report=build_report, fractions=cfg.fractions, seed=cfg.seed, overwrite=overwrite,
-                         workers=workers, recipe=recipe(cfg))
+                         workers=workers, recipe=recipe(cfg), stats=stats)
 
 
 def recipe(cfg: BuildConfig) -> dict:

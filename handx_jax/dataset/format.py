@@ -33,7 +33,7 @@ import os
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
@@ -44,6 +44,9 @@ from handx_jax.infra.diskspace import check_free_space, disk_full_as_error
 from handx_jax.infra.errors import DataError
 from handx_jax.infra.npy_writer import NpyWriter
 from handx_jax.infra.readers import read_format_meta, read_jsonl
+
+if TYPE_CHECKING:
+    from handx_jax.representation import NormPreset
 
 FORMAT = "handx-jax-dataset"
 IDENTITY_VERSION = 1
@@ -257,15 +260,18 @@ def write_dataset(
     fractions: Sequence[float] = DEFAULT_FRACTIONS,
     seed: int = 0,
     overwrite: bool = False,
-    stats: bool = True,
+    stats: bool | Sequence[NormPreset] = True,
     workers: int = 1,
     recipe: dict | None = None,
 ) -> Path:
     """Write a complete dataset atomically. ``motion`` may be a memory-mapped array.
 
-    Without ``splits`` every clip goes to train. Fractions are nested subsets of train. ``workers``
-    processes compute the normalisation statistics (the numbers do not depend on it). ``recipe`` is
-    what the data was made from (check_compatible compares it); by default the content itself.
+    Without ``splits`` every clip goes to train. Fractions are nested subsets of train. ``stats``: the
+    normalisation presets whose statistics ``stats.npz`` holds, given by the caller (the command layer passes
+    what the family registry declares, ``families.norm_presets``); True: every preset defined
+    (``representation.norm_presets``), False: no ``stats.npz``. ``workers`` processes compute the statistics
+    (the numbers do not depend on it). ``recipe`` is what the data was made from (check_compatible compares
+    it); by default the content itself.
     """
     motion = np.asarray(motion) if not isinstance(motion, np.memmap) else motion
     n = motion.shape[0]
@@ -304,8 +310,9 @@ def write_dataset(
         atomic_write_json(tmp / "splits.json", split_doc, indent=None)
         if report is not None:
             atomic_write_json(tmp / "report.json", report)
-        if stats and split_doc["train"]:
-            _write_stats(tmp, split_doc["train"], workers)
+        presets = _stats_presets(stats)
+        if presets and split_doc["train"]:
+            _write_stats(tmp, split_doc["train"], presets, workers)
         meta = {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
@@ -335,15 +342,29 @@ def _write_lines(path: Path, rows: Sequence[Any]) -> None:
 STATS_CHUNK = 2048  # clips per statistics task; fixed, so the float64 sums are added in one order
 
 
-def _write_stats(root: Path, train_idx: Sequence[int], workers: int = 1) -> None:
-    """stats.npz: mean/std of each representation over the train split (§1.8), in clip chunks whose
+def _stats_presets(stats: bool | Sequence[NormPreset]) -> tuple[NormPreset, ...]:
+    if stats is True:
+        from handx_jax import representation as rep
+
+        return tuple(rep.norm_presets().values())
+    return tuple(stats or ())
+
+
+def _write_stats(root: Path, train_idx: Sequence[int], presets: Sequence[NormPreset], workers: int = 1) -> None:
+    """stats.npz: mean/std of each preset's representation over the train split (§1.8), in clip chunks whose
     float64 moments are summed in chunk order, so ``workers`` changes the time but not one bit."""
     from handx_jax import representation as rep
 
     idx = np.asarray(sorted(train_idx))
     tasks = (idx[s:s + STATS_CHUNK] for s in range(0, len(idx), STATS_CHUNK))
     totals: dict[str, tuple] = {}
-    for moments in map_ordered(functools.partial(_chunk_moments, str(root / "motion.npy")), tasks, workers):
+    # Workers get the presets by name (a featuriser may be a lambda, which does not pickle), and the modules of
+    # their featurisers to import first: a preset is known by its name once its module has run (a forkserver
+    # worker starts without a family's own).
+    names = tuple(dict.fromkeys(p.name for p in presets))
+    modules = tuple(sorted({p.featurize.__module__ for p in presets}))
+    chunk = functools.partial(_chunk_moments, str(root / "motion.npy"), names, modules)
+    for moments in map_ordered(chunk, tasks, workers):
         for name, m in moments.items():
             totals[name] = m if name not in totals else tuple(a + b for a, b in zip(totals[name], m))
     arrays = {}
@@ -355,18 +376,16 @@ def _write_stats(root: Path, train_idx: Sequence[int], workers: int = 1) -> None
         np.savez(root / "stats.npz", **arrays)
 
 
-def _chunk_moments(motion_path: str, idx: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray, int]]:
+def _chunk_moments(motion_path: str, names: tuple[str, ...], modules: tuple[str, ...], idx: np.ndarray
+                   ) -> dict[str, tuple[np.ndarray, np.ndarray, int]]:
+    import importlib
+
     from handx_jax import representation as rep
 
+    for module in modules:
+        importlib.import_module(module)
     m = np.asarray(np.load(motion_path, mmap_mode="r")[idx], dtype=np.float64)
-    return {name: rep.preset_moments(name, rep.norm_preset(name).featurize(m)) for name in stats_names()}
-
-
-def stats_names() -> list[str]:
-    """The statistics ``stats.npz`` holds: what the registry declares (``families.stats_names``)."""
-    from handx_jax import families
-
-    return families.stats_names()
+    return {name: rep.preset_moments(name, rep.norm_preset(name).featurize(m)) for name in names}
 
 
 @dataclass

@@ -58,9 +58,9 @@ def pick_clips(ds, split: str, limit: int | None) -> np.ndarray:
 
 def build_reversed(data: str | os.PathLike, out: str | os.PathLike, *, split: str = "train",
                    limit: int | None = None, workers: int = 0, overwrite: bool = False,
-                   log=print) -> Path:
+                   log=print, stats=True) -> Path:
     """Write the time-reversed, re-annotated copy of ``data``'s ``split`` (at most ``limit`` clips) to
-    ``out``; returns ``out``."""
+    ``out``; returns ``out``. ``stats``: its normalisation statistics (``write_dataset``'s)."""
     ds = Dataset.open(data)
     clips = pick_clips(ds, split, limit)
     if len(clips) == 0:
@@ -96,4 +96,4 @@ def build_reversed(data: str | os.PathLike, out: str | os.PathLike, *, split: st
     report = {"level0_same_as_forward": same}
     log(f"{same:.1%} of the reversed clips' level-0 captions read as their forward clip's")
     return write_dataset(out, motion, texts, events=records, source=source, report=report, seed=seed,
-                         overwrite=overwrite, workers=workers or os.cpu_count() or 1)
+                         overwrite=overwrite, workers=workers or os.cpu_count() or 1, stats=stats)

@@ -219,18 +219,14 @@ def _resolve(path: str):
 
 def norm_presets() -> dict:
     """Every normalisation the registry declares, by its ``stats.npz`` prefix: each registered family's
-    (``Family.norm``, in registry order), then the trainables' (``TRAINABLE_NORMS``)."""
+    (``Family.norm``, in registry order), then the trainables' (``TRAINABLE_NORMS``). What a dataset's
+    ``stats.npz`` holds: the commands that write one pass these down (``dataset.format.write_dataset(stats=)``)."""
     paths = [entry(f).norm for f in names() if entry(f).norm] + list(TRAINABLE_NORMS)
     out: dict = {}
     for p in dict.fromkeys(paths):
         preset = _resolve(p)
         out.setdefault(preset.name, preset)
     return out
-
-
-def stats_names() -> list[str]:
-    """The statistics a dataset's ``stats.npz`` holds (:func:`norm_presets`)."""
-    return list(norm_presets())
 
 
 def family_axes() -> dict[str, Axis]:

@@ -35,7 +35,9 @@ def split_from_filename(path: Path) -> str:
 
 def import_handx(files: Sequence[str | os.PathLike], out: str | os.PathLike, *, split: str | None = None,
                  annotate_events: bool = True, fractions=DEFAULT_FRACTIONS, seed: int = 0,
-                 overwrite: bool = False) -> Path:
+                 overwrite: bool = False, stats=True) -> Path:
+    """The clips of the official ``files`` as a dataset at ``out``; ``stats``: its normalisation statistics
+    (``write_dataset``'s)."""
     motions, texts, split_of = [], [], []
     dropped: dict[str, list[str]] = {}
     seen_ids: set[str] = set()
@@ -84,7 +86,8 @@ def import_handx(files: Sequence[str | os.PathLike], out: str | os.PathLike, *, 
     recipe = {"kind": "handx-npz", "files": [{"name": Path(f).name, "sha256": sha256_file(f)} for f in files],
               "split": split, "events": bool(annotate_events), "fractions": list(fractions), "seed": seed}
     return write_dataset(out, motion, texts, splits=splits, events=events, source=source, report=report,
-                         fractions=fractions, seed=seed, overwrite=overwrite, recipe=recipe)
+                         fractions=fractions, seed=seed, overwrite=overwrite, recipe=recipe,
+                         stats=stats)
 
 
 def export_handx(data_dir: str | os.PathLike, out: str | os.PathLike, *, split: str | None = None) -> Path:

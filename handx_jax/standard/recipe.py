@@ -105,4 +105,7 @@ def build_standard_corpus(out: str | os.PathLike, clips: int | None = None, *, w
     n = rec.clips if clips is None else int(clips)
     if not 0 < n <= rec.clips:
         raise ValueError(f"--clips must be in [1, {rec.clips}] (the standard corpus has {rec.clips}), got {n}")
-    return build_corpus(out, rec.build_config(n, workers), overwrite=overwrite, progress=progress)
+    from handx_jax.families import norm_presets
+
+    return build_corpus(out, rec.build_config(n, workers), overwrite=overwrite, progress=progress,
+                        stats=tuple(norm_presets().values()))  # every family's statistics, as `handx data synth`
