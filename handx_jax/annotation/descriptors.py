@@ -90,7 +90,7 @@ class FeatureConfig:
     # DIP–PIP coupling of the non-thumb fingers' flexion (0 = off, the reference: every joint's angle
     # from its own two bones). r > 0 (the stable reading): each finger's MCP, PIP and DIP angles are
     # fitted jointly under DIP = r·PIP, the flexor coupling of real fingers (r ≈ 2/3; the procedural
-    # hands are built with exactly 2/3, data/synth_hand.DIP_PER_PIP). The fit weighs each bone's
+    # hands are built with exactly 2/3, synthesis/hand.DIP_PER_PIP). The fit weighs each bone's
     # observed direction by its squared length, as the direction of a short bone is the noisiest: the
     # distal phalanx (~2 cm) turns 3 mm of joint noise into ~9° of DIP angle, the fit into ~3°.
     dip_coupling: float = 0.0

@@ -1,4 +1,4 @@
-"""Procedural two-hand motion corpus: FK hands (synth_hand.py) driven by motion programs (synth_programs.py).
+"""Procedural two-hand motion corpus: FK hands (hand.py) driven by motion programs (programs.py).
 
 A sequence is ``segments_per_sequence`` segments of 60 frames. Each segment runs one program: an
 action for each hand (ACTIONS) and optionally a bimanual interaction (INTERACTIONS), or it is a
@@ -40,8 +40,8 @@ MOTIONS = ("oscillate", "transition", "chain")
 # Bumped whenever the same (seed, SynthConfig) would give different motion; part of a corpus's recipe
 # (its identity, dataset.check_compatible). 1: noise on joint positions after FK. 2: noise in the
 # joint angles and wrist pose before FK, so bones stay rigid (issue 14.4). 3: FK in float64 (float32
-# sin/cos differ by an ulp between numpy builds; see synth_hand.hand_fk), issue 14.5. 4: the clip filter's
-# angles and the annotation's features in float64 (same reason; clips.py, features.py). The version
+# sin/cos differ by an ulp between numpy builds; see hand.hand_fk), issue 14.5. 4: the clip filter's angles
+# and the annotation's features in float64 (same reason; dataset/clips.py, annotation/descriptors.py). The version
 # covers the whole build (synthesis, clip filter, annotation): whatever changes a recipe's content.
 GENERATOR_VERSION = 4
 
@@ -74,8 +74,8 @@ class SynthConfig:
     global_translation_m: float = 0.3        # random sequence offset (x, y) and height jitter
     # "oscillate" (corpora v1–v2): a segment's two-pose actions go back and forth. "transition" (corpus v3,
     # issue 40): each goes once from one pose to the other, at full amplitude, and no intensity top-up moves
-    # the fingers an action leaves free; see synth_programs.ActionContext.profile. "chain" (corpus v4): the
-    # transition early in the clip, then two more moves to other poses (synth_programs.next_move).
+    # the fingers an action leaves free; see programs.ActionContext.profile. "chain" (corpus v4): the
+    # transition early in the clip, then two more moves to other poses (programs.next_move).
     motion: str = "oscillate"
 
     def __post_init__(self):
@@ -101,7 +101,7 @@ def _sample_orientation(rng: np.random.Generator, ranges: tuple, n: int) -> np.n
 
 def _chain(rng: np.random.Generator, prog: Programs, pose: np.ndarray, s: int, t_L: np.ndarray,
            cfg: SynthConfig) -> None:
-    """Corpus v4: every hand whose action made one move goes on twice more (synth_programs.next_move), where its
+    """Corpus v4: every hand whose action made one move goes on twice more (programs.next_move), where its
     interaction lets it (``Interaction.chain_hands``: not out of a grip or pressed palms). A paired left hand
     makes the right hand's later moves too, shifted in time as its first ("alternate")."""
     a_Nx2 = prog.act_NxSx2[:, s]

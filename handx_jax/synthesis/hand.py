@@ -1,8 +1,8 @@
-"""Forward-kinematic hand model for the procedural corpus (``synth.py`` writes the motion programs).
+"""Forward-kinematic hand model for the procedural corpus (``bimanual.py`` writes the motion programs).
 
 One articulated RIGHT hand is modelled in its own frame, in metres: wrist at the origin, fingers
 along +y, the back of the hand along +z (so the palm faces −z) and the thumb on the −x side. The
-left hand is its mirror image (x → −x), which ``synth.py`` applies after posing.
+left hand is its mirror image (x → −x), which ``bimanual.py`` applies after posing.
 
 A pose is 16 angles in degrees per hand and frame (the channel layout below). Coupling that real
 hands cannot escape is built in: the DIP joint follows the PIP (DIP = 2/3 PIP), neighbouring fingers

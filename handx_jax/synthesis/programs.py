@@ -1,8 +1,8 @@
 """The procedural corpus's motion library: what a segment can do. Time profiles, the per-instance random draws
 of an action (``ActionContext``), the hand actions (``ACTIONS``: poses and how they move), the bimanual
 interactions (``INTERACTIONS``: which actions, paired how, oriented and touching how), and the programs a
-chunk's segments run (``sample_programs``). ``synth.py`` turns programs into motion; every draw here comes
-from the chunk's one rng, in the order ``synth.synth_chunk`` calls them.
+chunk's segments run (``sample_programs``). ``bimanual.py`` turns programs into motion; every draw here comes
+from the chunk's one rng, in the order ``bimanual.synth_chunk`` calls them.
 """
 
 from __future__ import annotations
@@ -385,8 +385,8 @@ class Interaction:
     pairing: str                              # "mirror", "alternate" or "independent"
     orient_right: tuple[tuple[float, float], ...]  # (yaw, pitch, roll) ranges, degrees, symmetric frame
     orient_left: tuple[tuple[float, float], ...] | None  # None: mirror of the right hand's sample
-    contact: str | None = None                # contact geometry (see synth._contact_points)
-    gap: str | None = None                    # gap schedule (see synth._gap_schedule)
+    contact: str | None = None                # contact geometry (see bimanual._contact_points)
+    gap: str | None = None                    # gap schedule (see bimanual._gap_schedule)
     half_sep: tuple[float, float] = (0.06, 0.12)
     flat_fingers: bool = False                # palms meet: fingers may spread or bend back, not curl
     # Corpus v4: which hands (left, right) may move on after their action (next_move). Contact that the hands' points

@@ -157,7 +157,7 @@ def test_gist_reading_is_stable_under_noise_and_turns_with_time():
     assert "finger_curl" not in E.annotate(x[:1], E.ANNOTATIONS["stable"])[0]["left_hand_events"]
 
 
-@pytest.mark.parametrize("motion", ["transition", "chain"])  # corpus v3, and corpus v4 (tests/test_corpus_v4.py)
+@pytest.mark.parametrize("motion", ["transition", "chain"])  # corpus v3, and corpus v4 (tests/test_synthesis_chain.py)
 def test_corpus_v3_through_the_cli(tmp_path, motion):
     out = tmp_path / motion
     assert handx(["data", "synth", "--clips", "48", "--out", str(out), "--workers", "1", "--quiet",

@@ -1,4 +1,4 @@
-"""Tests for the procedural two-hand corpus (handx_jax/synthesis/bimanual.py, synth_hand.py)."""
+"""Tests for the procedural two-hand corpus (handx_jax/synthesis/bimanual.py, hand.py)."""
 
 from __future__ import annotations
 

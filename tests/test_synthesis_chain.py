@@ -11,7 +11,7 @@ from handx_jax.synthesis import hand as H
 from handx_jax.synthesis import programs as P
 from handx_jax.annotation.segment import swings
 from handx_jax.synthesis.bimanual import SynthConfig, synth_chunk
-from tests.test_corpus_v3 import level0_clean_noisy_reversed
+from tests.test_synthesis_transition import level0_clean_noisy_reversed
 
 V3 = SynthConfig(motion="transition", segments_per_sequence=1)
 V4 = SynthConfig(motion="chain", segments_per_sequence=1)
