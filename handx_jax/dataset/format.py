@@ -1,6 +1,6 @@
 """The on-disk dataset format (format_version 1) and its reader.
 
-A dataset is a directory (see docs/architecture.md for the table):
+A dataset is a directory (docs/architecture.md, "Files on disk"):
 
     meta.json     format, version, fps, clip_len, num_clips, levels, skeleton, source, fingerprint
     motion.npy    float32 (N, 60, 2, 21, 3), memory-mapped on read
