@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from handx_jax import objects as O
 from handx_jax.interop import arctic as A
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.objects import mesh as mesh_lib
 
 RNG = np.random.default_rng(5)

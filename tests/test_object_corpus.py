@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from handx_jax import hand_surface as hs
 from handx_jax import skeleton as sk
-from handx_jax.data.dataset import Dataset
+from handx_jax.dataset.format import Dataset
 from handx_jax.objects import TOP, object_sdf
 from handx_jax.synthesis.object_build import (ObjectBuildConfig, build_object_corpus, clip_object,
                                               open_object_annotations)
@@ -104,7 +104,7 @@ def test_a_held_hand_does_not_drift_in_its_parts_frame(corpus):
 
 
 def test_bones_keep_their_lengths_and_joints_stay_within_limits(corpus):
-    from handx_jax.data import synth_hand as H
+    from handx_jax.synthesis import hand as H
 
     _, _, joints, _, _ = corpus
     L = sk.bone_lengths(joints)                                                         # (N, T, 2, 20)

@@ -41,10 +41,10 @@ import numpy as np
 from numpy.lib import format as npy_format
 
 from handx_jax import skeleton as sk
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.objects import BOTTOM, TOP, ArticulatedObject
 from handx_jax.objects import mesh as mesh_lib
-from handx_jax.safe_pickle import RestrictedUnpickler
+from handx_jax.infra.safe_pickle import RestrictedUnpickler
 
 MM = 1000.0  # ARCTIC's object files are millimetres; this project is metres
 SEQ_RE = re.compile(r"^(?P<object>[a-z]+)_(?P<kind>grab|use)_(?P<num>\d+)$")

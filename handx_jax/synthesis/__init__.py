@@ -1,1 +1,1 @@
-"""Procedural motion synthesis: the two-hand corpus and the hand–object corpus (BimArt)."""
+"""Procedural hands: motion synthesised from programs (the two-hand corpus) and the hand–object corpus (BimArt)."""

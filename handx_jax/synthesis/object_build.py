@@ -32,10 +32,12 @@ from pathlib import Path
 import numpy as np
 
 from handx_jax import skeleton as sk
-from handx_jax.data.build import _jsonable, caption_seed, sequence_split
-from handx_jax.data.dataset import DEFAULT_FRACTIONS, write_dataset
-from handx_jax.data.parallel import map_ordered
-from handx_jax.io import DataError, check_free_space, read_jsonl
+from handx_jax.dataset.build import _jsonable, caption_seed, sequence_split
+from handx_jax.dataset.format import DEFAULT_FRACTIONS, write_dataset
+from handx_jax.dataset.parallel import map_ordered
+from handx_jax.infra.diskspace import check_free_space
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import read_jsonl
 from handx_jax.objects import BOTTOM, CATEGORIES, TOP, sample_instance
 from handx_jax.objects.bps import D_MARGIN, basis_points, map_basis
 from handx_jax.synthesis import object_physics as phys
@@ -95,9 +97,11 @@ class ObjectChunkResult:
     records: list[dict]
     rejected: dict[str, int]
     physics: dict[str, np.ndarray]   # per kept clip: the worst value of each physics measure
+    cpu_seconds: float = 0.0         # the process's CPU time on this chunk (compiles included)
 
 
 def process_chunk(cfg: ObjectBuildConfig, chunk_index: int) -> ObjectChunkResult:
+    cpu0 = time.process_time()
     ch = synth_object_chunk(cfg.seed, chunk_index, cfg.synth)
     objs = stack_objects(ch.objects)
     m = phys.measure(objs, ch.states, ch.joints)
@@ -136,7 +140,8 @@ def process_chunk(cfg: ObjectBuildConfig, chunk_index: int) -> ObjectChunkResult
                "contact_frames": (m["near_part"].min(-1) <= 0.005).any(-1).sum(-1)[idx]}
     arrays = {"object_state": ch.states[idx], "held": ch.held[idx], "contact_map": cmap[idx].astype(np.float16),
               "bps_points": bps[idx]}
-    return ObjectChunkResult(chunk_index, ch.joints[idx], arrays, ids, splits, texts, records, rejected, physics)
+    return ObjectChunkResult(chunk_index, ch.joints[idx], arrays, ids, splits, texts, records, rejected, physics,
+                             time.process_time() - cpu0)
 
 
 def _chunks(cfg: ObjectBuildConfig, workers: int):
@@ -186,6 +191,9 @@ def build_object_corpus(out: str | os.PathLike, cfg: ObjectBuildConfig = ObjectB
         "dataset_clips": n, "chunks": len(results), "seconds": round(elapsed, 2),
         "clips_per_second": round(n / max(elapsed, 1e-9), 1),
         "synthesised_clips": len(results) * cfg.synth.chunk_size,
+        # CPU time of the chunks (their processes' own, compiles included): on a busy machine wall time says little.
+        "cpu_seconds": round(sum(r.cpu_seconds for r in results), 2),
+        "cpu_seconds_per_kept_clip": round(sum(r.cpu_seconds for r in results) / max(n, 1), 4),
         "rejected_by_physics": rejected,
         "physics_limits": phys.LIMITS,
         "physics_worst": {"depth_m": float(physics["depth_m"].max()), "interhand_m": float(physics["interhand_m"].min()),

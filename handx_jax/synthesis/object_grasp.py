@@ -25,7 +25,7 @@ import numpy as np
 
 from handx_jax import hand_surface as hs
 from handx_jax import skeleton as sk
-from handx_jax.data import synth_hand as H
+from handx_jax.synthesis import hand as H
 from handx_jax.objects import object_sdf, part_pose
 
 # A finger stops when its closest surface point is this far from the object: touching, with the points' spacing

@@ -31,11 +31,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from handx_jax import skeleton as sk
-from handx_jax.data import synth_hand as H
+from handx_jax.synthesis import hand as H
 from handx_jax.objects import BOTTOM, CATEGORIES, TOP, sample_instance, surface_samples
 from handx_jax.synthesis import object_grasp as G
 from handx_jax.synthesis import object_templates as OT
-from handx_jax.data.synth_programs import smoothstep
+from handx_jax.synthesis.programs import smoothstep
 
 PROGRAMS = ("grab", "use")
 NO_PART = -1

@@ -15,8 +15,8 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from handx_jax.data.dataset import Dataset
-from handx_jax.data.render import render_gif
+from handx_jax.dataset.format import Dataset
+from handx_jax.dataset.render import render_gif
 from handx_jax.objects import surface_samples, to_world
 from handx_jax.synthesis.object_build import clip_object, open_object_annotations
 
