@@ -110,13 +110,14 @@ def clip_to_limits(pose_x16: np.ndarray) -> np.ndarray:
     return np.clip(pose_x16, LIMITS_LO_16, LIMITS_HI_16)
 
 
-def _thumb_axes(pose_x16: np.ndarray, radians: bool = False, xp=np) -> tuple[np.ndarray, np.ndarray]:
+def _thumb_axes(pose_x16: np.ndarray, radians: bool = False, xp=None) -> tuple[np.ndarray, np.ndarray]:
     """Thumb metacarpal direction and nail-side axis after the 2-DoF CMC rotation, (..., 3) each.
 
     R = Rz(−flex) · Ry(−abd) · T0 · Ry_local(roll): flexion swings the thumb across the palm toward
     the pinky, abduction lifts it out of the palm plane, and the coupled roll pronates it so the
     pad turns toward the finger pads (opposition).
     """
+    xp = np if xp is None else xp  # looked up per call (a test swaps the module's numpy for one with other sin/cos)
     to_rad = (lambda x: x) if radians else xp.radians
     f, a = to_rad(pose_x16[..., T_CMC_FLEX]), to_rad(pose_x16[..., T_CMC_ABD])
     roll = THUMB_ROLL_PER_FLEX * f
@@ -140,7 +141,7 @@ _MODEL_TO_OFFICIAL = np.argsort(_MODEL_ORDER)
 _FRAME = {"dir": _FINGER_DIR_4x3, "lat": _FINGER_LAT_4x3, "back": _FINGER_BACK_4x3[:, None, :]}
 
 
-def hand_fk(pose_x16: np.ndarray, geom: dict[str, np.ndarray], xp=np) -> np.ndarray:
+def hand_fk(pose_x16: np.ndarray, geom: dict[str, np.ndarray], xp=None) -> np.ndarray:
     """Joint positions (..., 21, 3) float64 in the right-hand frame, official joint order, metres.
 
     ``pose_x16`` is (..., 16) degrees; ``geom`` arrays (from hand_geometry) must broadcast against
@@ -153,6 +154,7 @@ def hand_fk(pose_x16: np.ndarray, geom: dict[str, np.ndarray], xp=np) -> np.ndar
     ``xp=jax.numpy`` gives the same function traceable under jit/vmap (in JAX's default float32), which
     the hand–object synthesizer's finger closing needs (synthesis/object_grasp.py).
     """
+    xp = np if xp is None else xp
     dtype = np.float64 if xp is np else np.float32
     p = xp.radians(xp.asarray(pose_x16, dtype=dtype))
     lead = p.shape[:-1]
