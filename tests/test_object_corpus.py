@@ -192,3 +192,13 @@ def test_captions_have_three_texts_and_name_the_parts(corpus):
             assert inter.startswith(f"The {sk.HAND_NAMES[th]} hand") and bottom in inter
         else:
             assert inter.startswith("Both hands lift")
+
+
+@pytest.mark.parametrize("args", [["--clips", "0"], ["--clips", "4", "--categories", "box,teapot"]])
+def test_bad_options_get_one_line_and_exit_2_writing_nothing(tmp_path, capsys, args):
+    from handx_jax.cli import main
+
+    out = tmp_path / "ds"
+    assert main(["data", "objects", "--out", str(out), *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("handx: error: --") and not out.exists()

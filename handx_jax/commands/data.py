@@ -161,19 +161,19 @@ def _objects(a: argparse.Namespace) -> int:
     import dataclasses
 
     from handx_jax.dataset.format import Dataset
+    from handx_jax.infra.errors import DataError
     from handx_jax.objects import CATEGORIES
     from handx_jax.synthesis.object_build import ObjectBuildConfig, build_object_corpus
 
     if a.clips < 1:
-        raise SystemExit(f"handx: error: --clips is {a.clips}; it must be a whole number >= 1")
+        raise DataError(f"--clips is {a.clips}; it must be a whole number >= 1")
     cfg = ObjectBuildConfig(clips=a.clips, seed=a.seed, workers=a.workers, val_fraction=a.val_fraction,
                             test_fraction=a.test_fraction)
     if a.categories:
         cats = tuple(c.strip() for c in a.categories.split(",") if c.strip())
         bad = [c for c in cats if c not in CATEGORIES]
         if bad or not cats:
-            raise SystemExit(f"handx: error: --categories: unknown {', '.join(bad) or '(none given)'}; "
-                             f"known: {', '.join(CATEGORIES)}")
+            raise DataError(f"--categories: unknown {', '.join(bad) or '(none given)'}; known: {', '.join(CATEGORIES)}")
         cfg = dataclasses.replace(cfg, synth=dataclasses.replace(cfg.synth, categories=cats))
     out = build_object_corpus(a.out, cfg, overwrite=a.force, progress=not a.quiet)
     ds = Dataset.open(out)
