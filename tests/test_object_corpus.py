@@ -202,3 +202,17 @@ def test_bad_options_get_one_line_and_exit_2_writing_nothing(tmp_path, capsys, a
     assert main(["data", "objects", "--out", str(out), *args]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("handx: error: --") and not out.exists()
+
+
+def test_basis_maps_each_point_to_its_nearest_part_sample_in_the_scaled_frame():
+    """Eq. 2 with a known answer: when a part's samples include each basis point divided by s_o (its place in
+    metres), that sample is the one it maps to, whatever other samples lie farther away."""
+    from handx_jax.objects.bps import map_basis
+
+    rng = np.random.default_rng(0)
+    basis = rng.uniform(-0.5, 0.5, (16, 3))
+    s_o = 4.0
+    exact = basis / s_o
+    far = exact[rng.integers(0, 16, 200)] + rng.choice([-1, 1], (200, 3)) * rng.uniform(0.02, 0.05, (200, 3))
+    samples = np.stack([rng.permutation(np.concatenate([exact, far])) for _ in range(2)])
+    np.testing.assert_allclose(map_basis(samples, basis, s_o), np.stack([exact, exact]))
