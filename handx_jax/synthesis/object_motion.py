@@ -80,14 +80,17 @@ def pad_object(obj, n=None):
     k = n - P
     if k < 0:
         raise ValueError(f"{obj.category} has {P} primitives; the padding is {n}")
-    pad = lambda a, v: jnp.concatenate([a, jnp.broadcast_to(jnp.asarray(v, a.dtype), (k,) + a.shape[1:])])
+    # numpy, not jnp: 5 eager device ops per field and clip cost more than the chunk's whole physics check.
+    def pad(a, v):
+        a = np.asarray(a)
+        return np.concatenate([a, np.broadcast_to(np.asarray(v, a.dtype), (k,) + a.shape[1:])])
     return dataclasses.replace(
         obj, kind_P=pad(obj.kind_P, 0), part_P=pad(obj.part_P, NO_PART), size_Px3=pad(obj.size_Px3, 1e-3),
         rot_Px3x3=pad(obj.rot_Px3x3, np.eye(3)), trans_Px3=pad(obj.trans_Px3, 100.0), category="mixed")
 
 
 def stack_objects(objs):
-    return jax.tree.map(lambda *a: jnp.stack(a), *objs)
+    return jax.tree.map(lambda *a: jnp.asarray(np.stack([np.asarray(x) for x in a])), *objs)
 
 
 @lru_cache(maxsize=4)
