@@ -45,7 +45,7 @@ from handx_jax.synthesis.object_captions import caption_clip
 from handx_jax.synthesis.object_motion import ObjectSynthConfig, pad_object, stack_objects, synth_object_chunk
 
 # Bumped whenever the same (seed, config) would give a different corpus; part of the recipe.
-OBJECT_GENERATOR_VERSION = 1
+OBJECT_GENERATOR_VERSION = 2
 ARRAYS = ("object_state", "held", "contact_map", "bps_points")
 MIN_PAD_FINGERS = 2   # a holding hand touches its part with at least this many finger pads
 

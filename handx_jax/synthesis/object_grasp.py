@@ -63,6 +63,7 @@ for _i in range(4):
 CAPSULE_FINGER = np.array([next((k for k, f in enumerate(sk.FINGER_NAMES) if b in sk.CHAINS[f][2:]), -1)
                            for b in hs.CAPSULE_B[:len(sk.BONES)]] + [-1] * (hs.N_CAPSULES - len(sk.BONES)))
 FINGER_CAPSULES_5x3 = np.stack([np.flatnonzero(CAPSULE_FINGER == k) for k in range(5)])
+TIP_CAPSULES_5 = np.array([np.flatnonzero(hs.CAPSULE_IS_TIP & (CAPSULE_FINGER == k))[0] for k in range(5)])
 POINT_FINGER = CAPSULE_FINGER[hs.SURFACE_CAPSULE]                        # (P,) finger of each surface point
 PAD_POINTS = [np.flatnonzero(hs.CAPSULE_IS_TIP[hs.SURFACE_CAPSULE] & (POINT_FINGER == k)) for k in range(5)]
 # The search runs on spheres along each capsule's axis (its radius around AXIS_SAMPLES points from end to end):
@@ -149,7 +150,7 @@ def solve_grasp(obj, part, angles_K, geom, mirror, anchor_3, normal_3, finger_3,
     Returns a dict: ``R`` (3, 3) hand-to-part rotation, ``wrist`` (3,) the wrist's position, ``curl`` (5,) per
     finger (thumb..pinky) in [0, 1] from ``open_16`` toward ``closed_16``, ``contact`` (5,) bool (the finger met
     the object), ``pose`` (16,) the closed pose, ``clear`` the grasping hand's least distance to the object (its
-    axis spheres; negative: inside). The surface points are checked later, on every frame of the clip
+    axis spheres; negative: inside), ``pad`` (5,) each distal phalanx's least distance to it (its axis spheres). The surface points are checked later, on every frame of the clip
     (synthesis/object_physics.py).
     """
     R = hand_frame(normal_3, finger_3, roll)
@@ -184,4 +185,6 @@ def solve_grasp(obj, part, angles_K, geom, mirror, anchor_3, normal_3, finger_3,
     found = found1 | found2
     curl = curl1
     c, r = _axis_spheres(world(_fk_local(pose, geom, mirror), wrist), all_caps)
-    return {"R": R, "wrist": wrist, "curl": curl, "contact": found, "pose": pose, "clear": jnp.min(sdf(c) - r)}
+    d_CxS = (sdf(c) - r).reshape(hs.N_CAPSULES, -1)
+    return {"R": R, "wrist": wrist, "curl": curl, "contact": found, "pose": pose, "clear": jnp.min(d_CxS),
+            "pad": jnp.min(d_CxS[TIP_CAPSULES_5], -1)}

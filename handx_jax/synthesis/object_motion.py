@@ -40,6 +40,9 @@ from handx_jax.synthesis.programs import smoothstep
 PROGRAMS = ("grab", "use")
 NO_PART = -1
 ANGLE_SAMPLES = 4
+# A candidate's pad counts as touching when its distal phalanx's axis spheres are this close (the filter's 3 mm on
+# the surface points, less the spheres' <= 0.7 mm bulge error; object_grasp.AXIS_SAMPLES).
+PAD_SELECT_M = 0.0023
 
 
 @lru_cache(maxsize=None)
@@ -273,8 +276,11 @@ def synth_object_chunk(seed: int, chunk_index: int, cfg: ObjectSynthConfig = Obj
                  jnp.asarray(np.stack([s[1] for s in shapes]), jnp.float32),
                  jnp.asarray(np.stack([G.anchor_weights(r[7]) for r in rows])))
     res = {k: np.asarray(v, np.float64) for k, v in res.items()}
-    # Per hand the candidate with the most touching fingers among those whose hand stays clear of the object.
-    score = res["contact"].sum(-1) + 10.0 * (res["clear"] >= -0.0005)
+    # Per hand the candidate with the most fingers whose pads touch (what the physics filter asks of a holding hand:
+    # >= 2 pads within 3 mm), then the most touching fingers, among those whose hand stays clear of the object.
+    # A finger can meet an edge with its proximal phalanx and keep its pad off it; counting any touching finger
+    # picked such grasps and the filter then dropped them.
+    score = (res["pad"] <= PAD_SELECT_M).sum(-1) + 0.1 * res["contact"].sum(-1) + 10.0 * (res["clear"] >= -0.0005)
     score = score.reshape(N, 2, M)
     best = score.argmax(-1)
     pick = (np.arange(N)[:, None] * 2 + np.arange(2)[None]) * M + best               # (N, 2) row index
