@@ -26,7 +26,7 @@ import numpy as np
 from handx_jax import hand_surface as hs
 from handx_jax import skeleton as sk
 from handx_jax.synthesis import hand as H
-from handx_jax.objects import object_sdf, part_pose
+from handx_jax.objects import canonical_part_sdf, object_sdf, part_pose
 
 # A finger stops when its closest surface point is this far from the object: touching, with the points' spacing
 # (a ring of 8 points misses the capsule's surface by r(1 - cos 22.5 deg) <= 0.7 mm between points) kept outside.
@@ -150,7 +150,7 @@ def solve_grasp(obj, part, angles_K, geom, mirror, anchor_3, normal_3, finger_3,
     Returns a dict: ``R`` (3, 3) hand-to-part rotation, ``wrist`` (3,) the wrist's position, ``curl`` (5,) per
     finger (thumb..pinky) in [0, 1] from ``open_16`` toward ``closed_16``, ``contact`` (5,) bool (the finger met
     the object), ``pose`` (16,) the closed pose, ``clear`` the grasping hand's least distance to the object (its
-    axis spheres; negative: inside), ``pad`` (5,) each distal phalanx's least distance to it (its axis spheres). The surface points are checked later, on every frame of the clip
+    axis spheres; negative: inside), ``pad`` (5,) each distal phalanx's least distance to the held part (its axis spheres). The surface points are checked later, on every frame of the clip
     (synthesis/object_physics.py).
     """
     R = hand_frame(normal_3, finger_3, roll)
@@ -187,4 +187,11 @@ def solve_grasp(obj, part, angles_K, geom, mirror, anchor_3, normal_3, finger_3,
     c, r = _axis_spheres(world(_fk_local(pose, geom, mirror), wrist), all_caps)
     d_CxS = (sdf(c) - r).reshape(hs.N_CAPSULES, -1)
     return {"R": R, "wrist": wrist, "curl": curl, "contact": found, "pose": pose, "clear": jnp.min(d_CxS),
-            "pad": jnp.min(d_CxS[TIP_CAPSULES_5], -1)}
+            "pad": jnp.min(pad_distance(obj, part, c, r), -1)}
+
+
+def pad_distance(obj, part, centres, radii):
+    """Each distal phalanx's axis spheres' distance (5, S) to the HELD part alone (a pad on the other part does
+    not hold this one, and in a use program it leaves it as the angle changes)."""
+    sel = (TIP_CAPSULES_5[:, None] * len(AXIS_SAMPLES) + np.arange(len(AXIS_SAMPLES))).reshape(-1)
+    return (canonical_part_sdf(obj, part, centres[sel]) - radii[sel]).reshape(5, -1)
