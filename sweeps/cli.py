@@ -88,12 +88,29 @@ def _run(a: argparse.Namespace) -> int:
     if bad:
         raise SystemExit(f"handx sweep run: error: --set takes the runs' generation settings, sample.KEY=VALUE; "
                          f"got {', '.join(map(repr, bad))}")
+    try:  # the evaluator and its pair with the data, before the first run trains (issue 54 item 2)
+        evaluator = _evaluator_folder(a.evaluator, a.data) if a.evaluator else None
+    except (DataError, FileNotFoundError, ValueError) as e:
+        print(f"handx sweep run: error: {e}", file=sys.stderr)
+        return 2
     cfg = SweepConfig(data=str(Path(a.data).absolute()), encoder=str(Path(a.encoder).absolute()) if a.encoder else "",
-                      out=a.out, evaluator=str(Path(a.evaluator).absolute()) if a.evaluator else None,
+                      out=a.out, evaluator=evaluator,
                       eval_limit=a.eval_limit, eval_samples=a.eval_samples, rprec_block=block, sample=tuple(a.set),
                       executor=a.executor, slurm=resources,
                       name=a.name or "", preset=preset, max_parallel=a.max_parallel, existing=a.existing)
     return _launched("run", lambda: launch(specs, cfg), len(specs))
+
+
+def _evaluator_folder(value: str | None, data: str | None) -> str:
+    """The evaluator folder the stages pass on (``standard``, ``standard-vN`` or a path, resolved by
+    ``standard.naming``), checked against the sweep's dataset when it is given."""
+    from handx_jax.data.dataset import Dataset
+    from handx_jax.standard.naming import resolve_evaluator
+
+    named = resolve_evaluator(value)
+    if data is not None:
+        named.check_data(Dataset.open(data))
+    return str(named.folder.absolute())
 
 
 def _launched(command: str, go, total: int | None = None) -> int:
@@ -139,10 +156,14 @@ def _status(a: argparse.Namespace) -> int:
 
 
 def _rescore(a: argparse.Namespace) -> int:
-    from handx_jax import standard
+    from handx_jax.io import DataError
     from sweeps.launcher import rescore
 
-    ev = standard.evaluator_dir(standard.assets_for(a.evaluator)) if standard.is_standard(a.evaluator) else a.evaluator
+    try:
+        ev = _evaluator_folder(a.evaluator, a.data)
+    except (DataError, FileNotFoundError, ValueError) as e:
+        print(f"handx sweep rescore: error: {e}", file=sys.stderr)
+        return 2
     return _launched("rescore", lambda: rescore(a.out, ev, data=a.data, executor=a.executor,
                                                 max_parallel=a.max_parallel, rprec_block=a.rprec_block))
 
@@ -171,7 +192,9 @@ def add_parser(subparsers) -> None:
     r.add_argument("--data", help="dataset directory")
     r.add_argument("--encoder", help="frozen T5 encoder folder")
     r.add_argument("--out", required=True, help="sweep folder (runs/, steps/, results.jsonl, results.csv)")
-    r.add_argument("--evaluator", help="evaluator checkpoint; without it runs are trained but not scored")
+    r.add_argument("--evaluator", help="'standard' (the packaged one), a version such as standard-v6, or an evaluator "
+                                       "folder; checked against --data before any run trains. Without it runs are "
+                                       "trained but not scored")
     r.add_argument("--eval-limit", type=int, default=512, help="test clips generated per run")
     r.add_argument("--eval-samples", type=int, default=1, help="generations per prompt")
     deprecated_flag(r, "--rprec-block", r.add_argument(
@@ -205,7 +228,8 @@ def add_parser(subparsers) -> None:
                                    "(regenerated first only if EVALUATOR scores another caption level); the old "
                                    "scores stay as RUN/eval.<old id>.json.")
     deprecated_positional(q, q.add_argument("--out", required=True, metavar="OUT", help="sweep folder (must exist)"), "out")
-    q.add_argument("--evaluator", help="evaluator folder; default (or 'standard'): the packaged standard evaluator")
+    q.add_argument("--evaluator", help="'standard' (default, the packaged one), a version such as standard-v6, or an "
+                                       "evaluator folder")
     q.add_argument("--data", help="the sweep's dataset, if it moved since the launch")
     q.add_argument("--executor", choices=("local", "slurm", "debug"), default="local")
     q.add_argument("--max-parallel", type=int, default=None, help="runs scored at once (default: the sweep's)")

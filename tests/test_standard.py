@@ -163,7 +163,7 @@ def test_eval_run_without_evaluator_uses_the_standard_one(std, monkeypatch, tmp_
 def test_packaged_standard_evaluator_matches_this_code():
     """The assets the package ships: present, intact, trained on the recipe this code builds."""
     card = standard.read_card()
-    assert standard.Recipe(**card["recipe"]) == standard.code_recipe()
+    assert standard.Recipe.from_card(card["recipe"]) == standard.code_recipe()
     assert card["recipe_options"] == standard.build_options(standard.code_recipe())
     rec = standard.code_recipe()  # the card's reproduction command builds this recipe
     assert (f"`handx data synth --clips {rec.clips} --seed {rec.seed} --annotation {rec.annotation} --motion {rec.motion}`"

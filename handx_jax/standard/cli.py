@@ -82,7 +82,8 @@ def _package(a: argparse.Namespace) -> int:
     missing = [f"--{k}" for k in ("data", "encoder", "evaluator") if not getattr(a, k)]
     if missing:
         return _usage_error(f"handx standard package needs {', '.join(missing)} (or --validity-only)")
-    out = standard.package(a.data, a.encoder, a.evaluator, a.out, training=training, replications=a.replications,
+    evaluator = standard.resolve_evaluator(a.evaluator).folder  # a folder that is not a finished evaluator: one line
+    out = standard.package(a.data, a.encoder, evaluator, a.out, training=training, replications=a.replications,
                   recipe=recipe, validity=validity)
     print(f"wrote {out}")
     return 0

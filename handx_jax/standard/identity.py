@@ -71,7 +71,7 @@ def check_reference(ds, card: Mapping[str, Any] | None = None, assets: Path | No
     """
     assets = assets_folder(assets)
     card = card if card is not None else read_card(assets)
-    want = Recipe(**card["recipe"])
+    want = Recipe.from_card(card["recipe"])
     got, opts = recipe_of(ds)
     fix = (f"build it with `handx standard corpus --out DIR` (or `--clips M` for a prefix), or score with "
            f"your own evaluator (`--evaluator E`)")

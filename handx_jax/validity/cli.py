@@ -43,7 +43,8 @@ def add_parser(subparsers) -> None:
                        description=(__import__("handx_jax.validity.suite", fromlist=["x"]).__doc__ or "").split("\n\n")[0])
     v.add_argument("--data", required=True, help="dataset (its test split is perturbed)")
     v.add_argument("--out", required=True, help="folder for validity.json / .md / .png")
-    v.add_argument("--evaluator", default="standard", help="evaluator folder (default: the packaged standard one)")
+    v.add_argument("--evaluator", default="standard", help="'standard' (default, the packaged one), a version such as "
+                                                           "standard-v6, or an evaluator folder")
     v.add_argument("--no-evaluator", action="store_true", help="caption stability only")
     v.add_argument("--tokenizer", action="append", metavar="TOK",
                    help="an FSQ tokenizer run: also score the ground truth through it (repeatable)")

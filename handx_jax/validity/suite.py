@@ -42,6 +42,12 @@ def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: 
     from handx_jax.generation import split_prompts
 
     ds = Dataset.open(data)
+    named = None
+    if evaluator:  # a bad --evaluator, or one that does not score this dataset: refused before any work
+        from handx_jax.standard.naming import resolve_evaluator
+
+        named = resolve_evaluator(evaluator)
+        named.check_data(ds)
     clips, prompts, motion = split_prompts(ds, "test", limit, 0)
     if len(clips) < 2:
         raise ValueError(f"{data}: the test split has {len(clips)} clip(s); the suite needs at least 2")
@@ -67,17 +73,9 @@ def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: 
     log(f"{len(clips)} test clips; annotation {reading!r}, wording {wording!r}; the clean re-annotation "
         f"reproduces {reproduces:.0%} of the stored level-0 captions")
     scorer = None
-    if evaluator:
-        from handx_jax import standard
-        from handx_jax.evaluation import load_evaluator
-
-        assets = standard.assets_for(evaluator)
-        if assets is not None:
-            ev, cache = standard.load(assets), standard.reference_cache_dir(assets)
-            report["evaluator"] = {"name": f"standard-v{ev.card['version']}", "id": str(evaluator)}
-        else:
-            ev, cache = load_evaluator(evaluator), False
-            report["evaluator"] = {"name": str(evaluator)}
+    if named is not None:
+        ev, cache = named.load(), named.reference_cache(default=False)
+        report["evaluator"] = {"name": named.name, "id": str(evaluator)} if named.standard else {"name": str(evaluator)}
         scorer = Scorer(ev, ds, clips, prompts, block=block, cache=cache)
         report["ground_truth"] = scorer.score(gt)
         clean0 = [c[0] for c in ann.clean_captions]
