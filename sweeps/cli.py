@@ -57,6 +57,7 @@ def _run(a: argparse.Namespace) -> int:
         preset = kw.get("preset", "")
         resources = {**load_resources(a.sweep, preset), **_kv(a.slurm)}
         block = a.rprec_block or load_rprec_block(a.sweep)
+        named = _evaluator(a.evaluator) if a.evaluator else None  # a bad name or folder, even with --dry-run
     except (DataError, FileNotFoundError, ValueError) as e:
         print(f"handx sweep run: error: {e}", file=sys.stderr)
         return 2
@@ -88,29 +89,32 @@ def _run(a: argparse.Namespace) -> int:
     if bad:
         raise SystemExit(f"handx sweep run: error: --set takes the runs' generation settings, sample.KEY=VALUE; "
                          f"got {', '.join(map(repr, bad))}")
-    try:  # the evaluator and its pair with the data, before the first run trains (issue 54 item 2)
-        evaluator = _evaluator_folder(a.evaluator, a.data) if a.evaluator else None
-    except (DataError, FileNotFoundError, ValueError) as e:
-        print(f"handx sweep run: error: {e}", file=sys.stderr)
-        return 2
+    if named is not None:  # the evaluator's pair with the data, before the first run trains (issue 54 item 2)
+        from handx_jax.data.dataset import Dataset
+
+        try:
+            named.check_data(Dataset.open(a.data))
+        except (DataError, FileNotFoundError, ValueError) as e:
+            print(f"handx sweep run: error: {e}", file=sys.stderr)
+            return 2
     cfg = SweepConfig(data=str(Path(a.data).absolute()), encoder=str(Path(a.encoder).absolute()) if a.encoder else "",
-                      out=a.out, evaluator=evaluator,
+                      out=a.out, evaluator=str(named.folder.absolute()) if named else None,
                       eval_limit=a.eval_limit, eval_samples=a.eval_samples, rprec_block=block, sample=tuple(a.set),
                       executor=a.executor, slurm=resources,
                       name=a.name or "", preset=preset, max_parallel=a.max_parallel, existing=a.existing)
     return _launched("run", lambda: launch(specs, cfg), len(specs))
 
 
-def _evaluator_folder(value: str | None, data: str | None) -> str:
-    """The evaluator folder the stages pass on (``standard``, ``standard-vN`` or a path, resolved by
-    ``standard.naming``), checked against the sweep's dataset when it is given."""
+def _evaluator(value: str | None, data: str | None = None):
+    """The evaluator (``standard``, ``standard-vN`` or a path, resolved by ``standard.naming``), checked
+    against the sweep's dataset when it is given; the stages are passed its folder."""
     from handx_jax.data.dataset import Dataset
     from handx_jax.standard.naming import resolve_evaluator
 
     named = resolve_evaluator(value)
     if data is not None:
         named.check_data(Dataset.open(data))
-    return str(named.folder.absolute())
+    return named
 
 
 def _launched(command: str, go, total: int | None = None) -> int:
@@ -160,7 +164,7 @@ def _rescore(a: argparse.Namespace) -> int:
     from sweeps.launcher import rescore
 
     try:
-        ev = _evaluator_folder(a.evaluator, a.data)
+        ev = str(_evaluator(a.evaluator, a.data).folder.absolute())
     except (DataError, FileNotFoundError, ValueError) as e:
         print(f"handx sweep rescore: error: {e}", file=sys.stderr)
         return 2
