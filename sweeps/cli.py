@@ -48,7 +48,7 @@ def _sweep_kwargs(a: argparse.Namespace) -> dict:
 def _run(a: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
     from sweeps.launcher import SweepConfig, launch, load_resources, load_rprec_block, load_sweep
 
     try:  # the sweep file is user code: every way it can fail is one line naming it (launcher.load_sweep)
@@ -90,7 +90,7 @@ def _run(a: argparse.Namespace) -> int:
         raise SystemExit(f"handx sweep run: error: --set takes the runs' generation settings, sample.KEY=VALUE; "
                          f"got {', '.join(map(repr, bad))}")
     if named is not None:  # the evaluator's pair with the data, before the first run trains (issue 54 item 2)
-        from handx_jax.data.dataset import Dataset
+        from handx_jax.dataset.format import Dataset
 
         try:
             named.check_data(Dataset.open(a.data))
@@ -108,7 +108,7 @@ def _run(a: argparse.Namespace) -> int:
 def _evaluator(value: str | None, data: str | None = None):
     """The evaluator (``standard``, ``standard-vN`` or a path, resolved by ``standard.naming``), checked
     against the sweep's dataset when it is given; the stages are passed its folder."""
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.standard.naming import resolve_evaluator
 
     named = resolve_evaluator(value)
@@ -119,7 +119,7 @@ def _evaluator(value: str | None, data: str | None = None):
 
 def _launched(command: str, go, total: int | None = None) -> int:
     """Run a launch (``go()``), print where its results are and each failure; the exit status."""
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
 
     try:
         res = go()
@@ -138,7 +138,7 @@ def _launched(command: str, go, total: int | None = None) -> int:
 
 
 def _status(a: argparse.Namespace) -> int:
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
     from sweeps.launcher import status
 
     try:
@@ -160,7 +160,7 @@ def _status(a: argparse.Namespace) -> int:
 
 
 def _rescore(a: argparse.Namespace) -> int:
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
     from sweeps.launcher import rescore
 
     try:

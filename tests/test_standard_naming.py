@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from handx_jax import standard
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.standard import assets as standard_assets
 
 REPO = Path(__file__).resolve().parent.parent

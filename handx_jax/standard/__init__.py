@@ -48,7 +48,7 @@ One concern per module:
 The names below are the package's public surface (``from handx_jax import standard``; ``standard.X``).
 """
 
-from handx_jax.data.dataset import MOTION_ATOL
+from handx_jax.dataset.format import MOTION_ATOL
 from handx_jax.standard.assets import (ARCHIVE, ASSETS, CARD_JSON, CARD_MD, CARD_SHA, ENCODER_DIR, EVALUATOR_DIR,
                                        MANIFEST, NAME, VERSION, archived, asset_files, assets_folder, encoder_dir,
                                        evaluator_dir, read_card, reference_cache_dir, verify_assets, versions)

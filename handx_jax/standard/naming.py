@@ -22,7 +22,7 @@ import json
 import os
 from pathlib import Path
 
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.standard import assets as _assets  # ASSETS and ARCHIVE read when called (a test's copy moves them)
 from handx_jax.standard.assets import (CARD_JSON, EVALUATOR_DIR, NAME, VERSION, evaluator_dir, read_card,
                                        reference_cache_dir, version_folder, versions)
