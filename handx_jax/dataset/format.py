@@ -263,8 +263,14 @@ def write_dataset(
     stats: bool | Sequence[NormPreset] = True,
     workers: int = 1,
     recipe: dict | None = None,
+    arrays: dict[str, np.ndarray] | None = None,
+    records: dict[str, Sequence[Any]] | None = None,
 ) -> Path:
     """Write a complete dataset atomically. ``motion`` may be a memory-mapped array.
+
+    ``arrays`` ({name: array with one row per clip}) and ``records`` ({name: one JSON record per clip}) are a
+    corpus's own per-clip annotations, written as ``name.npy`` and ``name.jsonl`` beside the motion (the
+    hand–object corpus's object states, held parts and contact maps: synthesis/object_build.py).
 
     Without ``splits`` every clip goes to train. Fractions are nested subsets of train. ``stats``: the
     normalisation presets whose statistics ``stats.npz`` holds, given by the caller (the command layer passes
@@ -307,6 +313,15 @@ def write_dataset(
         _write_lines(tmp / "texts.jsonl", texts)
         if events is not None:
             _write_lines(tmp / "events.jsonl", events)
+        for name, a in (arrays or {}).items():
+            if len(a) != n:
+                raise DataError(f"{n} motion clips but {len(a)} rows of {name}")
+            with disk_full_as_error(tmp / f"{name}.npy"):
+                np.save(tmp / f"{name}.npy", np.ascontiguousarray(a))
+        for name, rows in (records or {}).items():
+            if len(rows) != n:
+                raise DataError(f"{n} motion clips but {len(rows)} records of {name}")
+            _write_lines(tmp / f"{name}.jsonl", rows)
         atomic_write_json(tmp / "splits.json", split_doc, indent=None)
         if report is not None:
             atomic_write_json(tmp / "report.json", report)
