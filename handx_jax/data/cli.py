@@ -35,15 +35,17 @@ def add_parser(subparsers) -> None:
     s.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
     s.add_argument("--val-fraction", type=float, default=0.05)
     s.add_argument("--test-fraction", type=float, default=0.05)
-    s.add_argument("--annotation", default="reference", choices=("reference", "stable", "gist"),
+    s.add_argument("--annotation", default="reference", choices=("reference", "stable", "gist", "surface"),
                    help="annotation reading: 'reference' (§6.1-6.2, no smoothing; the default, and every corpus "
                         "built before issue 40), 'stable' (smoothed, hysteretic states, per-fact wording; "
                         "docs/validity.md) or 'gist' (stable, plus each finger's curl swings, which level 0 "
-                        "says; corpus v3)")
+                        "says; corpus v3) or 'surface' (gist, with the hands' contacts read from the hand surface; corpus v5)")
     s.add_argument("--motion", default="oscillate", choices=MOTIONS,
                    help="what a segment's actions do: 'oscillate' (go back and forth; every corpus before v3), "
                         "'transition' (go once from one pose to another, one segment per sequence, the clip filter at 7 deg/s; "
-                        "corpus v3) or 'chain' (the same, then up to twice more to other poses: A to B to C to D; corpus v4)")
+                        "corpus v3), 'chain' (the same, then up to twice more to other poses: A to B to C to D; corpus v4) "
+                        "or 'surface' (chain, with the hands resolved against the hand surface: contacts surface to "
+                        "surface, no hand through the other; corpus v5)")
     s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_synth)

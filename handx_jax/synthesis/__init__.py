@@ -1,0 +1,1 @@
+"""Procedural hands: motion programs, their kinematics and the contacts between hands."""
