@@ -48,7 +48,7 @@ def _sweep_kwargs(a: argparse.Namespace) -> dict:
 def _run(a: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
     from sweeps.launcher import SweepConfig, launch, load_resources, load_rprec_block, load_sweep
 
     try:  # the sweep file is user code: every way it can fail is one line naming it (launcher.load_sweep)
@@ -98,7 +98,7 @@ def _run(a: argparse.Namespace) -> int:
 
 def _launched(command: str, go, total: int | None = None) -> int:
     """Run a launch (``go()``), print where its results are and each failure; the exit status."""
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
 
     try:
         res = go()
@@ -117,7 +117,7 @@ def _launched(command: str, go, total: int | None = None) -> int:
 
 
 def _status(a: argparse.Namespace) -> int:
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
     from sweeps.launcher import status
 
     try:

@@ -18,9 +18,10 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from handx_jax.io import DataError, atomic_write_json
-from handx_jax.provenance import versions
-from handx_jax.runlock import RunLock, RunLocked, pdeathsig_preexec
+from handx_jax.infra.atomic import atomic_write_json
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.provenance import versions
+from handx_jax.infra.runlock import RunLock, RunLocked, pdeathsig_preexec
 from sweeps.spec import REPO, RunSpec, Step, SweepConfig, check_name
 
 def run_dir(cfg: SweepConfig, spec: RunSpec) -> Path:

@@ -11,10 +11,10 @@ import pytest
 import handmade_hands as hh
 from handx_jax import hand_surface as hs
 from handx_jax import skeleton as sk
-from handx_jax.data import events as E
-from handx_jax.data.build import BuildConfig, build_corpus, with_motion, with_reading
-from handx_jax.data.caption import gist
-from handx_jax.data.dataset import Dataset
+from handx_jax.annotation import events as E
+from handx_jax.dataset.build import BuildConfig, build_corpus, with_motion, with_reading
+from handx_jax.annotation.caption import gist
+from handx_jax.dataset.format import Dataset
 from handx_jax.synthesis import audit, surface
 
 

@@ -14,7 +14,7 @@ from typing import Any, Iterator, Mapping
 
 import numpy as np
 
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 # What the sizes a tensor is checked against come from ("the tensors' shapes", "config.yaml", "--heads"),
 # set by the importer around its reads so that a wrong-shape refusal says why that shape was expected.

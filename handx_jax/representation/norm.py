@@ -78,7 +78,7 @@ class NormPreset:
     """How stats are computed for one representation (§1.8, §5.3): ``featurize(joints, convention)`` →
     features ending in ``feature_shape``; ``name`` is its ``stats.npz`` prefix. Which presets a family
     normalises with, and so which a dataset's ``stats.npz`` holds, is the registry's (``Family.norm``,
-    ``families.TRAINABLE_NORMS``; :func:`norm_preset`)."""
+    ``families.TRAINABLE_NORMS``: ``families.norm_presets``, passed down to the dataset writer)."""
 
     name: str
     feature_shape: tuple[int, ...]
@@ -86,15 +86,26 @@ class NormPreset:
     eps: float = 0.0
     featurize: Callable[..., np.ndarray] | None = None
 
+    def __post_init__(self):
+        # Every preset is known by its name from the moment it is defined (the package's beside their layouts,
+        # imported with this package; a family's own when the registry resolves its ``Family.norm``), so this
+        # room looks presets up without asking the registry above it; the first of a name stays.
+        _PRESETS.setdefault(self.name, self)
+
+
+_PRESETS: dict[str, NormPreset] = {}
+
 
 def norm_preset(name: str) -> NormPreset:
-    """The preset the registry declares under the ``stats.npz`` prefix ``name`` (``families.norm_presets``)."""
-    from handx_jax.families import norm_presets
+    """The preset defined under the ``stats.npz`` prefix ``name`` (the one a family's ``Family.norm`` names)."""
+    if name not in _PRESETS:
+        raise ValueError(f"unknown normalisation preset {name!r}; expected one of {tuple(_PRESETS)}")
+    return _PRESETS[name]
 
-    presets = norm_presets()
-    if name not in presets:
-        raise ValueError(f"unknown normalisation preset {name!r}; expected one of {tuple(presets)}")
-    return presets[name]
+
+def norm_presets() -> dict[str, NormPreset]:
+    """Every preset defined so far, by its ``stats.npz`` prefix, in the order they were defined."""
+    return dict(_PRESETS)
 
 
 def _iter_chunks(x: np.ndarray | Iterable[np.ndarray], chunk_size: int) -> Iterator[np.ndarray]:

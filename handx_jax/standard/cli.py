@@ -43,7 +43,7 @@ def _corpus(a: argparse.Namespace) -> int:
 
 
 def _check(a: argparse.Namespace) -> int:
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
 
     found = standard.check_reference(Dataset.open(a.data))
     if a.json:

@@ -1,1 +1,1 @@
-"""Procedural hands: motion programs, their kinematics and the contacts between hands."""
+"""Procedural hands: motion synthesised from programs, the corpus build's source."""

@@ -14,7 +14,7 @@ import numpy as np
 
 from handx_jax import hand_surface as hs
 from handx_jax import skeleton as sk
-from handx_jax.data.caption.gist import palm_touch_frames
+from handx_jax.annotation.caption.gist import palm_touch_frames
 
 CONTACT_M = 0.005      # a touch: the surfaces within 5 mm (issue 55)
 OVERLAP_M = -0.0005    # overlapping: more than 0.5 mm inside (the contact stage resolves to 0.2 mm)
@@ -71,7 +71,7 @@ def summary(a: dict[str, np.ndarray]) -> dict[str, float]:
 
 
 def main(argv=None) -> int:
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
 
     p = argparse.ArgumentParser(prog="python -m handx_jax.synthesis.audit", description=__doc__.split("\n")[0])
     p.add_argument("--data", required=True, help="dataset directory")

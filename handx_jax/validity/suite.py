@@ -24,10 +24,10 @@ from typing import Sequence
 
 import numpy as np
 
-from handx_jax.io import atomic_write_text
+from handx_jax.infra.atomic import atomic_write_text
 from handx_jax.validity import perturb as P
 from handx_jax.validity import stability as S
-from handx_jax.data.build import corpus_seed, reading_of
+from handx_jax.dataset.build import corpus_seed, reading_of
 from handx_jax.validity.scores import Scorer, caption_reader_top3, order_test
 
 SCHEMA = 1
@@ -36,9 +36,9 @@ SCHEMA = 1
 def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: Sequence[str] = (),
         annotation: str | None = None, limit: int | None = None, block: int = 32, seed: int = 0,
         kinds: Sequence[str] | None = None, log=print) -> dict:
-    from handx_jax.data.caption import TemplateCaptioner
-    from handx_jax.data.dataset import Dataset
-    from handx_jax.data.events import annotation_config
+    from handx_jax.annotation.caption import TemplateCaptioner
+    from handx_jax.dataset.format import Dataset
+    from handx_jax.annotation.events import annotation_config
     from handx_jax.generation import split_prompts
 
     ds = Dataset.open(data)
@@ -50,7 +50,7 @@ def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: 
     found_reading, wording = reading_of(ds)
     reading = annotation or found_reading
     if reading != found_reading:  # another reading than the corpus's: its own wording goes with it
-        from handx_jax.data.build import WORDING
+        from handx_jax.dataset.build import WORDING
 
         wording = WORDING[reading]
     t0 = time.perf_counter()

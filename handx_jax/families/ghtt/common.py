@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.models import ghtt as G
 from handx_jax.models import ghtt_motion as HM
 

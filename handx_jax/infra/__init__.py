@@ -1,0 +1,1 @@
+"""Infrastructure: files, errors, checksums, host memory and devices, locks, provenance."""
