@@ -1,7 +1,7 @@
 """Corpus v5 (issue 55): the two hands resolved against the hand surface (motion "surface") and their contacts
 read from it (annotation "surface"). A small prefix built by the real build is checked on EVERY clip against
 issue 55's targets, and the contact stage and the surface reading against cases with known answers. Corpus v4
-is untouched (its prefixes still pass tests/test_validity.py and tests/test_corpus_v4.py)."""
+is untouched (its prefixes still pass tests/test_validity.py and tests/test_synthesis_chain.py)."""
 
 import dataclasses
 

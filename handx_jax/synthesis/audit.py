@@ -1,7 +1,7 @@
 """The physics of a corpus's two hands, clip by clip (issue 55's targets): inter-hand penetration on the hand
 surface, non-fingertip joints of the two hands too close, "apart" captions over overlapping surfaces, and touch
 captions without surface contact in their stated frames. ``python -m handx_jax.synthesis.audit --data DIR``
-prints the table docs/results/validity/corpus-v5/README.md gives; tests/test_corpus_v5.py asserts it per clip.
+prints the table docs/results/validity/corpus-v5/README.md gives; tests/test_synthesis_surface.py asserts it per clip.
 """
 
 from __future__ import annotations

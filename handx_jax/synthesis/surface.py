@@ -5,7 +5,7 @@ The stage runs on a chunk's final hands: the finger programs, the wrist paths, t
 corpus v4's contact alignment are all composed into the posed hands ``J0`` plus the wrist translations
 ``tr`` before it, and nothing after it moves one hand relative to the other (the room placement is one rigid
 motion of both). So checking and resolving here covers every stage that moves a hand, and a test on the
-built clips holds it (tests/test_corpus_v5.py).
+built clips holds it (tests/test_synthesis_surface.py).
 
 Per frame, with the separating direction u of the closest capsule pair (``hand_surface.interhand_separation``):
 the right wrist moves by +δ/2·u and the left by −δ/2·u, which changes the surface distance by δ while that
