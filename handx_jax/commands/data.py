@@ -43,15 +43,19 @@ def add_parser(subparsers) -> None:
     _build_args(s)
     # The defaults build the standard corpus's recipe (corpus v4, standard.Recipe; issue 51 item 3): with the
     # default seed and fractions, the first --clips clips of the standard corpus, a prefix `handx standard
-    # check` accepts. The older readings and motions stay by name for the committed results that used them.
-    s.add_argument("--annotation", default=STANDARD_ANNOTATION, choices=("reference", "stable", "gist"),
+    # check` accepts. The older readings and motions stay by name for the committed results that used them;
+    # 'surface' is corpus v5 (issue 55), which no packaged evaluator scores yet.
+    s.add_argument("--annotation", default=STANDARD_ANNOTATION, choices=("reference", "stable", "gist", "surface"),
                    help=f"annotation reading (default {STANDARD_ANNOTATION!r}, the standard corpus's): 'gist' (stable, "
-                        "plus each finger's curl swings, which level 0 says; corpora v3-v4), 'stable' (smoothed, "
+                        "plus each finger's curl swings, which level 0 says; corpora v3-v4), 'surface' (gist, with the "
+                        "hands' contacts read from the hand surface; corpus v5), 'stable' (smoothed, "
                         "hysteretic states, per-fact wording; corpus v2, docs/validity.md) or 'reference' "
                         "(§6.1-6.2, no smoothing; corpus v1, and what imported official data is read with)")
     s.add_argument("--motion", default=STANDARD_MOTION, choices=MOTIONS,
                    help=f"what a segment's actions do (default {STANDARD_MOTION!r}, the standard corpus's): 'chain' "
                         "(go once from one pose to another, then up to twice more: A to B to C to D; corpus v4), "
+                        "'surface' (chain, with the hands resolved against the hand surface: contacts surface to "
+                        "surface, no hand through the other; corpus v5), "
                         "'transition' (once, one segment per sequence, the clip filter at 7 deg/s; corpus v3) or "
                         "'oscillate' (go back and forth; corpora v1-v2)")
     s.add_argument("--force", action="store_true", help="replace an existing dataset directory")

@@ -51,7 +51,7 @@ class BuildConfig:
 
 # The captioner wording that goes with each annotation reading (events.ANNOTATIONS): a corpus built
 # with the stable reading also words each fact independently (issue 40).
-WORDING = {"reference": "shared", "stable": "per_fact", "gist": "per_fact"}
+WORDING = {"reference": "shared", "stable": "per_fact", "gist": "per_fact", "surface": "per_fact"}
 
 
 def reading_of_options(options: dict) -> str | None:
@@ -269,7 +269,8 @@ _NEUTRAL_OPTIONS = {"wording": "shared"}
 _NEUTRAL_SYNTH = {"motion": "oscillate"}
 _NEUTRAL_ANNOTATION = {"smooth_sigma_frames": 0.0, "contact_hysteresis_m": 0.0, "contact_gap_frames": 0,
                        "contact_min_frames": 1, "segmentation": "greedy",
-                       "merge_gap_frames": 10, "state_delta": True, "finger_curl_swing_deg": 0.0}
+                       "merge_gap_frames": 10, "state_delta": True, "finger_curl_swing_deg": 0.0,
+                       "surface_contact_m": 0.0}
 _NEUTRAL_SPEC = {"hysteresis": 0.0}
 _NEUTRAL_FEATURES = {"thumb_mcp": "reference", "dip_coupling": 0.0}
 

@@ -57,15 +57,16 @@ from handx_jax.standard.evaluator import load, standard_evaluator_class
 from handx_jax.standard.identity import check_reference, read_manifest, test_manifest
 from handx_jax.standard.naming import Evaluator, resolve_evaluator
 from handx_jax.standard.packaging import add_validity, package
-from handx_jax.standard.recipe import (STANDARD_ANNOTATION, STANDARD_MOTION, Recipe, build_options,
-                                       build_standard_corpus, code_recipe, generator_version, recipe_of)
+from handx_jax.standard.recipe import (CORPUS_VERSIONS, STANDARD_ANNOTATION, STANDARD_MOTION, Recipe, build_options,
+                                       build_standard_corpus, code_recipe, corpus_recipe, generator_version, recipe_of)
 
 __all__ = ["MOTION_ATOL", "ARCHIVE", "ASSETS", "CARD_JSON", "CARD_MD", "CARD_SHA", "ENCODER_DIR", "EVALUATOR_DIR",
            "MANIFEST", "NAME", "VERSION", "archived", "asset_files", "assets_folder", "encoder_dir", "evaluator_dir",
            "read_card", "reference_cache_dir", "verify_assets", "versions", "Evaluator", "resolve_evaluator",
            "card_markdown", "validity_summary", "load", "check_reference", "read_manifest", "test_manifest",
            "add_validity", "package", "STANDARD_ANNOTATION", "STANDARD_MOTION", "Recipe", "build_options",
-           "build_standard_corpus", "code_recipe", "generator_version", "recipe_of", "StandardEvaluator"]
+           "build_standard_corpus", "code_recipe", "corpus_recipe", "generator_version", "recipe_of", "StandardEvaluator",
+           "CORPUS_VERSIONS"]
 
 
 def __getattr__(name: str):  # StandardEvaluator is built on first use: importing the package must not import jax

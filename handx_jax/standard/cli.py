@@ -33,7 +33,9 @@ def _usage_error(e: Exception) -> int:
 def _corpus(a: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     try:
-        out = standard.build_standard_corpus(a.out, a.clips, workers=a.workers, overwrite=a.force, progress=not a.quiet)
+        recipe = None if a.corpus is None else standard.corpus_recipe(a.corpus)
+        out = standard.build_standard_corpus(a.out, a.clips, workers=a.workers, overwrite=a.force, progress=not a.quiet,
+                                             recipe=recipe)
     except ValueError as e:  # a --clips outside the recipe: one line, no traceback
         return _usage_error(e)
     print(f"wrote {out} ({time.perf_counter() - t0:.0f} s)")
@@ -101,6 +103,9 @@ def add_parser(subparsers) -> None:
     c.add_argument("--out", required=True, help="dataset directory to create")
     c.add_argument("--clips", type=int, help="build only the first M clips (default: the whole standard corpus)")
     c.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
+    c.add_argument("--corpus", choices=standard.CORPUS_VERSIONS,
+                   help="a named corpus version instead of the standard one (v4): v5 = v4 with the hands resolved "
+                        "against the hand surface and contacts read from it (no evaluator trained on it yet)")
     c.add_argument("--force", action="store_true", help="replace an existing dataset directory")
     c.add_argument("--quiet", action="store_true", help="no progress bar")
     c.set_defaults(func=_corpus)

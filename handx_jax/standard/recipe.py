@@ -71,6 +71,22 @@ def code_recipe() -> Recipe:
     return Recipe(generator=generator_version())
 
 
+# Corpus versions a user can build by name (``handx standard corpus --corpus NAME``). The standard one is the
+# packaged evaluator's (``code_recipe``: corpus v4); v5 (issue 55) is corpus v4's recipe with its two hands
+# resolved against the hand surface and their contacts read from it (motion and annotation "surface",
+# docs/results/validity/corpus-v5/). No evaluator is trained on v5 yet, so it is not the standard recipe.
+CORPUS_VERSIONS = ("v4", "v5")
+
+
+def corpus_recipe(name: str) -> Recipe:
+    """The recipe of a named corpus version (``CORPUS_VERSIONS``), or a one-line error listing them."""
+    if name == "v4":
+        return dataclasses.replace(code_recipe(), annotation="gist", motion="chain")
+    if name == "v5":
+        return dataclasses.replace(code_recipe(), annotation="surface", motion="surface")
+    raise ValueError(f"unknown corpus version {name!r}; choose one of {', '.join(CORPUS_VERSIONS)}")
+
+
 def build_options(recipe: Recipe) -> dict:
     """The build options of the recipe as ``meta.json``'s ``recipe.options`` records them
     (``data.build.recipe``: everything but the clip count, seed and worker count)."""
@@ -102,7 +118,8 @@ def build_standard_corpus(out: str | os.PathLike, clips: int | None = None, *, w
     rec = recipe or code_recipe()
     assets = assets_folder(assets)
     card = read_card(assets) if (assets / CARD_JSON).exists() else None
-    if card is not None and Recipe.from_card(card["recipe"]) != rec:
+    # A named corpus version other than the standard one (corpus v5) has no packaged evaluator to match.
+    if card is not None and Recipe.from_card(card["recipe"]) != rec and rec == code_recipe():
         raise DataError(f"this code's generator builds recipe {dataclasses.asdict(rec)}, but the packaged standard "
                         f"evaluator was trained on {card['recipe']}; its corpus cannot be rebuilt with this code "
                         f"(rebuild the assets: see {assets / CARD_MD})")
