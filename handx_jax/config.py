@@ -8,8 +8,9 @@ dataclasses. Everything that can be set from the command line is set the same wa
 
 Each value is parsed for the field's declared type (``1e3`` is a valid int, ``2.5`` is not; ``none``
 sets an Optional field to None; a tuple takes comma-separated items, optionally in brackets), unknown
-keys are an error with a "did you mean" hint, and the top-level class's ``validate()`` (if it has
-one) runs after all overrides, so ``model.dim`` and ``model.heads`` can change together.
+keys are an error with a "did you mean" hint, and :func:`validate` runs after all overrides (each nested
+group's ``check_values``, e.g. the training loop's ``train.*`` ranges, then the top-level class's
+``validate()``), so ``model.dim`` and ``model.heads`` can change together.
 
 ``to_dict`` gives the JSON form written to a run's ``config.json``; ``from_dict`` rebuilds the
 dataclass from it (ignoring keys the class does not have, e.g. ``params``; tuples come back as
@@ -132,11 +133,42 @@ def apply_overrides(cfg, overrides: Sequence[str]):
     return cfg
 
 
-def validate(cfg) -> None:
-    """Run the config's own ``validate()`` if it has one (raises ValueError naming the key)."""
+def validate(cfg, key: str = "") -> None:
+    """Check a config before anything runs on it: every nested config's ``check_values(key)`` (a group of
+    values checked wherever it is used, named by its dotted key: ``TrainConfig`` as ``train.ckpt_every``,
+    ``OptimConfig`` as ``train.optim.lr``), then the config's own ``validate()`` if it has one (the checks
+    across groups). ``key``: the dotted key ``cfg`` itself has (``"train"`` for a bare ``TrainConfig``).
+    Raises ConfigError naming the key."""
+    _check_groups(cfg, key)
     check = getattr(cfg, "validate", None)
     if callable(check):
         check()
+
+
+def _check_groups(obj, where: str) -> None:
+    if not dataclasses.is_dataclass(obj) or isinstance(obj, type):
+        return
+    own = getattr(obj, "check_values", None)
+    if callable(own):
+        own(where)
+    for f in dataclasses.fields(obj):
+        _check_groups(getattr(obj, f.name), f"{where}.{f.name}" if where else f.name)
+
+
+def whole(value, key: str, *, minimum: int) -> None:
+    """``value`` must be a whole number >= ``minimum``, or a ConfigError naming ``key``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ConfigError(f"{key} must be a whole number >= {minimum}, got {value!r}")
+
+
+def finite(value, key: str, *, minimum: float | None = None) -> None:
+    """``value`` must be a finite number (>= ``minimum``), or a ConfigError naming ``key``."""
+    import math
+
+    ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
+    if not ok or (minimum is not None and value < minimum):
+        floor = f" >= {minimum:g}" if minimum is not None else ""
+        raise ConfigError(f"{key} must be a finite number{floor}, got {value!r}")
 
 
 def to_dict(cfg) -> dict:
