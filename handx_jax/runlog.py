@@ -84,7 +84,9 @@ class RunLogger:
 
 
 def read_config(run_dir: str | os.PathLike) -> dict:
-    return json.loads((Path(run_dir) / "config.json").read_text())
+    from handx_jax.infra.read import read_json
+
+    return read_json(Path(run_dir) / "config.json", expect=dict)
 
 
 def trainable_renamed(old_family: str, trainable: str) -> Callable[[dict], dict]:

@@ -31,7 +31,6 @@ from __future__ import annotations
 import collections
 import dataclasses
 import itertools
-import json
 import math
 import os
 import time
@@ -46,6 +45,7 @@ import numpy as np
 import optax
 
 from handx_jax.config import ConfigError, validate, whole
+from handx_jax.infra.read import read_json
 from handx_jax.io import TREE_CHECKSUMS, DataError, check_finite_params, verify_tree_checksum, write_tree_checksum
 from handx_jax.optim import OptimConfig, effective_warmup, learning_rate, optimizer_for, schedule_values
 from handx_jax.runlog import RunLogger
@@ -201,11 +201,7 @@ def check_resume(run_dir: str | os.PathLike, config: dict, keys: Sequence[str] |
     p = Path(run_dir) / "config.json"
     if not p.exists():
         return
-    try:
-        old = json.loads(p.read_text())
-    except json.JSONDecodeError as e:
-        raise DataError(f"config.json is not valid JSON ({e}); move the folder away or use a new --out",
-                        path=p) from None
+    old = read_json(p, expect=dict)  # corrupt or not an object: one line naming it
     if upgrade is not None:
         old = upgrade(old)
     if isinstance(old.get("train"), dict) and isinstance(config.get("train"), dict):

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
 import os
 import shutil
 import signal
@@ -69,7 +68,14 @@ def _sweep_task(family: str) -> str:
 def _evaluator_identity(path: str, stamp: tuple) -> tuple[str, int]:
     from handx_jax.evaluation.checkpoint import META_FILE, evaluator_id
 
-    return evaluator_id(path), int(json.loads((Path(path) / META_FILE).read_text())["text"]["eval_level"])
+    return evaluator_id(path), evaluator_level(Path(path) / META_FILE)
+
+
+def evaluator_level(meta_path: Path) -> int:
+    """The caption level an evaluator scores (its ``evaluator.json``'s ``text.eval_level``)."""
+    from handx_jax.infra.read import get_field, read_json
+
+    return get_field(read_json(meta_path, expect=dict), "text.eval_level", int, path=meta_path)
 
 
 def evaluator_identity(evaluator: str | os.PathLike) -> tuple[str, int]:
@@ -132,10 +138,11 @@ def is_complete(cfg: SweepConfig, spec: RunSpec) -> bool:
 
 
 def read_json_or_empty(path: Path) -> dict:
-    try:
-        return json.loads(path.read_text())
-    except (FileNotFoundError, json.JSONDecodeError):
-        return {}
+    """A sweep's own JSON object (status.json, sweep.json), or {} when absent. A file that is not a JSON
+    object (a ``[]``, a damaged file) is a ``DataError`` naming it (``infra.read``), not an AttributeError later."""
+    from handx_jax.infra.read import read_json
+
+    return read_json(path, expect=dict, default={})
 
 
 def update_json(path: Path, **kv) -> None:
@@ -349,7 +356,7 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
             if not state["generate"]:
                 # Prompt at the caption level the evaluator scores (its text policy), so that the
                 # generated file's captions are the ones the evaluator embeds.
-                level = json.loads((Path(cfg.evaluator) / "evaluator.json").read_text())["text"]["eval_level"]
+                level = evaluator_level(Path(cfg.evaluator) / "evaluator.json")
                 stage("generate", _subst(["handx", "generate", "--run", str(d), "--data", cfg.data, "--split",
                                           cfg.eval_split, "--level", str(level), "--limit", str(cfg.eval_limit),
                                           "--samples", str(cfg.eval_samples), *_task_args(spec),

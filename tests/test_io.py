@@ -70,7 +70,8 @@ def test_atomic_dir_gets_normal_permissions(tmp_path):
 
 
 def test_read_format_meta_names_the_file_and_the_problem(tmp_path):
-    from handx_jax.io import DataError, read_format_meta
+    from handx_jax.infra.read import read_format_meta
+    from handx_jax.io import DataError
 
     p = tmp_path / "meta.json"
     with pytest.raises(DataError, match="build one first") as e:

@@ -39,8 +39,9 @@ import numpy as np
 
 from handx_jax import skeleton as sk
 from handx_jax.data.parallel import map_ordered
+from handx_jax.infra.read import get_field, read_format_meta, read_json, read_npy, read_npz, require_dir
 from handx_jax.io import (DataError, NpyWriter, atomic_dir, atomic_write_json, check_free_space, disk_full_as_error,
-                          read_format_meta, read_jsonl)
+                          read_jsonl)
 
 FORMAT = "handx-jax-dataset"
 IDENTITY_VERSION = 1
@@ -366,6 +367,21 @@ def stats_names() -> list[str]:
     return families.stats_names()
 
 
+def _index_list(idx: Any, field: str, n: int, path: Path) -> np.ndarray:
+    if not isinstance(idx, list) or not all(type(i) is int and 0 <= i < n for i in idx):
+        raise DataError(f"must be a list of clip indices in [0, {n})", path=path, field=field)
+    return np.asarray(idx, np.int64)
+
+
+def read_splits(path: Path, n: int) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """splits.json's split and data-fraction index lists, each checked: whole clip indices below ``n``."""
+    sp = read_json(path, expect=dict)
+    splits = {k: _index_list(sp.get(k, []), k, n, path) for k in SPLITS}
+    fr = get_field(sp, "fractions", dict, path=path, default={})
+    fractions = {k: _index_list(v, f"fractions[{k!r}]", n, path) for k, v in fr.items()}
+    return splits, fractions
+
+
 @dataclass
 class Dataset:
     """A dataset directory opened for reading. ``motion`` is memory-mapped."""
@@ -379,28 +395,22 @@ class Dataset:
 
     @classmethod
     def open(cls, root: str | os.PathLike) -> "Dataset":
-        root = Path(root)
-        if not root.is_dir():
-            raise DataError("dataset directory does not exist", path=root)
+        root = require_dir(root, "dataset directory")
         meta = read_format_meta(root / "meta.json", FORMAT, FORMAT_VERSION,
                                 missing="missing meta.json: not a handx-jax dataset")
-        try:
-            motion = np.load(root / "motion.npy", mmap_mode="r")
-        except FileNotFoundError:
-            raise DataError("missing motion.npy", path=root) from None
-        except ValueError as e:
-            raise DataError(f"corrupt or truncated array ({e})", path=root / "motion.npy") from None
-        n = meta["num_clips"]
-        if motion.shape != (n, meta["clip_len"], 2, sk.NUM_JOINTS, 3):
+        n = get_field(meta, "num_clips", int, path=root / "meta.json", check=lambda v: v >= 0, must="a count >= 0")
+        clip_len = get_field(meta, "clip_len", int, path=root / "meta.json", check=lambda v: v >= 1,
+                             must="a frame count >= 1")
+        get_field(meta, "fingerprint", str, path=root / "meta.json")
+        motion = read_npy(root / "motion.npy", kind="f", mmap=True)
+        if motion.shape != (n, clip_len, 2, sk.NUM_JOINTS, 3):
             raise DataError(f"shape {motion.shape} does not match meta.json (num_clips={n})",
                             path=root / "motion.npy")
         texts = read_jsonl(root / "texts.jsonl")
         if len(texts) != n:
             raise DataError(f"{len(texts)} text records for {n} clips", path=root / "texts.jsonl")
         validate_texts(texts, root / "texts.jsonl")
-        sp = json.loads((root / "splits.json").read_text())
-        splits = {k: np.asarray(sp.get(k, []), np.int64) for k in SPLITS}
-        fractions = {k: np.asarray(v, np.int64) for k, v in sp.get("fractions", {}).items()}
+        splits, fractions = read_splits(root / "splits.json", n)
         return cls(root=root, meta=meta, motion=motion, texts=texts, splits=splits, fractions=fractions)
 
     def __len__(self) -> int:
@@ -444,13 +454,12 @@ class Dataset:
         p = self.root / "stats.npz"
         if not p.exists():
             raise DataError("missing stats.npz (dataset has no train split?)", path=self.root)
-        with np.load(p, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
+        return read_npz(p, kind="f")
 
     @cached_property
     def report(self) -> dict:
         p = self.root / "report.json"
-        return json.loads(p.read_text()) if p.exists() else {}
+        return read_json(p, expect=dict, default={})
 
     def captions(self, level: int = -1) -> list[tuple[str, str, str]]:
         """(left, right, interaction) per clip at one level (−1 = most detailed)."""

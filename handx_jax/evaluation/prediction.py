@@ -119,7 +119,7 @@ BASELINES = {"last-frame": last_frame, "velocity": velocity, "ground-truth": gro
 
 def run_data(run_dir: str | Path) -> str:
     """The dataset a run was trained on (``config.json["data"]["path"]``), for the default ``--data``."""
-    from handx_jax.io import read_json
+    from handx_jax.infra.read import read_json
 
     path = (read_json(Path(run_dir) / "config.json").get("data") or {}).get("path")
     if not path:

@@ -39,7 +39,6 @@ from __future__ import annotations
 import contextlib
 import difflib
 import importlib
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -255,10 +254,9 @@ def family_of(run_dir: str | Path) -> str:
     p = Path(run_dir) / "config.json"
     if not p.exists():
         raise DataError("not a run folder (no config.json)", path=run_dir)
-    try:
-        fam = json.loads(p.read_text()).get("family")
-    except (json.JSONDecodeError, AttributeError) as e:
-        raise DataError(f"config.json is not a JSON object: {e}", path=p) from None
+    from handx_jax.infra.read import read_json
+
+    fam = read_json(p, expect=dict).get("family")
     if not fam:
         raise DataError("config.json names no model family ('family' is missing)", path=p)
     return str(fam)
@@ -272,7 +270,9 @@ def run_config(run_dir: str | Path, family: str) -> dict:
         from handx_jax.io import DataError
 
         raise DataError(f"not a {family} run folder (config.json names family {found!r})", path=run_dir)
-    return json.loads((Path(run_dir) / "config.json").read_text())
+    from handx_jax.infra.read import read_json
+
+    return read_json(Path(run_dir) / "config.json", expect=dict)
 
 
 def generation_config(cfg, overrides, allowed: tuple[str, ...] = ("sample.",)):

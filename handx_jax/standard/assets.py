@@ -8,6 +8,7 @@ import json
 import os
 from pathlib import Path
 
+from handx_jax.infra.read import read_json
 from handx_jax.io import DataError, sha256_file, verify_checksum
 
 VERSION = 7  # of the packaged assets; bumped whenever the recipe or any weight changes
@@ -28,7 +29,7 @@ def read_card(assets: Path | None = None) -> dict:
     if not p.exists():
         raise DataError(f"the standard evaluator's card is missing (is the package installed with its assets? "
                         f"see pyproject package-data)", path=p)
-    return json.loads(p.read_text())
+    return read_json(p, expect=dict)
 
 
 def asset_files(assets: Path) -> list[str]:
@@ -126,7 +127,7 @@ def evaluator_meta(evaluator: str | os.PathLike | None) -> dict:
     """``evaluator.json`` of an evaluator folder, or of a standard evaluator (see :func:`is_standard`)."""
     assets = assets_for(evaluator)
     folder = evaluator_dir(assets) if assets is not None else Path(evaluator)
-    return json.loads((folder / "evaluator.json").read_text())
+    return read_json(folder / "evaluator.json", expect=dict)
 
 
 def encoder_dir(assets: Path | None = None) -> Path:

@@ -69,10 +69,9 @@ def _package(a: argparse.Namespace) -> int:
         recipe = dataclasses.replace(standard.code_recipe(), clips=int(a.recipe_clips))
     validity = None
     if a.validity:
-        try:
-            validity = json.loads(Path(a.validity).read_text())
-        except (OSError, json.JSONDecodeError) as e:
-            return _usage_error(f"--validity {a.validity}: {e}")
+        from handx_jax.infra.read import read_json
+
+        validity = read_json(a.validity, expect=dict)
     if a.validity_only:  # the figures of an already packaged evaluator (the suite needs it packaged)
         if validity is None:
             return _usage_error("--validity-only needs --validity FILE")

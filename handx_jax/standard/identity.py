@@ -14,6 +14,7 @@ import numpy as np
 # (data.dataset.MOTION_ATOL, 10 µm): float rounding of another numpy/jax build moves them by ~1e-7 m; any
 # change to the generator moves them by millimetres.
 from handx_jax.data.dataset import MOTION_ATOL
+from handx_jax.infra.read import read_npz
 from handx_jax.io import DataError
 from handx_jax.standard.assets import MANIFEST, NAME, assets_folder, read_card, version_folder, versions
 from handx_jax.standard.recipe import Recipe, recipe_of
@@ -43,8 +44,7 @@ def test_manifest(ds) -> dict[str, np.ndarray]:
 
 
 def read_manifest(assets: Path | None = None) -> dict[str, np.ndarray]:
-    with np.load(assets_folder(assets) / MANIFEST, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
+    return read_npz(assets_folder(assets) / MANIFEST)
 
 
 def _other_version(got: Recipe, opts: Mapping[str, Any], assets: Path) -> str:

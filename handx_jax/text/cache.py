@@ -27,7 +27,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from handx_jax.io import DataError, NpyWriter, atomic_dir, atomic_write_json, check_free_space, read_format_meta
+from handx_jax.infra.read import read_format_meta
+from handx_jax.io import DataError, NpyWriter, atomic_dir, atomic_write_json, check_free_space
 
 FORMAT, FORMAT_VERSION = "handx-jax-text-cache", 1
 CACHE_DIRNAME = "text_cache"
@@ -255,9 +256,11 @@ class TextCache:
             if want is not None and have != want:
                 raise DataError(f"text cache fingerprint mismatch: built for {what} {have}, but the {what} in use is "
                                 f"{want}; rebuild it with `handx text cache`", path=root)
-        hidden = np.load(root / "hidden.npy", mmap_mode="r")
-        mask = np.load(root / "mask.npy", mmap_mode="r")
-        index = json.loads((root / "index.json").read_text())
+        from handx_jax.infra.read import read_json, read_npy
+
+        hidden = read_npy(root / "hidden.npy", mmap=True)
+        mask = read_npy(root / "mask.npy", mmap=True)
+        index = read_json(root / "index.json", expect=dict)
         rows = np.asarray(index["rows"], np.int32).reshape(meta["num_clips"], len(index["fields"]), index["levels"])
         if hidden.shape != (meta["num_rows"], meta["Lmax"], meta["d_model"]) or mask.shape != hidden.shape[:2]:
             raise DataError(f"arrays {hidden.shape}/{mask.shape} do not match meta.json", path=root)

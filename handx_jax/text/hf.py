@@ -20,7 +20,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handx_jax.io import DataError, atomic_dir, atomic_write_json, read_json, verify_checksum, write_checksum
+from handx_jax.infra.read import read_json
+from handx_jax.io import DataError, atomic_dir, atomic_write_json, verify_checksum, write_checksum
 from handx_jax.text.t5 import FrozenEncoder, Params, T5Config, T5EncoderModel
 from handx_jax.text.tokenizer import MODEL_FILENAME, Tokenizer
 

@@ -1,0 +1,1 @@
+"""Infrastructure: atomic files, readers, locks, host resources, provenance."""
