@@ -97,6 +97,19 @@ def scored_block(eval_json: Path) -> int:
     return int(read_json_or_empty(eval_json).get("_meta", {}).get("rprec_block") or 32)
 
 
+def scored_at_another_block(eval_json: Path, block: int) -> bool:
+    """Whether scores were made at another R-Precision block than scoring them at ``block`` now would use.
+    ``handx eval run`` uses one block of all the prompts where there are fewer than asked
+    (``evaluation.scoring.rprec_block_used``) and records how many prompts it scored: 16 prompts asked at
+    block 32 were scored at block 16, which is what asking for 32 again gives, so they are not redone (every
+    relaunch of a sweep with ``--eval-limit 16`` rescored every run)."""
+    meta = read_json_or_empty(eval_json).get("_meta", {})
+    used, prompts = int(meta.get("rprec_block") or 32), meta.get("prompts")
+    if isinstance(prompts, int) and not isinstance(prompts, bool) and prompts > 0:
+        return used != min(block, prompts)
+    return used != block
+
+
 def _keep_old_scores(d: Path, block: int) -> Path:
     """Move ``d/eval.json`` aside before a rescore: ``eval.<evaluator id>.json``, with ``.b<block>`` when
     it was scored at another R-Precision block than ``block``; never over an earlier kept file."""
@@ -127,7 +140,7 @@ def stale_scores(cfg: SweepConfig, d: Path) -> str | None:
         return "generate"
     if (d / "eval.json").exists() and read_json_or_empty(d / "eval.json").get("_meta", {}).get("evaluator_id") != want_id:
         return "evaluate"
-    if (d / "eval.json").exists() and scored_block(d / "eval.json") != cfg.rprec_block:
+    if (d / "eval.json").exists() and scored_at_another_block(d / "eval.json", cfg.rprec_block):
         return "block"
     return None
 

@@ -194,12 +194,9 @@ def _predict(args: argparse.Namespace) -> int:
     fam = fp = None
     if args.run:  # the run's family parses its own flags (as handx generate does); nothing here names one
         from handx_jax.commands.generate import family_parser
-        from handx_jax.families import entry, family_of
+        from handx_jax.families import check_task, family_of
 
-        name = family_of(args.run)
-        if "prediction" not in entry(name).tasks:  # the registry says which families predict
-            return fail(PREDICTION, f"family {name} does not do --task prediction; it does "
-                                    f"{', '.join(entry(name).tasks) or 'no generation'}")
+        check_task(family_of(args.run), "prediction")  # the registry says which families predict
         fam, fp = family_parser(args.run)
         fp.prog = f"{PREDICTION} --run {args.run}"  # argparse's own errors (a bad family flag) name this command
     data = args.data or PR.run_data(args.run)

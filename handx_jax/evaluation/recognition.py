@@ -40,24 +40,26 @@ def _recognize(args: argparse.Namespace) -> int:
     from handx_jax import standard
     from handx_jax.data.dataset import Dataset
     from handx_jax.evaluation import load_evaluator
-    from handx_jax.families import entry, family_of, load_run
-    from handx_jax.generation import split_prompts
+    from handx_jax.families import check_task, family_of, load_run
+    from handx_jax.generation import check_level, check_limit, split_prompts
     from handx_jax.io import atomic_write_json
     from handx_jax.metrics import MetricConfig, replicate_embedding_metrics
 
     if args.block < 2 or args.replications < 1:
         raise ValueError(f"--block must be at least 2 and --replications at least 1, got {args.block}, {args.replications}")
+    check_limit(args.limit)
     name = family_of(args.run)
-    if "recognition" not in entry(name).tasks:
-        raise ValueError(f"family {name} does not do recognition; it does {', '.join(entry(name).tasks) or 'nothing'}")
-    ev = standard.load(standard.assets_for(args.evaluator)) if standard.is_standard(args.evaluator) else \
-        load_evaluator(args.evaluator)
-    level = ev.policy.eval_level if args.level is None else args.level
-    ev.policy = dataclasses.replace(ev.policy, eval_level=level)
+    check_task(name, "recognition")
     from handx_jax.evaluation.prediction import run_data
 
     data = args.data or run_data(args.run)
     ds = Dataset.open(data)
+    if args.level is not None:  # before the evaluator is read (seconds): the dataset says which levels exist
+        check_level(args.level, int(ds.meta["levels"]), ds.root)
+    ev = standard.load(standard.assets_for(args.evaluator)) if standard.is_standard(args.evaluator) else \
+        load_evaluator(args.evaluator)
+    level = ev.policy.eval_level if args.level is None else args.level
+    ev.policy = dataclasses.replace(ev.policy, eval_level=level)
     clips, prompts, motions = split_prompts(ds, args.split, args.limit, level)
     if len(clips) < 2:
         raise ValueError(f"the {args.split} split of {data} holds {len(clips)} clip(s); retrieval needs at least 2")

@@ -206,6 +206,22 @@ def sweep_task(name: str) -> str:
     return fam.sweep_task
 
 
+def check_task(name: str, task: str) -> None:
+    """The one refusal of a task family ``name`` does not serve (``Family.tasks``), asked by every command
+    that runs one (``handx generate --task``, ``handx eval prediction``, ``handx eval recognition``) before it
+    opens the run: a ValueError in one line saying what the family does instead; a step family (no tasks)
+    says what it is for and which family to use."""
+    fam = entry(name)
+    if task in fam.tasks:
+        return
+    what = f"--task {task}" if task != "recognition" else "recognition"
+    if fam.tasks:
+        raise ValueError(f"family {name} does not do {what}; it does {', '.join(fam.tasks)}")
+    users = [f for f in names() if name in entry(f).needs]
+    use = f"; use the {' or '.join(users)} run trained on it" if users else ""
+    raise ValueError(f"family {name} does not do {what}: it generates nothing ({fam.help}){use}")
+
+
 def get_family(name: str) -> ModuleType:
     """The family module registered as ``name``; an unknown name is a ValueError with a hint."""
     return importlib.import_module(entry(name).module)
@@ -284,7 +300,7 @@ def generation_config(cfg, overrides, allowed: tuple[str, ...] = ("sample.",)):
     if bad:
         names = " and ".join(f"{a}*" for a in allowed)
         raise ValueError(f"generation can only override {names} keys, got {bad}")
-    cfg = apply_overrides(cfg, overrides)
+    cfg = apply_overrides(cfg, overrides, groups=False)  # the run's train.* values are history, not checked
     cfg.validate()
     return cfg
 
