@@ -124,3 +124,18 @@ def test_a_bad_ghtt_norm_file_is_one_line_naming_file_and_field(tmp_path, write,
     msg = str(e.value)
     assert words in msg and "ghtt_norm.npz" in msg and "\n" not in msg, msg
     assert "allow_pickle" not in msg and "pickle.load" not in msg
+
+
+def test_a_run_that_diverges_is_one_line(tmp_path, capsys, monkeypatch):
+    """A loss that turns NaN under finite settings (the loop's FloatingPointError) is one line, not a traceback."""
+    from handx_jax.families.ghtt import pose
+
+    def diverging(run_dir, cfg, **kw):
+        raise FloatingPointError(f"loss is nan at step 5 (run {run_dir})")
+
+    monkeypatch.setattr(pose, "train", diverging)
+    out = tmp_path / "P"
+    assert main(["train", "ghtt-pose", "--data", str(tmp_path), "--set", "train.optim.lr=1e30", "--out", str(out)]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"handx train ghtt-pose: error: loss is nan at step 5 (run {out}): the run diverged (try a lower "
+        "train.optim.lr in a new --out; the folder keeps its checkpoints from before)")
