@@ -89,9 +89,13 @@ def load_array_file(path, *, npz: bool = False):
     whatever the file names."""
     from pathlib import Path
 
-    from handx_jax.infra.read import ZIP_MAGICS, read_head, read_npy, read_npz
+    from handx_jax.infra.read import NPY_MAGIC, ZIP_MAGICS, read_head, read_npy, read_npz
 
     p = Path(path)
-    if npz and read_head(p)[:4] in ZIP_MAGICS:
+    head = read_head(p)
+    if npz and head[:4] in ZIP_MAGICS:
         return read_npz(p)
+    if npz and not head.startswith(NPY_MAGIC):
+        raise DataError(f"not a .npy or .npz file (it starts with {head[:6]!r}; NumPy array files start with "
+                        f"{NPY_MAGIC!r} or an .npz zip)", path=p)
     return read_npy(p)

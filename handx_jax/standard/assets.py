@@ -4,7 +4,6 @@ name one of them."""
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 

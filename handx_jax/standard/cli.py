@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from handx_jax import standard
+from handx_jax.infra.values import whole_flag
 
 
 def _info(a: argparse.Namespace) -> int:
@@ -97,8 +98,8 @@ def add_parser(subparsers) -> None:
     i.set_defaults(func=_info)
     c = sub.add_parser("corpus", help="build the standard corpus, or its first --clips M clips (a prefix)")
     c.add_argument("--out", required=True, help="dataset directory to create")
-    c.add_argument("--clips", type=int, help="build only the first M clips (default: the whole standard corpus)")
-    c.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
+    c.add_argument("--clips", type=whole_flag(1), help="build only the first M clips (default: the whole standard corpus)")
+    c.add_argument("--workers", type=whole_flag(0), default=0, help="processes (0 = one per core)")
     c.add_argument("--force", action="store_true", help="replace an existing dataset directory")
     c.add_argument("--quiet", action="store_true", help="no progress bar")
     c.set_defaults(func=_corpus)
