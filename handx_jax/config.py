@@ -163,22 +163,6 @@ def _check_groups(obj, where: str) -> None:
         _check_groups(getattr(obj, f.name), f"{where}.{f.name}" if where else f.name)
 
 
-def whole(value, key: str, *, minimum: int) -> None:
-    """``value`` must be a whole number >= ``minimum``, or a ConfigError naming ``key``."""
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ConfigError(f"{key} must be a whole number >= {minimum}, got {value!r}")
-
-
-def finite(value, key: str, *, minimum: float | None = None) -> None:
-    """``value`` must be a finite number (>= ``minimum``), or a ConfigError naming ``key``."""
-    import math
-
-    ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
-    if not ok or (minimum is not None and value < minimum):
-        floor = f" >= {minimum:g}" if minimum is not None else ""
-        raise ConfigError(f"{key} must be a finite number{floor}, got {value!r}")
-
-
 def to_dict(cfg) -> dict:
     """The JSON form of a config: nested dicts, tuples as lists."""
     return json.loads(json.dumps(dataclasses.asdict(cfg)))

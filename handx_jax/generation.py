@@ -89,8 +89,10 @@ def check_level(level: int, levels: int, where) -> None:
 
 def check_limit(limit: int | None) -> None:
     """``--limit`` of the commands that score or generate a split's clips: None (all) or at least 1."""
-    if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int) or limit < 1):
-        raise ValueError(f"--limit must be at least 1 (or left out: every clip), got {limit}")
+    if limit is not None:
+        from handx_jax.infra.values import check
+
+        check(limit, "--limit", whole=True, minimum=1, why="or left out: every clip")
 
 
 def split_prompts(ds, split: str, limit: int | None = None, level: int = -1):

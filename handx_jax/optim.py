@@ -32,18 +32,16 @@ class OptimConfig:
     def check_values(self, key: str = "train.optim") -> None:
         """Finite numbers in range (``config.validate``): a NaN learning rate would otherwise train until the
         first logged loss is NaN, with the run folder written."""
-        from handx_jax.config import ConfigError, finite
+        from handx_jax.config import ConfigError
+        from handx_jax.infra.values import check
 
         name = lambda n: f"{key}.{n}" if key else n  # noqa: E731
-        for n in ("lr", "eps", "weight_decay", "grad_clip"):
-            finite(getattr(self, n), name(n), minimum=0.0)
-        if not self.eps > 0:
-            raise ConfigError(f"{name('eps')} must be > 0, got {self.eps}")
+        for n in ("lr", "weight_decay", "grad_clip"):
+            check(getattr(self, n), name(n), minimum=0)
+        check(self.eps, name("eps"), above=0)
         for n in ("b1", "b2"):
-            if not 0 <= getattr(self, n) < 1:
-                raise ConfigError(f"{name(n)} must be in [0, 1), got {getattr(self, n)}")
-        if isinstance(self.warmup_steps, bool) or not isinstance(self.warmup_steps, int) or self.warmup_steps < 0:
-            raise ConfigError(f"{name('warmup_steps')} must be a whole number >= 0, got {self.warmup_steps!r}")
+            check(getattr(self, n), name(n), minimum=0, below=1)
+        check(self.warmup_steps, name("warmup_steps"), whole=True, minimum=0)
         if self.schedule not in ("constant", "cosine"):
             raise ConfigError(f"{name('schedule')} must be constant or cosine, got {self.schedule!r}")
 

@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from handx_jax.config import ConfigError, validate, whole
+from handx_jax.config import ConfigError, validate
 from handx_jax.infra.read import read_json
 from handx_jax.io import TREE_CHECKSUMS, DataError, check_finite_params, verify_tree_checksum, write_tree_checksum
 from handx_jax.optim import OptimConfig, effective_warmup, learning_rate, optimizer_for, schedule_values
@@ -83,13 +83,14 @@ class TrainConfig:
         """The loop's ranges, checked before any run folder is made (``config.validate``; :func:`train` again
         for a caller that built the config itself): a step count, batch or interval of 0 divides by zero in
         the loop, a negative step count trains nothing, a negative seed cannot order the data."""
+        from handx_jax.infra.values import check
+
         name = lambda n: f"{key}.{n}" if key else n  # noqa: E731
         for n in ("steps", "batch_size", "log_every", "ckpt_every", "keep_checkpoints"):
-            whole(getattr(self, n), name(n), minimum=1)
+            check(getattr(self, n), name(n), whole=True, minimum=1)
         for n in ("seed", "prefetch", "eval_every", "microbatch"):
-            whole(getattr(self, n), name(n), minimum=0)
-        if not 0 <= self.ema_decay < 1:
-            raise ConfigError(f"{name('ema_decay')} must be in [0, 1) (0 disables EMA), got {self.ema_decay}")
+            check(getattr(self, n), name(n), whole=True, minimum=0)
+        check(self.ema_decay, name("ema_decay"), minimum=0, below=1, why="0 disables EMA")
         if self.wandb not in ("offline", "online", "disabled"):
             raise ConfigError(f"{name('wandb')} must be offline, online or disabled, got {self.wandb!r}")
         if 0 < self.microbatch < self.batch_size and self.batch_size % self.microbatch:

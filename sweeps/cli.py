@@ -56,10 +56,13 @@ def _fail(command: str, message: object) -> int:
 
 def _bad_counts(a: argparse.Namespace) -> str | None:
     """What is wrong with the numbers of ``sweep run`` (checked before the sweep file is run or a folder made)."""
+    from handx_jax.infra.values import problem
+
     for flag, value in (("--eval-limit", a.eval_limit), ("--eval-samples", a.eval_samples),
                         ("--max-parallel", a.max_parallel)):
-        if value < 1:
-            return f"{flag} must be at least 1, got {value}"
+        wrong = problem(value, whole=True, minimum=1)
+        if wrong:
+            return f"{flag} {wrong}"
     return None
 
 

@@ -289,5 +289,5 @@ def test_generate_limit_below_one_is_refused(tmp_path, capsys, limit):
     run = _run_of(tmp_path, "diffusion")
     assert main(["generate", "--run", str(run), "--data", str(tmp_path), "--limit", limit,
                  "--out", str(tmp_path / "g.npz")]) == 2
-    assert capsys.readouterr().err.strip() == (f"handx generate: error: --limit must be at least 1 (or left out: "
-                                               f"every clip), got {limit}")
+    assert capsys.readouterr().err.strip() == (f"handx generate: error: --limit must be a whole number >= 1, got "
+                                               f"{limit} (or left out: every clip)")

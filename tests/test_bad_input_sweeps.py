@@ -76,9 +76,9 @@ SWEEP_FILE = ("import sys\nfrom sweeps.launcher import RunSpec\n"
 
 
 @pytest.mark.parametrize("flags, words", [
-    (["--eval-limit", "-1", "--eval-samples", "0"], "--eval-limit must be at least 1, got -1"),
-    (["--eval-samples", "0"], "--eval-samples must be at least 1, got 0"),
-    (["--max-parallel", "0"], "--max-parallel must be at least 1, got 0"),
+    (["--eval-limit", "-1", "--eval-samples", "0"], "--eval-limit must be a whole number >= 1, got -1"),
+    (["--eval-samples", "0"], "--eval-samples must be a whole number >= 1, got 0"),
+    (["--max-parallel", "0"], "--max-parallel must be a whole number >= 1, got 0"),
     (["--set", "foo=1"], "--set takes the runs' generation settings, sample.KEY=VALUE; got 'foo=1'")])
 @pytest.mark.parametrize("dry_run", [True, False])
 def test_sweep_run_refuses_bad_numbers_and_settings_before_anything(tmp_path, capsys, flags, words, dry_run):

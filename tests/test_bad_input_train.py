@@ -29,8 +29,8 @@ BAD_SETS = {
     "train.optim.lr=nan": "train.optim.lr must be a finite number >= 0, got nan",
     "train.optim.lr=inf": "train.optim.lr must be a finite number >= 0, got inf",
     "train.seed=-1": "train.seed must be a whole number >= 0, got -1",
-    "train.ema_decay=1": "train.ema_decay must be in [0, 1) (0 disables EMA), got 1.0",
-    "train.optim.b2=nan": "train.optim.b2 must be in [0, 1), got nan",
+    "train.ema_decay=1": "train.ema_decay must be a finite number >= 0 and < 1, got 1.0 (0 disables EMA)",
+    "train.optim.b2=nan": "train.optim.b2 must be a finite number >= 0 and < 1, got nan",
 }
 
 

@@ -183,8 +183,11 @@ def _predict(args: argparse.Namespace) -> int:
     N, K = args.observed_frames, args.samples
     if bool(args.run) == bool(args.baseline):
         return fail(PREDICTION, f"give --run RUN or --baseline {'|'.join(PR_BASELINES)}, not both or neither")
-    if K < 1 or (args.limit is not None and args.limit < 1):
-        return fail(PREDICTION, f"--samples and --limit must be at least 1, got {K} and {args.limit}")
+    from handx_jax.generation import check_limit
+    from handx_jax.infra.values import check
+
+    check(K, "--samples", whole=True, minimum=1)
+    check_limit(args.limit)
     if N < 1:
         return fail(PREDICTION, f"--observed-frames must be at least 1, got {N}")
     if args.extra and not args.run:
