@@ -9,7 +9,6 @@ import dataclasses
 import json
 import sys
 import time
-from pathlib import Path
 
 from handx_jax import standard
 from handx_jax.infra.values import whole_flag
