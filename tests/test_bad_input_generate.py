@@ -250,8 +250,8 @@ def _run_of(tmp_path, family):
     return run
 
 
-STEP = ("family ghtt-pose does not do {what}: it generates nothing (G-HTT's pose block P, the step a G-HTT run is "
-        "trained from); use the ghtt run trained on it")
+STEP = ("family ghtt-pose does not do {what}: it is G-HTT's pose block P, the step a G-HTT run is trained from, "
+        "which generates nothing; use the ghtt run trained on it")
 
 
 @pytest.mark.parametrize("family, argv, says", [
@@ -262,8 +262,8 @@ STEP = ("family ghtt-pose does not do {what}: it generates nothing (G-HTT's pose
     ("diffusion", ["eval", "recognition"], "family diffusion does not do recognition; it does text2motion, inbetween, "
                                            "keyframes, wrist, reaction, long, prediction"),
     ("tokenizer", ["generate", "--task", "prediction", "--source", "x.npz"],
-     "family tokenizer does not do --task prediction: it generates nothing (the FSQ motion tokenizer of the AR "
-     "family (paper §5.2)); use the ar run trained on it"),
+     "family tokenizer does not do --task prediction: it is the FSQ motion tokenizer of the AR family (paper §5.2), "
+     "which generates nothing; use the ar run trained on it"),
 ])
 def test_every_command_refuses_a_task_the_family_does_not_serve_alike(tmp_path, capsys, family, argv, says):
     run = _run_of(tmp_path, family)

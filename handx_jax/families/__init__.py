@@ -219,7 +219,7 @@ def check_task(name: str, task: str) -> None:
         raise ValueError(f"family {name} does not do {what}; it does {', '.join(fam.tasks)}")
     users = [f for f in names() if name in entry(f).needs]
     use = f"; use the {' or '.join(users)} run trained on it" if users else ""
-    raise ValueError(f"family {name} does not do {what}: it generates nothing ({fam.help}){use}")
+    raise ValueError(f"family {name} does not do {what}: it is {fam.help}, which generates nothing{use}")
 
 
 def get_family(name: str) -> ModuleType:
