@@ -161,3 +161,20 @@ def test_a_symlink_loop_as_data_is_called_one(tmp_path, capsys, argv):
     assert err.endswith(f"error: file {loop}: dataset directory is a symlink loop (a link that points back to "
                         "itself); point it at a real file or folder")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["loop"]
+
+
+def test_export_and_import_never_write_over_what_they_read(tiny, tmp_path, capsys):
+    before = (tiny / "motion.npy").read_bytes()
+    err = _refused(["data", "export-handx", "--data", tiny, "--out", tiny / "motion.npy"], capsys)
+    assert err == f"handx: error: --out {tiny / 'motion.npy'} is inside the dataset it reads, --data {tiny}; choose " \
+                  "another --out outside it"
+    assert (tiny / "motion.npy").read_bytes() == before
+    src = tmp_path / "official"
+    src.mkdir()
+    npz = src / "train_can_pos_all_wotextfeat.npz"
+    assert main(["data", "export-handx", "--data", str(tiny), "--out", str(npz)]) == 0
+    capsys.readouterr()
+    err = _refused(["data", "import-handx", npz, "--out", src, "--force"], capsys)
+    assert err == (f"handx: error: --out {src} contains the dataset it reads, the input file {npz} (writing --out "
+                   "replaces that folder, and the dataset in it); choose another --out outside it")
+    assert sorted(p.name for p in src.iterdir()) == [npz.name]

@@ -20,7 +20,8 @@ import numpy as np
 
 from handx_jax.data.dataset import DEFAULT_FRACTIONS, Dataset, write_dataset
 from handx_jax.data.handx_npz import HandXClip, read_handx_npz, write_handx_npz
-from handx_jax.io import DataError, sha256_file
+from handx_jax.infra.outputs import check_out_apart
+from handx_jax.io import DataError, refuse_existing, sha256_file
 
 
 def split_from_filename(path: Path) -> str:
@@ -35,6 +36,9 @@ def split_from_filename(path: Path) -> str:
 def import_handx(files: Sequence[str | os.PathLike], out: str | os.PathLike, *, split: str | None = None,
                  annotate_events: bool = True, fractions=DEFAULT_FRACTIONS, seed: int = 0,
                  overwrite: bool = False) -> Path:
+    for f in files:  # --force replaces --out whole: never onto (or around) the files it reads
+        check_out_apart(out, f, data_flag="the input file")
+    refuse_existing(out, overwrite=overwrite, flag="--out")  # before reading every file, not after
     motions, texts, split_of = [], [], []
     dropped: dict[str, list[str]] = {}
     seen_ids: set[str] = set()
@@ -87,6 +91,7 @@ def import_handx(files: Sequence[str | os.PathLike], out: str | os.PathLike, *, 
 
 
 def export_handx(data_dir: str | os.PathLike, out: str | os.PathLike, *, split: str | None = None) -> Path:
+    check_out_apart(out, data_dir, replaces=False)  # --out D/motion.npy would replace the dataset's own file
     ds = Dataset.open(data_dir)
     idx = np.arange(len(ds)) if split in (None, "all") else ds.split(split)
     clips = []
