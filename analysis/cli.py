@@ -15,7 +15,7 @@ import sys
 from typing import Any, Sequence
 
 from handx_jax.cliargs import deprecated_flag
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 _SUFFIX = {"k": 1e3, "m": 1e6, "g": 1e9, "t": 1e12, "p": 1e15, "e": 1e18}
 
@@ -291,7 +291,7 @@ def _cmd_table(args: argparse.Namespace) -> int:
         rows = [r for r in rows if id(r) not in gone]
     text = render_table(rows, fmt=args.format, layout=args.layout, digits=args.digits, caption=args.caption)
     if args.out:
-        from handx_jax.io import atomic_write_text
+        from handx_jax.infra.atomic import atomic_write_text
 
         print(f"wrote {atomic_write_text(args.out, text)}", file=sys.stderr)
     else:

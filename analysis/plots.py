@@ -30,7 +30,7 @@ from analysis.fits import Extrapolation, LogLinearFit, chance_level, fit_log_lin
 from analysis.schema import GROUND_TRUTH, LOWER_IS_BETTER, METRICS, column, column_by_name, config_label
 from analysis.selection import resolve_column, select_xy
 from analysis.tables import best_rows
-from handx_jax.io import atomic_write_bytes
+from handx_jax.infra.atomic import atomic_write_bytes
 
 OKABE_ITO = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#000000", "#F0E442")
 MARKERS = ("o", "s", "D", "^", "v", "P", "X", "*")

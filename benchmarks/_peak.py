@@ -64,14 +64,14 @@ def device_peak(kind: str) -> float | None:
 def emit(doc: dict, out: str | None = None, indent: int = 2) -> None:
     """Every benchmark's ending: the JSON document on stdout and, with ``--out``, written atomically.
 
-    It records the host memory policy the figures were taken under (``handx_jax.hostmem``: on CPU
+    It records the host memory policy the figures were taken under (``handx_jax.infra.hostmem``: on CPU
     it moved paper-4L training from 16.7 to 26.4 samples/s in one A/B, docs/results/perf_cpu.json)."""
-    from handx_jax import hostmem
+    from handx_jax.infra import hostmem
 
     doc = {**doc, "host_malloc": dict(hostmem.STATE)}
     text = json.dumps(doc, indent=indent)
     print(text)
     if out:
-        from handx_jax.io import atomic_write_text
+        from handx_jax.infra.atomic import atomic_write_text
 
         atomic_write_text(out, text + "\n")

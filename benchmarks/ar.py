@@ -13,7 +13,7 @@ without the KV cache; MFU on a GPU.
   full recompute per step. The second call is timed.
 - **Peak host memory**: each training benchmark runs in a fresh child process of this script and reports
   its peak resident set (``peak_rss_mb``, ``resource.getrusage(RUSAGE_SELF).ru_maxrss``): the process
-  keeps its peak by design (``handx_jax.hostmem``), so one process cannot tell two benchmarks apart.
+  keeps its peak by design (``handx_jax.infra.hostmem``), so one process cannot tell two benchmarks apart.
   The figure includes JAX, XLA's compiled programs and the benchmark's random data.
 - **MFU** (GPU only): analytic forward FLOPs (``models.fsq.forward_flops``, ``models.prefix_lm.forward_flops``)
   ×3 per training sample, over the peak dense bf16 FLOP/s of ``benchmarks/diffusion.py``'s table.
@@ -43,7 +43,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/_peak.py
 
 from handx_jax.families.ar import decode as AD  # noqa: E402
-from handx_jax import hostdevices  # noqa: E402
+from handx_jax.infra import hostdevices  # noqa: E402
 from handx_jax.models import fsq as Q  # noqa: E402
 from handx_jax.models import prefix_lm as P  # noqa: E402
 from handx_jax.optim import OptimConfig  # noqa: E402

@@ -38,11 +38,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from handx_jax.families.diffusion import DiffusionRunConfig, apply_overrides, make_loss, make_model, params_non_embedding
-from handx_jax import hostdevices
+from handx_jax.infra import hostdevices
 from handx_jax.families.diffusion.sampling import compile_sampler
 from handx_jax.models.dit import PRESETS, forward_flops, init_denoiser, param_count
 from handx_jax.train import TrainSpec, train
-from handx_jax.xla_options import inference_options
+from handx_jax.infra.xla_options import inference_options
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/_peak.py, also when loaded by path
 from _peak import PEAK_BF16, device_peak, emit, matmul_peak  # noqa: E402

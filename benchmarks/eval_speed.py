@@ -87,7 +87,7 @@ def main(argv=None) -> dict:
     a = p.parse_args(argv)
     N = a.clips // a.groups
     if a.evaluator:
-        from handx_jax.data.dataset import Dataset
+        from handx_jax.dataset.format import Dataset
 
         ev = load_evaluator(a.evaluator)
         ds = Dataset.open(a.reference or ev.meta["dataset"]["path"])

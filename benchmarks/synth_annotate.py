@@ -26,11 +26,11 @@ def main() -> None:
     a = p.parse_args()
 
     from handx_jax import skeleton as sk
-    from handx_jax.data.build import BuildConfig, build_corpus, process_chunk
-    from handx_jax.data.caption import TemplateCaptioner
-    from handx_jax.data.clips import extract_clips
-    from handx_jax.data.events import annotate
-    from handx_jax.data.synth import synth_chunk
+    from handx_jax.dataset.build import BuildConfig, build_corpus, process_chunk
+    from handx_jax.annotation.caption import TemplateCaptioner
+    from handx_jax.dataset.clips import extract_clips
+    from handx_jax.annotation.events import annotate
+    from handx_jax.synthesis.bimanual import synth_chunk
 
     cfg = BuildConfig(clips=a.clips, seed=a.seed, workers=a.workers)
     # Stage timings on one core (one chunk, warm).

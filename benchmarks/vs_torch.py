@@ -46,7 +46,7 @@ import jax  # noqa: E402
 
 from _peak import emit, matmul_peak  # noqa: E402
 from diffusion import bench_sample, bench_train  # noqa: E402
-from handx_jax import hostdevices  # noqa: E402
+from handx_jax.infra import hostdevices  # noqa: E402
 from handx_jax.families.diffusion import DiffusionRunConfig  # noqa: E402
 from handx_jax.models.dit import PRESETS, forward_flops, init_denoiser  # noqa: E402
 

@@ -1,12 +1,12 @@
 """handx-jax: text-to-bimanual-hand-motion generation in JAX, built for scaling-law sweeps.
 
-Importing the package sets the host memory policy (:mod:`handx_jax.hostmem`) before JAX starts its
+Importing the package sets the host memory policy (:mod:`handx_jax.infra.hostmem`) before JAX starts its
 CPU threads, so XLA's per-step buffers are reused instead of page-faulted in anew every step.
 """
 
 import warnings as _warnings
 
-from handx_jax import hostmem as _hostmem
+from handx_jax.infra import hostmem as _hostmem
 
 try:
     _hostmem.configure()

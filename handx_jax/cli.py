@@ -1,6 +1,6 @@
 """The ``handx`` command. Each area registers its own subcommand group from its ``cli`` module.
 
-    handx data ...      corpus synthesis, import/export, statistics, rendering   (handx_jax.data.cli);
+    handx data ...      corpus synthesis, import/export, statistics, rendering   (handx_jax.commands.data);
                         ``handx data tokens``: FSQ motion tokens, for the AR family (handx_jax.commands.tokens)
     handx text ...      SentencePiece model, T5 encoding, embedding cache         (handx_jax.text.cli)
     handx train ...     train a family, the evaluator or a T5 (families registry) (handx_jax.commands.train)
@@ -34,7 +34,7 @@ from pathlib import Path
 # (group, module providing add_parser(subparsers)); a group whose module is absent is skipped, so a
 # partial checkout still runs the groups it has.
 GROUPS = (
-    ("data", "handx_jax.data.cli"),
+    ("data", "handx_jax.commands.data"),
     ("text", "handx_jax.text.cli"),
     ("eval", "handx_jax.commands.eval"),
     ("analyze", "analysis.cli"),
@@ -45,7 +45,7 @@ GROUPS = (
     ("sweep", "sweeps.cli"),
     ("standard", "handx_jax.standard.cli"),
     ("standard validity", "handx_jax.validity.cli"),  # adds `handx standard validity` to the group above
-    ("eval recognition", "handx_jax.evaluation.recognition"),  # adds `handx eval recognition` to the eval group
+    ("eval recognition", "handx_jax.commands.recognition"),  # adds `handx eval recognition` to the eval group
     ("import/export", "handx_jax.interop.cli"),
 )
 
@@ -71,8 +71,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from handx_jax.io import DataError, disk_full_message
-    from handx_jax.runlock import RunLocked
+    from handx_jax.infra.diskspace import disk_full_message
+    from handx_jax.infra.errors import DataError
+    from handx_jax.infra.runlock import RunLocked
 
     parser = build_parser()
     # Commands whose options depend on a model family (train, generate, params) take the options
@@ -81,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     if extra and not getattr(args, "takes_extra_args", False):
         parser.error(f"unrecognized arguments: {' '.join(extra)}")
     args.extra = extra
-    from handx_jax import hostdevices
+    from handx_jax.infra import hostdevices
 
     try:  # before any JAX work: the host's cores as CPU devices for sampling (hostdevices, issue 15)
         hostdevices.configure()

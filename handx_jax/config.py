@@ -28,9 +28,7 @@ import types
 import typing
 from typing import Any, Mapping, Sequence
 
-
-class ConfigError(ValueError):
-    """A bad preset name, override or config file; the message says which key and why."""
+from handx_jax.infra.errors import ConfigError  # noqa: F401  (its home: infra.values raises it too)
 
 
 _SCALARS = (bool, int, float, str)

@@ -42,11 +42,11 @@ def _handx(*args: str) -> None:
 
 
 def data_stage(out: Path, clips: int) -> Path:
-    from handx_jax.data.caption import build_prompt
-    from handx_jax.data.dataset import Dataset
-    from handx_jax.data.render import render_gif
-    from handx_jax.data.stats import dataset_stats, format_stats
-    from handx_jax.io import atomic_write_json, atomic_write_text
+    from handx_jax.annotation.caption import build_prompt
+    from handx_jax.dataset.format import Dataset
+    from handx_jax.dataset.render import render_gif
+    from handx_jax.dataset.stats import dataset_stats, format_stats
+    from handx_jax.infra.atomic import atomic_write_json, atomic_write_text
     from handx_jax.standard import build_standard_corpus
 
     t0 = time.perf_counter()
@@ -97,8 +97,8 @@ def model_stages(out: Path, data: Path, steps: int | None, eval_limit: int, eval
     verdict(sweep, out)
     runs = sorted((sweep / "runs").glob("*/generated.npz"))
     if runs:
-        from handx_jax.data.handx_npz import read_handx_npz
-        from handx_jax.data.render import render_gif
+        from handx_jax.interop.handx_npz import read_handx_npz
+        from handx_jax.dataset.render import render_gif
 
         clip = read_handx_npz(runs[-1])[0]
         gif = render_gif(clip.motion, out / "generated.gif", texts=(clip.left[0], clip.right[0], clip.interaction[0]),
@@ -149,7 +149,7 @@ def verdict(sweep: Path, out: Path) -> bool:
     import json
     import shutil
 
-    from handx_jax.io import read_jsonl
+    from handx_jax.infra.readers import read_jsonl
 
     r = subprocess.run([sys.executable, "-m", "handx_jax", "analyze", "fit", str(sweep / "results.jsonl"), "--x",
                         "compute", "--y", "rprec_top3", "--json"], check=True, capture_output=True, text=True)
@@ -179,7 +179,7 @@ def verdict(sweep: Path, out: Path) -> bool:
 def main(argv: list[str] | None = None) -> int:
     import textwrap
 
-    from handx_jax.data.clips import defect_reasons_help
+    from handx_jax.dataset.clips import defect_reasons_help
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog=textwrap.fill("The corpus cut report (stage 1): " + defect_reasons_help(), 100))

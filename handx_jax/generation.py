@@ -11,8 +11,8 @@ from typing import Sequence
 
 import numpy as np
 
-from handx_jax.data.dataset import TEXT_FIELDS
-from handx_jax.io import DataError
+from handx_jax.dataset.format import TEXT_FIELDS
+from handx_jax.infra.errors import DataError
 
 
 @dataclass(frozen=True)
@@ -43,8 +43,8 @@ def load_source(path: str, clip: str | None = None, *, records: bool = False) ->
     """A constraint clip from an official-layout ``.npz`` (``clip`` = key, default the first) or a
     dataset directory (``clip`` = id or index, required). ``records``: a dataset clip's prompts carry its
     structured record (``Prompt.record``; an .npz holds none)."""
-    from handx_jax.data.dataset import Dataset
-    from handx_jax.data.handx_npz import read_handx_npz
+    from handx_jax.dataset.format import Dataset
+    from handx_jax.interop.handx_npz import read_handx_npz
 
     p = Path(path)
     if p.is_dir():
@@ -118,7 +118,7 @@ def generated_entries(joints_NxTx2x21x3: np.ndarray, prompts: Sequence[Sequence[
                       groups: Sequence[int | None] | None = None) -> list:
     """Generated motion as the official layout's entries (keys "0".."N−1"), what ``read_handx_npz`` of
     :func:`write_generated`'s file returns: scored in memory (``evaluation.evaluate_generated``) or written."""
-    from handx_jax.data.handx_npz import HandXClip
+    from handx_jax.interop.handx_npz import HandXClip
 
     clips = []
     for i, (j, ps) in enumerate(zip(joints_NxTx2x21x3, prompts)):
@@ -137,7 +137,7 @@ def write_generated(out: str | Path, joints_NxTx2x21x3: np.ndarray, prompts: Seq
     """Write generated motion in the official layout (keys "0".."N−1"). ``prompts[i]`` is entry i's
     list of prompts (one for a clip; one per segment for long-horizon motion), stored as the three
     annotation lists. ``source_clips``/``groups`` fill the optional evaluation fields."""
-    from handx_jax.data.handx_npz import write_handx_npz
+    from handx_jax.interop.handx_npz import write_handx_npz
 
     return write_handx_npz(out, generated_entries(joints_NxTx2x21x3, prompts, source_clips=source_clips,
                                                   groups=groups), clip_len=None)

@@ -13,14 +13,15 @@ from typing import Callable
 
 import jax
 
-from handx_jax.io import append_jsonl, atomic_write_json, read_jsonl
+from handx_jax.infra.atomic import append_jsonl, atomic_write_json
+from handx_jax.infra.readers import read_jsonl
 
 
 def _versions_record(config_path: Path) -> dict:
-    """config.json's ``versions`` (handx_jax.provenance: python, jax, jaxlib, flax, optax, orbax, numpy):
+    """config.json's ``versions`` (handx_jax.infra.provenance: python, jax, jaxlib, flax, optax, orbax, numpy):
     those that started the run. A resume under other versions keeps them and adds ``versions_at_resume``,
     so the record never claims a single stack for a run trained on two."""
-    from handx_jax.provenance import versions
+    from handx_jax.infra.provenance import versions
 
     now = versions()
     try:
@@ -72,7 +73,7 @@ class RunLogger:
         if self.enabled and self.metrics_path.exists():
             rows = [r for r in read_jsonl(self.metrics_path, strict=False)
                     if step > 0 and isinstance(r, dict) and r.get("step", 0) <= step]
-            from handx_jax.io import atomic_write_jsonl
+            from handx_jax.infra.atomic import atomic_write_jsonl
 
             atomic_write_jsonl(self.metrics_path, rows)
 
@@ -84,7 +85,7 @@ class RunLogger:
 
 
 def read_config(run_dir: str | os.PathLike) -> dict:
-    from handx_jax.infra.read import read_json
+    from handx_jax.infra.readers import read_json
 
     return read_json(Path(run_dir) / "config.json", expect=dict)
 

@@ -45,11 +45,12 @@ import numpy as np
 import optax
 
 from handx_jax.config import ConfigError, validate
-from handx_jax.infra.read import read_json
-from handx_jax.io import TREE_CHECKSUMS, DataError, check_finite_params, verify_tree_checksum, write_tree_checksum
+from handx_jax.infra.checksums import TREE_CHECKSUMS, verify_tree_checksum, write_tree_checksum
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.param_files import check_finite_params
+from handx_jax.infra.readers import read_json
 from handx_jax.optim import OptimConfig, effective_warmup, learning_rate, optimizer_for, schedule_values
 from handx_jax.runlog import RunLogger
-
 
 
 @dataclass(frozen=True)
@@ -96,8 +97,6 @@ class TrainConfig:
         if 0 < self.microbatch < self.batch_size and self.batch_size % self.microbatch:
             raise ConfigError(f"{name('microbatch')} {self.microbatch} must divide {name('batch_size')} "
                               f"{self.batch_size} (0: the whole batch)")
-
-
 
 
 def batch_indices(n: int, batch_size: int, seed: int, step: int) -> np.ndarray:
@@ -287,7 +286,7 @@ def train(run_dir: str | os.PathLike, spec: TrainSpec, *, stop_at: int | None = 
     validate(cfg, "train")  # before the run folder exists: a bad value is refused with nothing written
     doc = {**config, "train": dataclasses.asdict(cfg)}
     check_resume(run_dir, doc, spec.resume_keys, spec.upgrade_config)
-    # The run-folder lock (handx_jax.runlock.RunLock, issue 14.8) is taken by `handx train` around the
+    # The run-folder lock (handx_jax.infra.runlock.RunLock, issue 14.8) is taken by `handx train` around the
     # whole family run, before the family writes its first file; library callers take it themselves.
     logger = RunLogger(run_dir, doc, cfg.wandb)
     # (optimizer, schedule) as functions of the schedule's numbers, which the step takes as an argument
@@ -382,7 +381,7 @@ def train(run_dir: str | os.PathLike, spec: TrainSpec, *, stop_at: int | None = 
     jstep = jax.jit(step_fn, donate_argnums=(0,))
     # On CPU the "device" is the host's own cores, so dispatching far ahead overlaps nothing useful: it
     # only keeps every queued step's buffers alive (~1 GB of temporaries each for paper-4L at batch 32),
-    # and the allocator then cannot hand the same pages back step after step (handx_jax.hostmem). In a
+    # and the allocator then cannot hand the same pages back step after step (handx_jax.infra.hostmem). In a
     # 32-step paper-4L run: unbounded, 5.3M page faults and 5.0 GB peak RSS; two in flight, 1.0M and
     # 3.9 GB; one, 0.4M and 2.9 GB. So at most two steps are in flight there: once step N is queued,
     # the loop waits for N - 1. Waiting for each step (one in flight) was as fast for paper-4L but

@@ -45,7 +45,7 @@ BENCH=${BENCH:-1}
 PACK_EVERY=${PACK_EVERY:-30}
 H=("$PY" -m handx_jax)
 # Several JAX processes share one GPU: none may take 75% of its memory up front. The CPU malloc policy
-# (handx_jax.hostmem) is for XLA's CPU runtime; on a GPU machine glibc's defaults return memory.
+# (handx_jax.infra.hostmem) is for XLA's CPU runtime; on a GPU machine glibc's defaults return memory.
 export XLA_PYTHON_CLIENT_PREALLOCATE=false HANDX_HOST_MALLOC=system WANDB_MODE=disabled PYTHONUNBUFFERED=1
 mkdir -p "$W" "$OUT"
 t0=$(date +%s)

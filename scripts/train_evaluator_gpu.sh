@@ -59,7 +59,7 @@ fi
 # The Ground Truth row at every caption level, blocks of 32 (Table 2) and 16 (Fig. 4): one process.
 $PY - "$OUT/evaluator" "$DATA" "${GT_ROWS:-$OUT/gt_rows.jsonl}" ${GT_LEVELS:-} <<'PYEOF'
 import dataclasses, json, sys
-from handx_jax.data.dataset import Dataset
+from handx_jax.dataset.format import Dataset
 from handx_jax.evaluation import evaluate_ground_truth, load_evaluator
 from handx_jax.metrics import MetricConfig
 ev = load_evaluator(sys.argv[1]); ds = Dataset.open(sys.argv[2])

@@ -39,7 +39,7 @@ diversity was 0), and with ``--eval-samples 4`` the evaluator's ± is then over 
 
 from __future__ import annotations
 
-from sweeps.common import RESOURCES as _RESOURCES
+from sweeps.diffusion_common import RESOURCES as _RESOURCES
 from sweeps.launcher import RunSpec, Step, family_step, run_id
 
 # (LM preset, extra overrides, layers, dim) — presets from handx_jax.models.prefix_lm.PRESETS.

@@ -69,7 +69,7 @@ def _bad_counts(a: argparse.Namespace) -> str | None:
 def _run(a: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
     from sweeps.launcher import SweepConfig, launch, load_resources, load_rprec_block, load_sweep
 
     bad = _bad_counts(a) or _bad_sets(a.set)
@@ -123,7 +123,7 @@ def _bad_sets(sets) -> str | None:
 
 def _launched(command: str, go, total: int | None = None) -> int:
     """Run a launch (``go()``), print where its results are and each failure; the exit status."""
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
 
     try:
         res = go()
@@ -142,7 +142,7 @@ def _launched(command: str, go, total: int | None = None) -> int:
 
 
 def _status(a: argparse.Namespace) -> int:
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
     from sweeps.launcher import status
 
     try:

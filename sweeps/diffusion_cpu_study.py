@@ -43,7 +43,7 @@ Run ids are deterministic (``run_id``: the axis values, then a hash of every ove
 
 from __future__ import annotations
 
-from sweeps.common import RESOURCES as _RESOURCES, data, model
+from sweeps.diffusion_common import RESOURCES as _RESOURCES, data, model
 from sweeps.launcher import RunSpec, axes_of, run_id
 
 # (layers, dim, heads, FFN): per-sample forward FLOPs (analytic) ≈ 12 M, 55 M, 177 M.

@@ -12,7 +12,7 @@ items as the reference's loader does (reference §1.2), so a clip may appear wit
 
 from __future__ import annotations
 
-from sweeps.common import (FRACTIONS, PAPER_SIZED, RESOURCES, TABLE_C, budget, data,  # noqa: F401 (RESOURCES)
+from sweeps.diffusion_common import (FRACTIONS, PAPER_SIZED, RESOURCES, TABLE_C, budget, data,  # noqa: F401 (RESOURCES)
                            diffusion_preset, model)
 from sweeps.launcher import RunSpec, axes_of, run_id
 

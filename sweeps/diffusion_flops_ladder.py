@@ -2,14 +2,14 @@
 
 ``paper``: Table B's seven (L, d, H, FFN) sizes, 3.83 → 24.62 GFLOPs in the paper's convention
 (``handx params diffusion --convention paper``), for the paper's ~100k steps. ``short``: the same seven
-sizes for 1,000 steps × 128 at lr 5e-4 (``sweeps.common.budget``): the ladder one short GPU lease trains
+sizes for 1,000 steps × 128 at lr 5e-4 (``sweeps.diffusion_common.budget``): the ladder one short GPU lease trains
 (docs/results/fig4_gpu). ``tiny``: a seven-step CPU ladder with the same
 shape (depth and width grow in turn), for checking train → evaluate → fit end to end.
 """
 
 from __future__ import annotations
 
-from sweeps.common import (PAPER_SIZED, RESOURCES, TABLE_B, budget, data,  # noqa: F401 (RESOURCES)
+from sweeps.diffusion_common import (PAPER_SIZED, RESOURCES, TABLE_B, budget, data,  # noqa: F401 (RESOURCES)
                            diffusion_preset, model)
 from sweeps.launcher import RunSpec, axes_of, run_id
 

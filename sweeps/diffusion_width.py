@@ -6,7 +6,7 @@ d ∈ {16, 32, 64, 128}.
 
 from __future__ import annotations
 
-from sweeps.common import PAPER_SIZED, RESOURCES, budget, data, diffusion_preset, model  # noqa: F401 (RESOURCES)
+from sweeps.diffusion_common import PAPER_SIZED, RESOURCES, budget, data, diffusion_preset, model  # noqa: F401 (RESOURCES)
 from sweeps.launcher import RunSpec, axes_of, run_id
 
 

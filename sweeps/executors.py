@@ -15,7 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
-from handx_jax.io import DataError, atomic_write_json
+from handx_jax.infra.atomic import atomic_write_json
+from handx_jax.infra.errors import DataError
 from sweeps.spec import RunSpec, SweepConfig
 from sweeps.stages import (evaluator_identity, is_complete, read_json_or_empty, run_dir, run_one, stage_state,
                            update_json)

@@ -17,7 +17,7 @@ every size (CPU_POSE_STEPS, CPU_ACTION_STEPS at batch 64). ``tiny``: two sizes a
 
 from __future__ import annotations
 
-from sweeps.common import RESOURCES as _RESOURCES
+from sweeps.diffusion_common import RESOURCES as _RESOURCES
 from sweeps.launcher import RunSpec, Step, family_step, run_id
 
 CPU_SIZES = ((1, 32), (2, 32), (2, 64), (3, 96))  # (layers, width) of both blocks

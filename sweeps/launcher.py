@@ -25,7 +25,7 @@ only if the new evaluator scores another caption level. Tables carry ``evaluator
 and ``handx analyze fit`` refuses rows scored by two evaluators.
 
 One writer per run folder: the process bringing a run through its stages holds ``RunLock(RUN)``
-(handx_jax/runlock.py), and its children inherit it. A relaunch waits for (adopts) a run whose lock
+(handx_jax/infra/runlock.py), and its children inherit it. A relaunch waits for (adopts) a run whose lock
 is held by a live process instead of starting a second trainer beside it; a lock left by a dead
 process is recovered. Children are started with PR_SET_PDEATHSIG, so a launcher killed with -9 takes
 its training child with it.

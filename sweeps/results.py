@@ -9,9 +9,9 @@ import sys
 import threading
 from pathlib import Path
 
-from handx_jax.infra.read import read_json
-from handx_jax.io import DataError
-from handx_jax.runlock import is_locked
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import read_json
+from handx_jax.infra.runlock import is_locked
 from sweeps.spec import RunSpec, Step, SweepConfig, one_line
 from sweeps.stages import is_complete, read_json_or_empty, run_dir, scored_block, stale_scores
 

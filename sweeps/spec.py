@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 REPO = Path(__file__).resolve().parent.parent
 # A run or step name is one path component: no separators, no "..", nothing hidden.

@@ -17,9 +17,10 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from handx_jax.io import DataError, atomic_write_json
-from handx_jax.provenance import versions
-from handx_jax.runlock import RunLock, RunLocked, pdeathsig_preexec
+from handx_jax.infra.atomic import atomic_write_json
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.provenance import versions
+from handx_jax.infra.runlock import RunLock, RunLocked, pdeathsig_preexec
 from sweeps.spec import REPO, RunSpec, Step, SweepConfig, check_name
 
 def run_dir(cfg: SweepConfig, spec: RunSpec) -> Path:
@@ -73,7 +74,7 @@ def _evaluator_identity(path: str, stamp: tuple) -> tuple[str, int]:
 
 def evaluator_level(meta_path: Path) -> int:
     """The caption level an evaluator scores (its ``evaluator.json``'s ``text.eval_level``)."""
-    from handx_jax.infra.read import get_field, read_json
+    from handx_jax.infra.readers import get_field, read_json
 
     return get_field(read_json(meta_path, expect=dict), "text.eval_level", int, path=meta_path)
 
@@ -152,8 +153,8 @@ def is_complete(cfg: SweepConfig, spec: RunSpec) -> bool:
 
 def read_json_or_empty(path: Path) -> dict:
     """A sweep's own JSON object (status.json, sweep.json), or {} when absent. A file that is not a JSON
-    object (a ``[]``, a damaged file) is a ``DataError`` naming it (``infra.read``), not an AttributeError later."""
-    from handx_jax.infra.read import read_json
+    object (a ``[]``, a damaged file) is a ``DataError`` naming it (``infra.readers``), not an AttributeError later."""
+    from handx_jax.infra.readers import read_json
 
     return read_json(path, expect=dict, default={})
 

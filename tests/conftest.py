@@ -20,7 +20,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 #   float rounding may differ in the last bits). A user's own XLA_FLAGS level is kept.
 # - one CPU device in every process of the session: the tests' own processes have one anyway (JAX's
 #   default), and the `handx` subprocesses (CLI tests, sweep stages, notebook kernels) would otherwise
-#   configure one per core (handx_jax.hostdevices). The compilation cache's key includes the device count
+#   configure one per core (handx_jax.infra.hostdevices). The compilation cache's key includes the device count
 #   (not the flag), so with one count everywhere a program compiled in a test process serves a sweep stage
 #   and the reverse (the evaluator's metric programs, a tiny tokenizer's or denoiser's training step).
 #   tests/test_hostdevices.py removes the flag and checks the several-device path itself.
@@ -54,7 +54,7 @@ def pytest_unconfigure(config):
 HEAVY_FIRST = ("test_slurm.py", "test_ghtt.py", "test_ar_sweep.py", "test_validity.py", "test_evaluation.py",
                "test_generate.py", "test_notebooks.py", "test_prediction.py", "test_reverse.py",
                "test_ar_family.py", "test_sweeps.py", "test_diffusion_train.py", "test_dit.py",
-               "test_build_and_cli.py", "test_text_cache.py", "test_prefix_lm.py", "test_standard.py", "test_fsq.py",
+               "test_dataset_build.py", "test_text_cache.py", "test_prefix_lm.py", "test_standard.py", "test_fsq.py",
                "test_diffusion_sampler.py", "test_text_pretrain.py", "test_family_registry.py", "test_interop.py",
                "test_train.py", "test_text_t5.py", "test_metrics.py", "test_perf_paths.py", "test_benchmarks.py",
                "test_distributed.py")

@@ -14,7 +14,7 @@ ENCODER = Path(__file__).parent / "fixtures" / "t5_tiny_gated"
 
 
 def _build(root: Path, joined: bool) -> Path:
-    from handx_jax.data.build import BuildConfig, build_corpus
+    from handx_jax.dataset.build import BuildConfig, build_corpus
     from handx_jax.text.cache import build_cache
 
     data = build_corpus(root / "ds", BuildConfig(clips=32, seed=3, workers=1, val_fraction=0.2, test_fraction=0.2),

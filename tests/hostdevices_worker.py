@@ -55,7 +55,7 @@ def samples() -> tuple[dict, dict]:
     used["3"] = int(fn.mesh.size) if hasattr(fn, "mesh") else 1
     # AR decoding (families.ar.decode.decode): greedy and sampled, one compiled loop (the options are traced)
     from handx_jax.families.ar import decode as AD
-    from handx_jax import hostdevices
+    from handx_jax.infra import hostdevices
     from handx_jax.models import prefix_lm as PL
 
     lm_cfg = dataclasses.replace(PL.PRESETS["tiny"], layers=1)
@@ -75,7 +75,7 @@ def samples() -> tuple[dict, dict]:
 
 
 if __name__ == "__main__":
-    from handx_jax import hostdevices
+    from handx_jax.infra import hostdevices
 
     configured = hostdevices.configure()
     import jax

@@ -5,7 +5,7 @@ import json
 import pytest
 
 from analysis import schema
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 
 def _rows():

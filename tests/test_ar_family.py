@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from handx_jax.cli import main
-from handx_jax.io import read_jsonl
+from handx_jax.infra.readers import read_jsonl
 from tests.diffusion_fixtures import ENCODER, make_dataset
 
 LOOP = ["--set", "train.batch_size=8", "--set", "train.log_every=2", "--set", "train.ckpt_every=4",
@@ -46,7 +46,7 @@ def test_tokenizer_run_records_codebook_and_logs_validation(built):
 
 
 def test_token_cache_holds_every_clip_and_matches_the_encoder(built):
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.families import tokenizer as T
 
     data, tok, _ = built
@@ -76,7 +76,7 @@ def test_lm_run_records_tokenizer_provenance_and_vocabulary(built):
 
 
 def test_generate_writes_the_official_layout(built, tmp_path):
-    from handx_jax.data.handx_npz import read_handx_npz
+    from handx_jax.interop.handx_npz import read_handx_npz
 
     data, _, run = built
     out = tmp_path / "gen.npz"
@@ -91,7 +91,7 @@ def test_generate_writes_the_official_layout(built, tmp_path):
 
 
 def test_prediction_keeps_the_observed_start(built, tmp_path):
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.families import load_run
     from handx_jax.families.ar import GenerateOptions
     from handx_jax.generation import split_prompts

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from handx_jax.families.tokenizer import TOKEN_FORMAT, TOKEN_FORMAT_VERSION, TokenCache
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 NB = 240  # the real size of the nominal 256 codebook (levels 8, 6, 5)
 

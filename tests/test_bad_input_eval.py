@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from handx_jax.cli import main
-from handx_jax.data.handx_npz import HandXClip, write_handx_npz
+from handx_jax.interop.handx_npz import HandXClip, write_handx_npz
 from handx_jax.evaluation import align_generated
 from handx_jax.evaluation.scoring import MAX_ABS_METRES, check_motion_range
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 
 def _motion(seed: int) -> np.ndarray:
@@ -173,7 +173,7 @@ def nan_evaluator(tmp_path_factory):
     from flax import serialization
 
     from handx_jax.interop import official_evaluator as oe
-    from handx_jax.io import write_checksum
+    from handx_jax.infra.checksums import write_checksum
 
     fix = Path(__file__).parent / "fixtures" / "official_evaluator"
     ev = tmp_path_factory.mktemp("nan_ev") / "ev"

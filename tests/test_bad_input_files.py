@@ -1,4 +1,4 @@
-"""Damaged and crafted files given to the project's one reader (``handx_jax/infra/read.py``, issue 54) and to the
+"""Damaged and crafted files given to the project's one reader (``handx_jax/infra/readers.py``, issue 54) and to the
 readers routed through it: every failure is one ``DataError`` naming the file and, where there is one, the
 field; none suggests unpickling (NumPy's own message says to load with ``allow_pickle``), and no crafted file
 runs code. Plain files, no model: milliseconds each."""
@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from handx_jax.infra.read import get_field, read_json, read_npy, read_npz, require_dir
-from handx_jax.io import DataError
+from handx_jax.infra.readers import get_field, read_json, read_npy, read_npz, require_dir
+from handx_jax.infra.errors import DataError
 
 
 def _err(fn, *a, **kw) -> str:

@@ -227,7 +227,7 @@ def test_contact_caption_on_a_record_without_contacts_says_so(diffusion_run, tmp
 
 
 def test_contact_caption_says_how_many_prompts_of_a_batch_it_guides(capsys):
-    from handx_jax import guidance as Gd
+    from handx_jax.families.diffusion import guidance as Gd
     from handx_jax import metrics as M
 
     named = M.NamedContacts(*(np.asarray(v, np.int64) for v in ([0, 0, 2], [1, 2, 3], [0, 5, 9], [10, 20, 30])))

@@ -228,7 +228,7 @@ def runs(tmp_path_factory, stats):
     import orbax.checkpoint as ocp
 
     from handx_jax.interop import official_diffusion as od
-    from handx_jax.io import write_tree_checksum
+    from handx_jax.infra.checksums import write_tree_checksum
     from handx_jax.train import load_params
 
     root = tmp_path_factory.mktemp("runs")
@@ -318,8 +318,8 @@ KILLED_WRITER = textwrap.dedent("""
         print("writing", flush=True)
         time.sleep(600)
     if sys.argv[1] == "handx-diffusion":
-        import handx_jax.io
-        handx_jax.io.write_tree_checksum = stall  # after orbax wrote the weights
+        import handx_jax.infra.checksums
+        handx_jax.infra.checksums.write_tree_checksum = stall  # after orbax wrote the weights
     else:
         import handx_jax.evaluation.checkpoint
         handx_jax.evaluation.checkpoint.write_params_msgpack = stall  # after the T5 folder
@@ -368,8 +368,8 @@ def test_import_onto_a_full_disk_is_one_line_without_library_tracebacks(tmp_path
         assert os.listdir(disk) == []
         # ... and with the check off, orbax itself hits ENOSPC: what orbax, tensorstore and asyncio print while
         # failing (~110 lines before) is held back, in a process of its own as a user's would be
-        code = ("import sys; from handx_jax import io; from handx_jax.cli import main\n"
-                "io.check_free_space = lambda *a, **k: None\nsys.exit(main(sys.argv[1:]))")
+        code = ("import sys; from handx_jax.infra import diskspace; from handx_jax.cli import main\n"
+                "diskspace.check_free_space = lambda *a, **k: None\nsys.exit(main(sys.argv[1:]))")
         r = subprocess.run([sys.executable, "-c", code, *map(str, argv)], capture_output=True, text=True, env=ENV,
                            timeout=120)
         assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr[-3000:]

@@ -77,7 +77,7 @@ def test_kill_9_before_the_first_checkpoint_leaves_no_metrics_row_twice(tmp_path
     the resumed run starts over at step 0 and its metrics.jsonl holds each row once."""
     import train_kill_worker as worker
 
-    from handx_jax.io import read_jsonl
+    from handx_jax.infra.readers import read_jsonl
 
     run = tmp_path / "run"
     metrics = run / "metrics.jsonl"
@@ -118,7 +118,7 @@ def _norm_dir(tmp_path, write) -> Path:
 ])
 def test_a_bad_ghtt_norm_file_is_one_line_naming_file_and_field(tmp_path, write, words):
     from handx_jax.families.ghtt.common import Norm
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
 
     d = _norm_dir(tmp_path, write)
     with pytest.raises(DataError) as e:

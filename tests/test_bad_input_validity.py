@@ -82,7 +82,7 @@ def test_out_inside_the_dataset_is_refused(tiny, capsys):
 
 def test_a_second_suite_on_one_out_is_refused(tiny, tmp_path, capsys):
     out = tmp_path / "V"
-    holder = subprocess.Popen([sys.executable, "-c", "import sys, time\nfrom handx_jax.runlock import RunLock\n"
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time\nfrom handx_jax.infra.runlock import RunLock\n"
                                "RunLock.for_output(sys.argv[1]).acquire()\nprint('held', flush=True)\ntime.sleep(60)",
                                str(out)], stdout=subprocess.PIPE, text=True)
     try:

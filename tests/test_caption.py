@@ -1,4 +1,4 @@
-"""Tests for the captioners and the LLM prompt (handx_jax/data/caption/)."""
+"""Tests for the captioners and the LLM prompt (handx_jax/annotation/caption/)."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ import re
 import numpy as np
 import pytest
 
-from handx_jax.data import caption as cap
-from handx_jax.data.caption.hand import finger_moves
-from handx_jax.data import events as ev
-from handx_jax.data import synth
-from handx_jax.io import DataError
+from handx_jax.annotation import caption as cap
+from handx_jax.annotation.caption.hand import finger_moves
+from handx_jax.annotation import events as ev
+from handx_jax.synthesis import bimanual as synth
+from handx_jax.infra.errors import DataError
 from handmade_hands import clip, mirror, pair, right_hand
 
 
@@ -129,7 +129,7 @@ def _words(t: str) -> int:
 def corpus_records():
     """Event records of a small procedural chunk (the same path the corpus build takes)."""
     from handx_jax import skeleton as sk
-    from handx_jax.data.clips import extract_clips
+    from handx_jax.dataset.clips import extract_clips
     ch = synth.synth_chunk(5, 0, synth.SynthConfig(chunk_size=24, defect_prob=0.0))
     clips = np.concatenate([extract_clips(sk.canonicalize(s, ref_frame=0))[0] for s in ch.joints])
     return ev.annotate(clips)

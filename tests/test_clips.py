@@ -1,7 +1,7 @@
 import numpy as np
 
 from handx_jax import skeleton as sk
-from handx_jax.data import clips
+from handx_jax.dataset import clips
 
 
 def _straight_hand():

@@ -3,8 +3,8 @@ import json
 import numpy as np
 import pytest
 
-from handx_jax.data.dataset import Dataset, nested_fractions, write_dataset
-from handx_jax.io import DataError
+from handx_jax.dataset.format import Dataset, nested_fractions, write_dataset
+from handx_jax.infra.errors import DataError
 
 
 def _texts(n, levels=5):
@@ -119,8 +119,8 @@ def test_stats_npz_same_bits_for_any_worker_count(tmp_path, monkeypatch):
     """stats.npz is summed from fixed clip chunks in chunk order: 1 or 3 processes give the same bytes,
     and the values are the train split's mean/std computed in one piece."""
     from handx_jax import representation as rep
-    from handx_jax.data import dataset as dataset_mod
-    from handx_jax.data.stats import dataset_stats
+    from handx_jax.dataset import format as dataset_mod
+    from handx_jax.dataset.stats import dataset_stats
 
     monkeypatch.setattr(dataset_mod, "STATS_CHUNK", 4)  # 11 train clips → chunks of 4, 4, 3
     m = _motion(14, seed=4)
@@ -152,7 +152,7 @@ def test_check_compatible_accepts_rounding_and_refuses_other_data(tmp_path, caps
     a changed (overlapping) test split, other captions or motion beyond rounding are refused."""
     from types import SimpleNamespace
 
-    from handx_jax.data.dataset import check_compatible, dataset_record
+    from handx_jax.dataset.format import check_compatible, dataset_record
     from handx_jax.evaluation import TrainedEvaluator
 
     m, t = _motion(12), _texts(12)

@@ -122,7 +122,7 @@ def test_kill_and_resume_is_exact(tmp_path):
 
 def test_data_fraction_selects_the_nested_subset(data):
     d = load_train_data(tiny_config(data, "data.fraction=0.2"))
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
 
     np.testing.assert_array_equal(d.clips, Dataset.open(data).split("train", 0.2))
 

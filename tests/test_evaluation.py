@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from analysis.schema import METRICS
-from handx_jax.data.dataset import Dataset
-from handx_jax.data.handx_npz import HandXClip, read_handx_npz, write_handx_npz
+from handx_jax.dataset.format import Dataset
+from handx_jax.interop.handx_npz import HandXClip, read_handx_npz, write_handx_npz
 from handx_jax.evaluation import (JOINED, REFERENCE_CACHE_DIR, TextPolicy, TrainingData, align_generated,
                                   evaluate_generated, evaluate_ground_truth, evaluator_stats, load_evaluator,
                                   reference_embeddings, train_evaluator, write_reference_cache)
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.metrics import MetricConfig
 
 ENCODER = Path(__file__).parent / "fixtures" / "t5_tiny_gated"
@@ -36,7 +36,7 @@ CFG = MetricConfig(replications=4, rprec_block=4)
 
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
-    from handx_jax.data.build import BuildConfig, build_corpus
+    from handx_jax.dataset.build import BuildConfig, build_corpus
 
     root = tmp_path_factory.mktemp("evaluation")
     data = build_corpus(root / "ds", BuildConfig(clips=32, seed=5, workers=1, val_fraction=0.2, test_fraction=0.25),
@@ -101,7 +101,7 @@ def test_checkpoint_round_trip_and_versioned_meta(setup):
 
 def test_refuses_other_dataset_and_changed_encoder(setup, tmp_path):
     root, data, E = setup
-    from handx_jax.data.dataset import write_dataset
+    from handx_jax.dataset.format import write_dataset
 
     ds = Dataset.open(data)
     other = write_dataset(tmp_path / "other", np.asarray(ds.motion[:8]) * 1.01, ds.texts[:8],

@@ -1,4 +1,4 @@
-"""Known-answer tests for event segmentation and the per-clip record (handx_jax/data/events.py)."""
+"""Known-answer tests for event segmentation and the per-clip record (handx_jax/annotation/events.py)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from handx_jax.data import events as ev
+from handx_jax.annotation import events as ev
 from handmade_hands import clip, mirror, pair, right_hand, still
 
 

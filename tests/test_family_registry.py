@@ -63,7 +63,7 @@ def train(run_dir, cfg: ToyConfig, *, stop_at=None, on_log=None, encoder=None) -
     from handx_jax import representation as rep
     from handx_jax import train as loop
     from handx_jax.config import to_dict
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
 
     ds = Dataset.open(cfg.data.path)
     norm = rep.NormStats.from_npz_dict(ds.stats, REGISTRY.norm_preset().name)
@@ -148,10 +148,10 @@ def test_a_third_family_trains_generates_runs_in_a_sweep_and_lands_in_the_table(
     from analysis.tables import render_table
     from diffusion_fixtures import make_dataset, make_evaluator
     from handx_jax import representation as rep
-    from handx_jax.data.dataset import Dataset
-    from handx_jax.data.handx_npz import read_handx_npz
+    from handx_jax.dataset.format import Dataset
+    from handx_jax.interop.handx_npz import read_handx_npz
     from handx_jax.families import register
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
     from sweeps.launcher import RunSpec, SweepConfig, launch
 
     data = make_dataset(tmp_path, joined=True)

@@ -199,7 +199,7 @@ def fitted_8(tmp_path_factory):
     clips: 0.18× in 46 CPU-s). The loop evaluates the initial weights (step 0) and the fitted ones on the same
     8 clips."""
     from handx_jax import train as loop
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.families import tokenizer as T
     from tests.diffusion_fixtures import make_dataset
 

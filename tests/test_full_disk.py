@@ -16,9 +16,9 @@ import uuid
 import numpy as np
 import pytest
 
-from handx_jax import io as hio
 from handx_jax.cli import main as handx
-from handx_jax.data.handx_npz import HandXClip, write_handx_npz
+from handx_jax.infra import atomic, diskspace, npy_writer
+from handx_jax.interop.handx_npz import HandXClip, write_handx_npz
 
 SMALL = 2 << 20
 
@@ -31,7 +31,7 @@ def small_disk(tmp_path, monkeypatch):
     real = os.geteuid() == 0 and subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={SMALL}", "tmpfs", str(d)],
                                                 capture_output=True).returncode == 0
     if not real:
-        monkeypatch.setattr(hio, "free_bytes", lambda path: SMALL)
+        monkeypatch.setattr(diskspace, "free_bytes", lambda path: SMALL)
     yield d, real
     if real:
         subprocess.run(["umount", "-l", str(d)], check=False)
@@ -73,13 +73,13 @@ def test_import_on_a_full_disk_is_a_clean_error(small_disk, tmp_path):
 def test_write_that_hits_enospc_removes_its_folder(small_disk, tmp_path, monkeypatch, capsys):
     """Past the up-front check (space taken meanwhile), the failing write itself is the clean error."""
     disk, real = small_disk
-    for where in ("handx_jax.data.dataset.check_free_space", "handx_jax.io.check_free_space"):
+    for where in ("handx_jax.dataset.format.check_free_space", "handx_jax.infra.npy_writer.check_free_space"):
         monkeypatch.setattr(where, lambda *a, **k: None)
     if not real:
         def append(self, rows):
-            with hio.disk_full_as_error(self.path, self.nbytes):
+            with diskspace.disk_full_as_error(self.path, self.nbytes):
                 _enospc()
-        monkeypatch.setattr(hio.NpyWriter, "append", append)
+        monkeypatch.setattr(npy_writer.NpyWriter, "append", append)
     npz = _npz(tmp_path / "train_x.npz", 100)
     assert handx(["data", "import-handx", str(npz), "--no-events", "--out", str(disk / "ds")]) == 2
     err = capsys.readouterr().err
@@ -89,7 +89,7 @@ def test_write_that_hits_enospc_removes_its_folder(small_disk, tmp_path, monkeyp
 
 def test_every_command_reports_enospc_in_one_line(monkeypatch, capsys, tmp_path):
     """A bare OSError 28 from anywhere (a library's own write) becomes one line, exit 2."""
-    from handx_jax.data import cli as data_cli
+    from handx_jax.commands import data as data_cli
 
     def full(a):
         raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "x.bin"))
@@ -111,9 +111,9 @@ def test_every_command_reports_enospc_in_one_line(monkeypatch, capsys, tmp_path)
 
 
 def test_atomic_write_and_npy_writer_name_the_file(tmp_path, monkeypatch):
-    monkeypatch.setattr(hio, "free_bytes", lambda path: 1000)
-    with pytest.raises(hio.DiskFullError, match=r"writing .*big\.npy; it needs 7\.8 KB, 1000 B free"):
-        hio.NpyWriter(tmp_path / "big.npy", np.float32, (2000,))
+    monkeypatch.setattr(diskspace, "free_bytes", lambda path: 1000)
+    with pytest.raises(diskspace.DiskFullError, match=r"writing .*big\.npy; it needs 7\.8 KB, 1000 B free"):
+        npy_writer.NpyWriter(tmp_path / "big.npy", np.float32, (2000,))
     real_fdopen = os.fdopen
 
     class Full:
@@ -129,11 +129,11 @@ def test_atomic_write_and_npy_writer_name_the_file(tmp_path, monkeypatch):
         def write(self, data):
             _enospc()
 
-    monkeypatch.setattr(hio.os, "fdopen", lambda fd, mode: Full(real_fdopen(fd, mode)))
-    with pytest.raises(hio.DiskFullError, match=r"writing .*a\.json; it needs 3 B"):
-        hio.atomic_write_bytes(tmp_path / "a.json", b"abc")
+    monkeypatch.setattr(atomic.os, "fdopen", lambda fd, mode: Full(real_fdopen(fd, mode)))
+    with pytest.raises(diskspace.DiskFullError, match=r"writing .*a\.json; it needs 3 B"):
+        atomic.atomic_write_bytes(tmp_path / "a.json", b"abc")
     assert sorted(os.listdir(tmp_path)) == []
-    with hio.NpyWriter(tmp_path / "ok.npy", np.int16, (3, 2)) as w:  # and it writes a valid .npy
+    with npy_writer.NpyWriter(tmp_path / "ok.npy", np.int16, (3, 2)) as w:  # and it writes a valid .npy
         w.append(np.arange(4).reshape(2, 2))
         w.append(np.array([[7, 8]]))
     np.testing.assert_array_equal(np.load(tmp_path / "ok.npy"), [[0, 1], [2, 3], [7, 8]])

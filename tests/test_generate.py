@@ -6,8 +6,8 @@ import pytest
 
 from handx_jax.families.diffusion import process as D
 from handx_jax.cli import main
-from handx_jax.data.dataset import Dataset
-from handx_jax.data.handx_npz import read_handx_npz
+from handx_jax.dataset.format import Dataset
+from handx_jax.interop.handx_npz import read_handx_npz
 from handx_jax.families.diffusion import load as load_run
 from handx_jax.families.diffusion.sampling import SampleOptions, generate, generate_long, task_gamma
 from handx_jax.generation import Prompt

@@ -20,7 +20,7 @@ from handx_jax.models import ghtt_motion as HM
 
 @pytest.fixture(scope="module")
 def clips(tmp_path_factory):
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
 
     data = make_dataset(tmp_path_factory.mktemp("ghtt_ds"), joined=True)
     return data, np.asarray(Dataset.open(data).motion[:8], np.float32)
@@ -177,7 +177,7 @@ def test_real_tiny_ghtt_sweep_scored_on_prediction(tmp_path):
     assert "does not do --task text2motion" in p.stderr and not (tmp_path / "x.npz").exists()
     # recognition through the registry's contract
     from handx_jax.families import load_run
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.generation import split_prompts
 
     ghtt = load_run(run)

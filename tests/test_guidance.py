@@ -1,4 +1,4 @@
-"""The contact energy for sampling-time guidance (issue 33 item 2; handx_jax/guidance.py): its distances are
+"""The contact energy for sampling-time guidance (issue 33 item 2; handx_jax/families/diffusion/guidance.py): its distances are
 the metric's, its gradient matches finite differences, and descending it realises a requested contact."""
 
 import functools
@@ -10,7 +10,7 @@ import pytest
 from jax import enable_x64
 
 import handmade_hands as hh
-from handx_jax import guidance as Gd
+from handx_jax.families.diffusion import guidance as Gd
 from handx_jax import metrics as M
 from handx_jax import skeleton as sk
 

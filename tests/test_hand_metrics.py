@@ -146,7 +146,7 @@ def test_contact_feasibility_one_realised_one_not():
 def test_the_records_own_motion_realises_every_named_contact():
     """annotate's records name the contacts (tip–tip, and tip–palm through the finger–palm states);
     the motion they were read from realises all of them, and a motion without the touch realises none."""
-    from handx_jax.data.events import annotate
+    from handx_jax.annotation.events import annotate
 
     x = _touching_clip()
     # Frames 40–49: the left index tip pressed onto the centre of the right palm's cloud.

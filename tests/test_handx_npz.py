@@ -1,4 +1,4 @@
-"""Tests for handx_jax.data.handx_npz: official .npz format round trips and the restricted unpickler."""
+"""Tests for handx_jax.interop.handx_npz: official .npz format round trips and the restricted unpickler."""
 
 from __future__ import annotations
 
@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 from numpy.lib import format as npy_format
 
-from handx_jax.data.handx_npz import (
+from handx_jax.interop.handx_npz import (
     HandXClip,
     read_handx_mano_npz,
     read_handx_npz,
     read_npz_dicts,
     write_handx_npz,
 )
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 
 def _clips(n: int = 12, seed: int = 0) -> list[HandXClip]:

@@ -1,4 +1,4 @@
-"""The host's cores as several CPU devices for sampling (handx_jax.hostdevices, issue 15).
+"""The host's cores as several CPU devices for sampling (handx_jax.infra.hostdevices, issue 15).
 
 Each case runs tests/hostdevices_worker.py in a fresh process, because JAX fixes the CPU device count
 when it starts: with HANDX_CPU_DEVICES=2 the sampler splits a batch the devices divide over both (and
@@ -31,7 +31,7 @@ def _env(**kw):
 def test_split_sampling_matches_one_device(tmp_path):
     import jax
 
-    from handx_jax import hostdevices
+    from handx_jax.infra import hostdevices
 
     p = subprocess.run([sys.executable, WORKER, str(tmp_path / "two.npz"), str(tmp_path / "one.npz")],
                        env=_env(HANDX_CPU_DEVICES="2"), capture_output=True, text=True, timeout=300)
@@ -66,7 +66,7 @@ def test_bad_device_count_is_one_clear_line(tmp_path):
 
 
 def test_configure_respects_the_users_choice(monkeypatch):
-    from handx_jax import hostdevices as H
+    from handx_jax.infra import hostdevices as H
 
     monkeypatch.delenv(H.ENV, raising=False)
     monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=3")

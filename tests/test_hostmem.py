@@ -1,4 +1,4 @@
-"""The host memory policy (handx_jax.hostmem): XLA's large per-call buffers are reused, not page-faulted in."""
+"""The host memory policy (handx_jax.infra.hostmem): XLA's large per-call buffers are reused, not page-faulted in."""
 
 import importlib
 import json
@@ -11,7 +11,7 @@ import warnings
 import pytest
 
 import handx_jax
-from handx_jax import hostmem
+from handx_jax.infra import hostmem
 
 # A jitted function whose (4096 × 4096) float32 intermediate, 64 MiB = 16,384 pages of 4 KiB, lies above
 # glibc's 32 MiB mmap ceiling: with glibc's defaults every call maps it afresh and the kernel zero-fills
@@ -19,7 +19,7 @@ from handx_jax import hostmem
 PROBE = textwrap.dedent("""
     import json, resource
     import handx_jax
-    from handx_jax import hostmem
+    from handx_jax.infra import hostmem
     import jax, jax.numpy as jnp
     x = jnp.ones((4096, 256)); w = jnp.full((256, 4096), 1e-3)
     f = jax.jit(lambda x, w: jnp.sum(jnp.tanh(x @ w) @ w.T))

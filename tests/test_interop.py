@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from handx_jax.interop import torch_pickle as tp
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 FIX = Path(__file__).parent / "fixtures"
 DIFF, EVAL = FIX / "official_diffusion", FIX / "official_evaluator"

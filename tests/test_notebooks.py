@@ -15,7 +15,7 @@ runs (unknown keys and bad values fail the cell), and so does everything after i
 and the standard evaluator's scores of the test prompts. data_exploration.ipynb is given the session's
 32-clip corpus (tests/diffusion_fixtures.make_dataset, the one that run trained on) as HANDX_DATA, so its
 kernel does not synthesise a corpus of its own (``build_corpus``, the cell's fallback, is what
-test_build_and_cli.py tests); every cell after it runs on that corpus.
+test_dataset_build.py tests); every cell after it runs on that corpus.
 """
 
 import json

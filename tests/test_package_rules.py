@@ -7,6 +7,10 @@
   functions too (only ``if TYPE_CHECKING:`` blocks are left out: they never run).
 - Rooms stay small: a module of more than ``MAX_LINES`` lines says in its docstring why it is one concern
   (a sentence starting "One concern:"), or it is split.
+- Arrows point down (issue 51 item 6): the rooms the models are built on (``dataset``, ``synthesis``,
+  ``annotation``, ``representation``, ``evaluation``) import neither the family registry (``families``) nor
+  the command layer (``commands``), and ``evaluation`` not the packaged yardstick (``standard``) either: what
+  they need from above is passed down to them. ``infra`` imports nothing of the package but ``infra``.
 """
 
 from __future__ import annotations
@@ -180,3 +184,48 @@ def test_the_room_size_check_finds_a_long_module_without_a_reason():
     files = {"long.py": '"""Two things."""\n' + body, "reasoned.py": f'"""{ONE_CONCERN} one thing."""\n' + body,
              "short.py": '"""Two things."""\n' + body[:-6], "comment.py": f'"""Two things."""\n# {ONE_CONCERN} no\n' + body}
     assert long_without_reason(files) == [("long.py", MAX_LINES + 1), ("comment.py", MAX_LINES + 2)]
+
+
+# ---------------------------------------------------------------------------- arrows point down
+
+ABOVE = ("handx_jax.families", "handx_jax.commands")
+FORBIDDEN = {"handx_jax.dataset": ABOVE, "handx_jax.synthesis": ABOVE, "handx_jax.annotation": ABOVE,
+             "handx_jax.representation": ABOVE, "handx_jax.evaluation": (*ABOVE, "handx_jax.standard")}
+BOTTOM = "handx_jax.infra"
+
+
+def _within(module: str, package: str) -> bool:
+    return module == package or module.startswith(package + ".")
+
+
+def upward_imports(files: dict[str, tuple[str, bool]]) -> list[str]:
+    """``importer -> imported`` for every import (function-level ones too) against the arrows above."""
+    out = []
+    for m, targets in sorted(import_graph(files).items()):
+        for t in sorted(targets):
+            bad = [p for room, above in FORBIDDEN.items() if _within(m, room) for p in above if _within(t, p)]
+            if bad or (_within(m, BOTTOM) and _within(t, "handx_jax") and not _within(t, BOTTOM)):
+                out.append(f"{m} -> {t}")
+    return out
+
+
+def test_the_lower_rooms_import_neither_the_registry_nor_the_commands():
+    files = {module_name(f): (f.read_text(), f.name == "__init__.py") for f in sources()}
+    assert {room for room in (*FORBIDDEN, BOTTOM) if any(_within(m, room) for m in files)} == {*FORBIDDEN, BOTTOM}
+    assert upward_imports(files) == [], "pass what a lower room needs down to it instead:\n" + "\n".join(
+        upward_imports(files))
+
+
+def test_the_arrow_check_finds_an_upward_import():
+    files = {"handx_jax": ("", True), "handx_jax.families": ("", True), "handx_jax.commands": ("", True),
+             "handx_jax.standard": ("", True), "handx_jax.skeleton": ("", False),
+             "handx_jax.dataset": ("", True), "handx_jax.infra": ("", True), "handx_jax.evaluation": ("", True),
+             "handx_jax.dataset.format": ("def f():\n    from handx_jax import families\n", False),
+             "handx_jax.dataset.stats": ("from handx_jax import skeleton\nfrom . import format\n", False),
+             "handx_jax.evaluation.scoring": ("from ..standard import x\n", False),
+             "handx_jax.infra.atomic": ("from handx_jax.skeleton import J\n", False),
+             "handx_jax.families.ar": ("from handx_jax.commands import fail\n", False),
+             "handx_jax.commands.data": ("from handx_jax.families import entry\n", False)}
+    assert upward_imports(files) == ["handx_jax.dataset.format -> handx_jax.families",
+                                     "handx_jax.evaluation.scoring -> handx_jax.standard",
+                                     "handx_jax.infra.atomic -> handx_jax.skeleton"]

@@ -2,7 +2,7 @@ import itertools
 
 import pytest
 
-from handx_jax.data.parallel import map_ordered
+from handx_jax.dataset.parallel import map_ordered
 
 
 def _square_slowly_first(x):
@@ -40,7 +40,7 @@ def test_map_ordered_avoids_fork_once_jax_runs():
     child of a threaded process can deadlock. The results are the same either way."""
     import jax.numpy as jnp
 
-    from handx_jax.data import parallel
+    from handx_jax.dataset import parallel
 
     jnp.zeros(1).block_until_ready()
     assert parallel._context().get_start_method() in ("forkserver", "spawn")
@@ -80,7 +80,7 @@ def test_workers_end_with_a_killed_parent():
     import sys
     import time
 
-    code = ("import time; from handx_jax.data.parallel import map_ordered; "
+    code = ("import time; from handx_jax.dataset.parallel import map_ordered; "
             "print('go', flush=True); list(map_ordered(time.sleep, [60] * 4, 2))")
     parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
                               env={**os.environ, "JAX_PLATFORMS": "cpu"})

@@ -204,7 +204,7 @@ def test_wide_models_sample_without_ynn_fusions_and_the_same(tiny, monkeypatch):
     ``xla_options.inference_options`` (no YNNPACK fusions on CPU: paper-4L samples 1.15× faster); narrower
     ones keep XLA's defaults; the samples equal those of XLA's defaults up to float rounding, and
     ``HANDX_INFERENCE_XLA=default`` turns the options off."""
-    from handx_jax import xla_options as XO
+    from handx_jax.infra import xla_options as XO
     from handx_jax.families.diffusion import DiffusionRunConfig
 
     if jax.default_backend() != "cpu":

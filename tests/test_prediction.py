@@ -202,7 +202,7 @@ def test_completed_clips_are_scored_by_the_evaluator(data, evaluator, tmp_path):
     """The completed clips' FID and R-Precision through ``--evaluator``: the ground-truth baseline gives the
     evaluator's own Ground Truth row on the same clips (FID 0), holding still a larger FID."""
     from handx_jax.evaluation import evaluate_ground_truth, load_evaluator
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.metrics import MetricConfig
 
     got = {}

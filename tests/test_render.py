@@ -5,7 +5,7 @@ import numpy as np
 from PIL import Image, ImageSequence
 
 from handx_jax import skeleton as sk
-from handx_jax.data.render import HAND_COLORS, render_gif
+from handx_jax.dataset.render import HAND_COLORS, render_gif
 
 
 def _near(frame: np.ndarray, hex_colour: str, tol: int = 40) -> np.ndarray:

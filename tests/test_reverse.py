@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from handx_jax.data.build import BuildConfig, build_corpus, caption_seed, with_reading
-from handx_jax.data.caption import TemplateCaptioner
-from handx_jax.data.dataset import Dataset
-from handx_jax.data.events import annotate, annotation_config
-from handx_jax.data.reverse import build_reversed, pick_clips
+from handx_jax.dataset.build import BuildConfig, build_corpus, caption_seed, with_reading
+from handx_jax.annotation.caption import TemplateCaptioner
+from handx_jax.dataset.format import Dataset
+from handx_jax.annotation.events import annotate, annotation_config
+from handx_jax.dataset.reverse import build_reversed, pick_clips
 from handx_jax.evaluation.features import caption_ids
 
 ENCODER = Path(__file__).parent / "fixtures" / "t5_tiny_gated"
@@ -59,7 +59,7 @@ def test_reversed_clips_are_the_split_backwards_with_their_own_captions(corpus):
 
 def test_a_thin_subset_is_reversed_from_its_own_rows(corpus, monkeypatch):
     """``--clips N`` spreads each chunk over the corpus: its rows are gathered, not read as one span."""
-    import handx_jax.data.reverse as R
+    import handx_jax.dataset.reverse as R
 
     root, ds, _ = corpus
     monkeypatch.setattr(R, "CHUNK", 2)  # chunks of 2 clips about 7 apart: wider than 4 rows per clip

@@ -13,9 +13,10 @@ import pytest
 
 from handx_jax import standard
 from handx_jax.standard import assets as standard_assets
-from handx_jax.data.dataset import Dataset
+from handx_jax.dataset.format import Dataset
 from handx_jax.evaluation import evaluate_ground_truth, make_evaluator_config, train_evaluator
-from handx_jax.io import DataError, sha256_file, write_checksum
+from handx_jax.infra.checksums import sha256_file, write_checksum
+from handx_jax.infra.errors import DataError
 from handx_jax.metrics import MetricConfig
 
 ENCODER = Path(__file__).parent / "fixtures" / "t5_tiny_gated"

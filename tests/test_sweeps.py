@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from handx_jax.io import DataError
-from handx_jax.provenance import versions
-from handx_jax.runlock import RunLock, RunLocked, is_locked, pid_alive
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.provenance import versions
+from handx_jax.infra.runlock import RunLock, RunLocked, is_locked, pid_alive
 from sweeps.launcher import RunSpec, Step, SweepConfig, collect_results, launch, load_sweep, stage_state, status
 
 HERE = Path(__file__).resolve().parent
@@ -262,14 +262,14 @@ def test_runlock_excludes_recovers_and_is_inherited(tmp_path):
     with RunLock(d):
         assert is_locked(d)["pid"] == os.getpid()
         # Another process (not our child: a grandchild) is refused with a message naming the holder.
-        code = (f"from handx_jax.runlock import RunLock, RunLocked\ntry:\n    RunLock({str(d)!r}).acquire()\n"
+        code = (f"from handx_jax.infra.runlock import RunLock, RunLocked\ntry:\n    RunLock({str(d)!r}).acquire()\n"
                 "except RunLocked as e:\n    print('LOCKED', e)\n")
         outer = f"import subprocess, sys; subprocess.run([sys.executable, '-c', {code!r}])"
         r = subprocess.run([sys.executable, "-c", outer], capture_output=True, text=True,
                            env={**os.environ, "PYTHONPATH": str(REPO)})
         assert f"LOCKED {d} is in use by pid {os.getpid()}" in r.stdout
         # ... but a child this process started to work in the folder inherits it.
-        code = (f"from handx_jax.runlock import RunLock\nl = RunLock({str(d)!r}).acquire()\n"
+        code = (f"from handx_jax.infra.runlock import RunLock\nl = RunLock({str(d)!r}).acquire()\n"
                 "print('INHERITED', l.inherited)\nl.release()\n")
         r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                            env={**os.environ, "PYTHONPATH": str(REPO)})

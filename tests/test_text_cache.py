@@ -9,8 +9,8 @@ import pytest
 
 from random_params import random_params
 
-from handx_jax.data.dataset import TEXT_FIELDS, Dataset
-from handx_jax.io import DataError
+from handx_jax.dataset.format import TEXT_FIELDS, Dataset
+from handx_jax.infra.errors import DataError
 from handx_jax.text import cli
 from handx_jax.text import tokenizer as tk
 from handx_jax.text.cache import TextCache, build_cache, neighbour_accuracy, open_cache
@@ -146,21 +146,21 @@ def test_full_disk_is_a_clean_error_and_leaves_nothing(setup, monkeypatch):
     SIGBUS and left a hidden temporary folder. Now: a DiskFullError naming the file, nothing left."""
     import errno
 
-    from handx_jax import io as hio
+    from handx_jax.infra import diskspace, npy_writer
 
     data, enc_dir, _ = setup
     root = data / "text_cache"
-    monkeypatch.setattr(hio, "free_bytes", lambda path: 100)
-    with pytest.raises(hio.DiskFullError, match=r"writing .*text_cache/[0-9a-f]{16}; it needs .* 100 B free"):
+    monkeypatch.setattr(diskspace, "free_bytes", lambda path: 100)
+    with pytest.raises(diskspace.DiskFullError, match=r"writing .*text_cache/[0-9a-f]{16}; it needs .* 100 B free"):
         build_cache(data, enc_dir, dtype="float32", max_len=48, batch_size=32, overwrite=True, log=lambda s: None)
-    monkeypatch.setattr(hio, "free_bytes", lambda path: None)
+    monkeypatch.setattr(diskspace, "free_bytes", lambda path: None)
 
     def append(self, rows):  # the disk fills up during the build
-        with hio.disk_full_as_error(self.path, self.nbytes):
+        with diskspace.disk_full_as_error(self.path, self.nbytes):
             raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(hio.NpyWriter, "append", append)
-    with pytest.raises(hio.DiskFullError, match=r"writing .*text_cache/[0-9a-f]{16}/hidden\.npy; it needs"):
+    monkeypatch.setattr(npy_writer.NpyWriter, "append", append)
+    with pytest.raises(diskspace.DiskFullError, match=r"writing .*text_cache/[0-9a-f]{16}/hidden\.npy; it needs"):
         build_cache(data, enc_dir, dtype="float32", max_len=48, batch_size=32, overwrite=True, log=lambda s: None)
     assert not [p for p in root.iterdir() if p.name.startswith(".")]
 
@@ -169,7 +169,7 @@ def test_cache_follows_check_compatible_on_captions(setup, tmp_path):
     """Issue 14.5: the cache depends only on the clip ids and captions, so a dataset whose motion
     differs by float rounding keeps it (dataset.check_compatible, parts ids + captions); other
     captions are refused."""
-    from handx_jax.data.dataset import write_dataset
+    from handx_jax.dataset.format import write_dataset
 
     data, enc_dir, _ = setup
     root = build_cache(data, enc_dir, dtype="float32", max_len=48, batch_size=32, log=lambda s: None)

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.text import cli
 from handx_jax.text import tokenizer as tk
 from handx_jax.text.hf import load_hf_t5_encoder
@@ -140,7 +140,7 @@ def test_damaged_weights_are_named(folder, damage):
 
 def test_checksum_catches_flipped_bytes(folder, tmp_path):
     """64 flipped bytes inside a tensor loaded silently; the sidecar written on save now refuses them."""
-    from handx_jax.io import checksum_path, verify_checksum, write_checksum
+    from handx_jax.infra.checksums import checksum_path, verify_checksum, write_checksum
     from handx_jax.text.hf import save_hf_t5_encoder
 
     enc = load_hf_t5_encoder(folder)
@@ -164,7 +164,7 @@ def test_checksum_catches_flipped_bytes(folder, tmp_path):
 def test_params_msgpack_errors_name_the_file(tmp_path, damage):
     """The evaluator's params.msgpack: flax said "Unpack failed" or a ValueError without the file;
     flipped bytes loaded silently. read/write_params_msgpack name the file and check the sidecar."""
-    from handx_jax.io import read_params_msgpack, write_params_msgpack
+    from handx_jax.infra.param_files import read_params_msgpack, write_params_msgpack
 
     params = {"dense": {"kernel": np.arange(64, dtype=np.float32).reshape(8, 8), "bias": np.ones(8, np.float32)}}
     p = write_params_msgpack(tmp_path / "params.msgpack", params)
@@ -195,7 +195,7 @@ def test_params_msgpack_reads_into_an_abstract_template_and_checks_shapes(tmp_pa
     where flax alone fills the tree without comparing shapes."""
     import jax
 
-    from handx_jax.io import read_params_msgpack, write_params_msgpack
+    from handx_jax.infra.param_files import read_params_msgpack, write_params_msgpack
 
     params = {"dense": {"kernel": np.arange(64, dtype=np.float32).reshape(8, 8), "bias": np.ones(8, np.float32)}}
     p = write_params_msgpack(tmp_path / "params.msgpack", params)

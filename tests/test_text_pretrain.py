@@ -6,7 +6,8 @@ import jax
 import numpy as np
 import pytest
 
-from handx_jax.io import DataError, read_jsonl
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import read_jsonl
 from handx_jax.cli import main
 from handx_jax.text import tokenizer as tk
 from handx_jax.text.pretrain import PretrainConfig, pretrain, span_corrupt, target_length

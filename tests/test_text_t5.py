@@ -110,7 +110,7 @@ def test_decoder_is_causal_and_encoder_subtree_matches():
 
 
 def test_config_from_hf_rejects_unsupported():
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
 
     base = {"model_type": "t5", **TINY}
     assert T5Config.from_hf(base).feed_forward_proj == "relu"  # original t5 configs omit the key

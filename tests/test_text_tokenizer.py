@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.text import tokenizer as tk
 from handx_jax.text.toy import toy_texts, write_toy_dataset
 

@@ -120,7 +120,7 @@ def test_metrics_are_trimmed_when_killed_before_the_first_checkpoint(tmp_path):
 def test_evaluation_hook_and_resume_check(tmp_path):
     import dataclasses
 
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
 
     init, loss, get_batch, w_true = _problem()
     seen = []
@@ -149,7 +149,7 @@ def test_evaluation_hook_and_resume_check(tmp_path):
 def test_checkpoints_carry_checksums_and_flipped_bytes_are_refused(tmp_path):
     """Each checkpoint step folder gets a SHA256SUMS listing (issue 14.8: 64 flipped bytes loaded
     silently); a changed file is a DataError naming it, on resume and on load."""
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
     from handx_jax.train import load_params
 
     init, loss, get_batch, _ = _problem()

@@ -16,10 +16,10 @@ import pytest
 
 from handx_jax import standard
 from handx_jax.cli import main as handx
-from handx_jax.data import events as ev
-from handx_jax.data import segment as seg
-from handx_jax.data.caption import TemplateCaptioner
-from handx_jax.data.dataset import Dataset
+from handx_jax.annotation import events as ev
+from handx_jax.annotation import segment as seg
+from handx_jax.annotation.caption import TemplateCaptioner
+from handx_jax.dataset.format import Dataset
 from handx_jax.validity import perturb as P
 from handx_jax.validity import stability as S
 
@@ -76,8 +76,8 @@ def test_segment_states_finds_one_bend_per_crossing_and_ignores_wobble():
 
 
 def _clips(n=6, seed=0):
-    from handx_jax.data.synth import SynthConfig, synth_chunk
-    from handx_jax.data.clips import ClipConfig, extract_clips
+    from handx_jax.synthesis.bimanual import SynthConfig, synth_chunk
+    from handx_jax.dataset.clips import ClipConfig, extract_clips
     from handx_jax import skeleton as sk
 
     chunk = synth_chunk(seed, 0, SynthConfig())
@@ -134,7 +134,7 @@ def test_per_fact_wording_does_not_reword_a_fact_when_another_appears():
 def test_reference_builds_keep_their_recipe_identity(tmp_path):
     """Options added for the stable reading are left out of a reference build's recipe, so every
     corpus built before them (and the standard corpus of evaluator v4) keeps its identity."""
-    from handx_jax.data.build import BuildConfig, recipe
+    from handx_jax.dataset.build import BuildConfig, recipe
 
     opts = recipe(BuildConfig())["options"]
     assert "wording" not in opts and "smooth_sigma_frames" not in opts["annotation"]
@@ -220,7 +220,7 @@ def test_validity_command_on_a_standard_prefix(tmp_path, capsys):
     assert rc == 0
     rep = json.loads((out / "validity.json").read_text())
     assert (out / "validity.png").stat().st_size > 10_000 and "| perturbation |" in (out / "validity.md").read_text()
-    from handx_jax.data.build import WORDING
+    from handx_jax.dataset.build import WORDING
 
     reading = standard.STANDARD_ANNOTATION
     assert rep["test_clips"] == n_test and rep["annotation"] == reading and rep["wording"] == WORDING[reading]
@@ -302,7 +302,7 @@ def test_standard_evaluators_by_id_and_the_recipe_each_accepts(tmp_path):
     stable one, v6 the gist reading on transition motion (corpus v3), v7 on chain motion (corpus v4). v6's
     acceptance of a corpus-v3 prefix built by this code also says corpus v3 is unchanged (its test captions and
     motion moments against v6's manifest)."""
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
 
     assert standard.VERSION == 7
     assert (standard.code_recipe().annotation, standard.code_recipe().motion) == ("gist", "chain")

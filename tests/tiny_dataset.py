@@ -9,7 +9,7 @@ import numpy as np
 
 def write_tiny_dataset(out: Path) -> Path:
     from handx_jax import skeleton as sk
-    from handx_jax.data.dataset import write_dataset
+    from handx_jax.dataset.format import write_dataset
 
     n = 8
     motion = (np.random.default_rng(0).normal(size=(n, sk.CLIP_LEN, 2, sk.NUM_JOINTS, 3)) * 0.01).astype(np.float32)

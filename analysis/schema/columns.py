@@ -2,7 +2,7 @@
 
 A results table is a list of rows; a row is a plain ``dict`` keyed by the column names of
 :func:`columns` (every column present, ``None`` where unknown). Unknown columns are an error (a misspelled
-metric must not vanish silently), and so are values of the wrong type; :class:`handx_jax.io.DataError`
+metric must not vanish silently), and so are values of the wrong type; :class:`handx_jax.infra.errors.DataError`
 names the file, the row and the column.
 
 Columns (see :func:`columns` for the full list and units):
@@ -40,7 +40,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from handx_jax.families import family_axes, names
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 
 # The metrics the evaluator reports (reference §5.4; paper Tables 2, 3, B, D), named as the keys of

@@ -20,7 +20,9 @@ from typing import Any, Iterable, Mapping, Sequence
 from analysis.schema.columns import (Row, cell_error, column_by_name, columns, lenient_row, location, unknown_column,
                                      validate_row)
 from analysis.schema.run_folder import row_from_run_dir
-from handx_jax.io import DataError, atomic_write_jsonl, atomic_write_text, read_jsonl
+from handx_jax.infra.atomic import atomic_write_jsonl, atomic_write_text
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import read_jsonl
 
 
 def _load_jsonl(path: Path, strict: bool = True) -> list[dict[str, Any]]:

@@ -34,8 +34,8 @@ from typing import Any, Mapping
 
 from analysis.schema.columns import METRICS, ROW_KINDS, Row, validate_row
 from handx_jax.families import family_axes
-from handx_jax.infra.read import read_json
-from handx_jax.io import DataError, read_jsonl
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import read_json, read_jsonl
 
 
 # The columns a run folder's config.json gives (beside the registered families' axes: _config_keys).

@@ -1,4 +1,6 @@
-"""``handx`` subcommand groups that span several packages (eval, train, generate, params)."""
+"""``handx`` subcommand groups that span several packages (data, eval, eval recognition, train, generate, params,
+data tokens): the command layer. It asks the family registry and passes down what the rooms below it need
+(``dataset``, ``evaluation`` … import neither it nor the registry: tests/test_package_rules.py)."""
 
 from __future__ import annotations
 

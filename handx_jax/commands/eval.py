@@ -77,7 +77,7 @@ def train_from_args(args: argparse.Namespace) -> int:
     if args.print_config:
         print_config(cfg)
         return 0
-    from handx_jax.runlock import RunLock
+    from handx_jax.infra.runlock import RunLock
 
     from handx_jax.config import ConfigError
 
@@ -92,7 +92,7 @@ def train_from_args(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.evaluation import (evaluate_generated, evaluate_ground_truth, format_table, load_evaluator,
                                       write_eval_json)
     from handx_jax.metrics import MetricConfig
@@ -106,10 +106,10 @@ def _run(args: argparse.Namespace) -> int:
     cfg = MetricConfig(rprec_block=args.block, replications=args.replications, seed=args.seed,
                        mpjpe_root=args.mpjpe_root, apd_samples=args.samples or 0)
     cache = not args.no_reference_cache
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
 
     if args.generated:  # read and range-checked before any model is loaded: bad motion fails in a second
-        from handx_jax.data.handx_npz import read_handx_npz
+        from handx_jax.interop.handx_npz import read_handx_npz
         from handx_jax.evaluation.scoring import check_motion_range
 
         entries = read_handx_npz(args.generated)
@@ -174,10 +174,10 @@ def _predict(args: argparse.Namespace) -> int:
     import numpy as np
 
     from handx_jax.commands import fail
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.evaluation import prediction as PR
     from handx_jax.generation import split_prompts
-    from handx_jax.io import atomic_write_json
+    from handx_jax.infra.atomic import atomic_write_json
     from handx_jax.metrics import MetricConfig
 
     N, K = args.observed_frames, args.samples

@@ -122,7 +122,7 @@ def _generate(args: argparse.Namespace) -> int:
     if args.data:
         if prompts:
             return fail(CMD, "--data takes its prompts from the dataset; drop --left/--right/...")
-        from handx_jax.data.dataset import Dataset
+        from handx_jax.dataset.format import Dataset
         from handx_jax.generation import split_prompts
 
         ds = Dataset.open(args.data)
@@ -165,7 +165,7 @@ def _generate(args: argparse.Namespace) -> int:
     dt = time.perf_counter() - t0
     print(f"wrote {args.out}: {n} motion(s), task {args.task}, {run.describe(opts)}, {dt:.1f} s")
     if args.gif:
-        from handx_jax.data.render import render_gif
+        from handx_jax.dataset.render import render_gif
 
         render_gif(first, args.gif, texts=first_prompt.texts())
         print(f"wrote {args.gif}")

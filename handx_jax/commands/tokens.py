@@ -8,8 +8,8 @@ dataset and the tokenizer's parameters; ``handx train ar --tokenizer TOK`` finds
 tokenizer per (dataset, codebook) serves every LM size.
 
 A dataset's derived cache, so it sits among the ``handx data`` commands (as the text cache sits among
-``handx text``'s); it is defined here, not in ``handx_jax.data``, which knows no models. ``handx
-tokenize``, its spelling before issue 42, stays for one release with a one-line notice.
+``handx text``'s); it is defined here, not in the dataset room (``handx_jax.dataset``), which knows no
+models. ``handx tokenize``, its spelling before issue 42, stays for one release with a one-line notice.
 """
 
 from __future__ import annotations

@@ -95,7 +95,7 @@ def _run(args: argparse.Namespace) -> int:
 
     import jax
 
-    from handx_jax.runlock import RunLock, RunLocked
+    from handx_jax.infra.runlock import RunLock, RunLocked
 
     # One writer per run folder (issue 14.8): taken here, before the family writes anything into it
     # (e.g. norm_stats.npz). Process 0 only: the other processes of a multi-process run are not

@@ -31,9 +31,11 @@ import numpy as np
 from handx_jax import representation as rep
 from handx_jax.evaluation.features import TextPolicy
 from handx_jax.evaluation.model import TrainedEvaluator, param_shapes
-from handx_jax.io import (DataError, atomic_write_bytes, atomic_write_json, read_params_msgpack,
-                          sha256_file, write_params_msgpack)
-from handx_jax.infra.read import read_format_meta, read_npz
+from handx_jax.infra.atomic import atomic_write_bytes, atomic_write_json
+from handx_jax.infra.checksums import sha256_file
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.param_files import read_params_msgpack, write_params_msgpack
+from handx_jax.infra.readers import read_format_meta, read_npz
 from handx_jax.models.evaluator import EvaluatorConfig
 
 FORMAT, FORMAT_VERSION = "handx-jax-evaluator", 1

@@ -10,7 +10,7 @@ from typing import Sequence
 import numpy as np
 
 from handx_jax import representation as rep
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.text.cache import bucket_length
 
 JOINED = "joined"

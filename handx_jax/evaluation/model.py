@@ -16,7 +16,7 @@ import numpy as np
 
 from handx_jax import representation as rep
 from handx_jax.evaluation.features import TextPolicy, joined_caption, motion_features
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.models.evaluator import Evaluator, EvaluatorConfig
 from handx_jax.models.shape_cache import per_config
 from handx_jax.text.cache import bucket_length
@@ -82,7 +82,7 @@ class TrainedEvaluator:
         recipe that differs only by float rounding is accepted and reported (data.dataset.check_compatible)."""
         import sys
 
-        from handx_jax.data.dataset import check_compatible
+        from handx_jax.dataset.format import check_compatible
 
         c = check_compatible(self.meta.get("dataset"), ds, what="this evaluator", made="trained on",
                              fix=f"evaluate against the dataset the evaluator was trained on "

@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.metrics import MetricConfig, apd_frames_mm, joint_error_frames_mm, mpjpe_pa_frames_mm, prompt_mean_ci
 
 HORIZON = 16  # G-HTT's segment length in frames: its observation and its prediction steps (§4.1)
@@ -119,7 +119,7 @@ BASELINES = {"last-frame": last_frame, "velocity": velocity, "ground-truth": gro
 
 def run_data(run_dir: str | Path) -> str:
     """The dataset a run was trained on (``config.json["data"]["path"]``), for the default ``--data``."""
-    from handx_jax.infra.read import read_json
+    from handx_jax.infra.readers import read_json
 
     path = (read_json(Path(run_dir) / "config.json").get("data") or {}).get("path")
     if not path:

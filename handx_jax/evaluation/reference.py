@@ -17,7 +17,8 @@ import numpy as np
 
 from handx_jax.evaluation.features import joined_caption
 from handx_jax.evaluation.model import TrainedEvaluator
-from handx_jax.io import DataError, atomic_write_bytes
+from handx_jax.infra.atomic import atomic_write_bytes
+from handx_jax.infra.errors import DataError
 
 # Every evaluation of a sweep scores against the same reference: the captions of the reference clips at
 # the evaluation level and their GT motion. Embedding them (the captions through the frozen T5 on the

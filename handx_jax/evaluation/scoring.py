@@ -14,7 +14,8 @@ import numpy as np
 from handx_jax.evaluation.checkpoint import evaluator_id
 from handx_jax.evaluation.model import TrainedEvaluator
 from handx_jax.evaluation.reference import ReferenceEmbeddings, _digest, reference_embeddings
-from handx_jax.io import DataError, atomic_write_json
+from handx_jax.infra.atomic import atomic_write_json
+from handx_jax.infra.errors import DataError
 from handx_jax.metrics import (MetricConfig, NamedContacts, ci_method, named_contacts, replicate_embedding_metrics,
                                replicate_motion_metrics)
 
@@ -169,7 +170,7 @@ class Generated:
 
 
 def align_generated(entries: Sequence, ds, split: str = "test") -> Generated:
-    """Arrange generated :class:`~handx_jax.data.handx_npz.HandXClip` entries as (group, prompt).
+    """Arrange generated :class:`~handx_jax.interop.handx_npz.HandXClip` entries as (group, prompt).
 
     With ``source_clip`` on every entry, it names the reference clip (any split); ``group`` defaults
     to the entry's occurrence index among entries of the same source clip. Without ``source_clip`` on

@@ -26,7 +26,7 @@ from handx_jax.config import ConfigError, apply_overrides, get_preset, to_dict
 from handx_jax.evaluation.checkpoint import EVAL_FILE, FORMAT, FORMAT_VERSION, META_FILE, STATS_FILE, save_evaluator
 from handx_jax.evaluation.features import JOINED, TextPolicy, TrainingData, _level_index, evaluator_stats, joined_caption
 from handx_jax.evaluation.model import TrainedEvaluator, _init_params
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.metrics import MetricConfig
 from handx_jax.models.evaluator import PRESETS, Evaluator, EvaluatorConfig, evaluator_loss
 from handx_jax.train import OptimConfig, TrainConfig
@@ -120,7 +120,7 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
     """
     import shutil
 
-    from handx_jax.data.dataset import Dataset, dataset_record
+    from handx_jax.dataset.format import Dataset, dataset_record
     from handx_jax.evaluation.scoring import evaluate_ground_truth, format_table, write_eval_json
     from handx_jax.models.layers import count_params
     from handx_jax.text.cache import build_cache, open_cache
@@ -207,7 +207,7 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
     last = {}
     mpath = out / "metrics.jsonl"
     if mpath.exists():
-        from handx_jax.io import read_jsonl
+        from handx_jax.infra.readers import read_jsonl
 
         rows = [r for r in read_jsonl(mpath, strict=False) if "loss" in r]
         last = rows[-1] if rows else {}
@@ -257,7 +257,7 @@ def _start_from(path: str, mcfg: EvaluatorConfig, enc):
 
 def _companion(path: str, ds, enc, policy: TextPolicy, levels: Sequence[int], log):
     """(dataset, joined cache) of the reversed copy ``path`` of ``ds`` (``handx data reverse``)."""
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.text.cache import build_cache, open_cache
 
     rds = Dataset.open(path)

@@ -234,18 +234,14 @@ def _resolve(path: str):
 
 def norm_presets() -> dict:
     """Every normalisation the registry declares, by its ``stats.npz`` prefix: each registered family's
-    (``Family.norm``, in registry order), then the trainables' (``TRAINABLE_NORMS``)."""
+    (``Family.norm``, in registry order), then the trainables' (``TRAINABLE_NORMS``). What a dataset's
+    ``stats.npz`` holds: the commands that write one pass these down (``dataset.format.write_dataset(stats=)``)."""
     paths = [entry(f).norm for f in names() if entry(f).norm] + list(TRAINABLE_NORMS)
     out: dict = {}
     for p in dict.fromkeys(paths):
         preset = _resolve(p)
         out.setdefault(preset.name, preset)
     return out
-
-
-def stats_names() -> list[str]:
-    """The statistics a dataset's ``stats.npz`` holds (:func:`norm_presets`)."""
-    return list(norm_presets())
 
 
 def family_axes() -> dict[str, Axis]:
@@ -265,12 +261,12 @@ def flops_columns(config: dict) -> dict:
 
 def family_of(run_dir: str | Path) -> str:
     """The family a run folder was trained as (``config.json["family"]``)."""
-    from handx_jax.io import DataError
+    from handx_jax.infra.errors import DataError
 
     p = Path(run_dir) / "config.json"
     if not p.exists():
         raise DataError("not a run folder (no config.json)", path=run_dir)
-    from handx_jax.infra.read import read_json
+    from handx_jax.infra.readers import read_json
 
     fam = read_json(p, expect=dict).get("family")
     if not fam:
@@ -283,10 +279,10 @@ def run_config(run_dir: str | Path, family: str) -> dict:
     the head of every family's ``load``."""
     found = family_of(run_dir)
     if found != family:
-        from handx_jax.io import DataError
+        from handx_jax.infra.errors import DataError
 
         raise DataError(f"not a {family} run folder (config.json names family {found!r})", path=run_dir)
-    from handx_jax.infra.read import read_json
+    from handx_jax.infra.readers import read_json
 
     return read_json(Path(run_dir) / "config.json", expect=dict)
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
 from handx_jax.families import entry, run_config
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.models import fsq as Q
 from handx_jax.optim import OptimConfig
 from handx_jax.train import TrainConfig
@@ -248,7 +248,7 @@ def train(run_dir: str | os.PathLike, cfg: TokenizerRunConfig, *, stop_at: int |
     """Train (or resume) a tokenizer in ``run_dir`` (``encoder`` is unused: no text)."""
     from handx_jax import representation as rep
     from handx_jax import train as loop
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
 
     cfg.validate()
     if not cfg.data.path:
@@ -345,8 +345,8 @@ def tokenize(tokenizer_dir: str | os.PathLike, data_dir: str | os.PathLike, *, o
     """Encode every clip of the dataset (all splits) into ``DATA/token_cache/<fp>/`` (atomic):
     ``codes.npy`` (N, 30) int32 in dataset clip order and ``meta.json`` (provenance: the tokenizer
     folder, its fingerprint, step, nominal and real codebook size, levels, quantizer; the dataset)."""
-    from handx_jax.data.dataset import Dataset
-    from handx_jax.io import atomic_dir, atomic_write_json
+    from handx_jax.dataset.format import Dataset
+    from handx_jax.infra.atomic import atomic_dir, atomic_write_json
 
     tok = load(tokenizer_dir)
     ds = Dataset.open(data_dir)
@@ -383,7 +383,7 @@ class TokenCache:
 
     @classmethod
     def open(cls, root: str | os.PathLike, *, dataset_fingerprint: str | None = None) -> "TokenCache":
-        from handx_jax.infra.read import read_format_meta
+        from handx_jax.infra.readers import read_format_meta
 
         root = Path(root)
         meta = read_format_meta(root / "meta.json", TOKEN_FORMAT, TOKEN_FORMAT_VERSION,
@@ -400,7 +400,7 @@ def read_codes(path: Path, meta: dict) -> np.ndarray:
     itself), of the shape meta.json gives, integers, and inside the tokenizer's codebook [0, nb_code).
     A code outside it is a token the LM has no row for: training went on to a NaN loss at step 5 and
     left a run folder behind (issue 31)."""
-    from handx_jax.infra.read import read_npy
+    from handx_jax.infra.readers import read_npy
 
     try:
         codes = read_npy(path, missing="missing codes.npy; rebuild the cache with `handx data tokens`")
@@ -426,7 +426,7 @@ def read_codes(path: Path, meta: dict) -> np.ndarray:
 
 def open_token_cache(data_dir: str | os.PathLike, tokenizer_dir: str | os.PathLike) -> TokenCache:
     """The cache of this dataset + tokenizer, verified; a clear error naming the command if absent."""
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
 
     ds = Dataset.open(data_dir)
     fp = token_cache_fingerprint(ds.fingerprint, load(tokenizer_dir).fingerprint)

@@ -1,1 +1,1 @@
-"""Infrastructure: atomic files, readers, locks, host resources, provenance."""
+"""Infrastructure: files, errors, checksums, host memory and devices, locks, provenance."""

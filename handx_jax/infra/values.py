@@ -6,7 +6,7 @@ else words it for its caller:
 
 - :func:`whole_flag` / :func:`number_flag`: argparse ``type=`` callables, so a bad flag is refused while the
   command line is parsed (argparse's ``error: argument --clips: must be ...``, exit 2), before any handler runs;
-- :func:`check`: a ``ValueError`` subclass (``config.ConfigError``) naming a config key, for ``--set``
+- :func:`check`: a ``ValueError`` subclass (``ConfigError`` (``infra.errors``)) naming a config key, for ``--set``
   values and configs built in Python;
 - :func:`check_split_fractions`: the validation and test fractions of a corpus leave every split a share.
 """
@@ -45,9 +45,9 @@ def problem(value: Any, *, whole: bool = False, minimum: float | None = None, ma
 
 
 def check(value: Any, key: str, *, why: str = "", **bounds) -> Any:
-    """``value`` if :func:`problem` finds nothing, else a ``config.ConfigError`` "KEY must be ..." (and
+    """``value`` if :func:`problem` finds nothing, else a ``ConfigError`` (``infra.errors``) "KEY must be ..." (and
     ``why``, the reason for the bound, in brackets); ``bounds``: :func:`problem`'s keywords."""
-    from handx_jax.config import ConfigError
+    from handx_jax.infra.errors import ConfigError
 
     wrong = problem(value, **bounds)
     if wrong is not None:
@@ -96,8 +96,8 @@ def check_split_fractions(val: float, test: float, *, names: tuple[str, str] = (
                           ) -> None:
     """The validation and test shares of a corpus's sequences (``data.build.sequence_split``): each in (0, 1)
     and together below 1, so that train, val and test each get a share (0.6 and 0.6 left train nothing; NaN
-    left val nothing, silently). A ``config.ConfigError`` naming the setting."""
-    from handx_jax.config import ConfigError
+    left val nothing, silently). A ``ConfigError`` (``infra.errors``) naming the setting."""
+    from handx_jax.infra.errors import ConfigError
 
     for v, name in ((val, names[0]), (test, names[1])):
         check(v, name, above=0.0, below=1.0)

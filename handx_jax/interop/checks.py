@@ -14,7 +14,7 @@ from typing import Any, Iterator, Mapping
 
 import numpy as np
 
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 # What the sizes a tensor is checked against come from ("the tensors' shapes", "config.yaml", "--heads"),
 # set by the importer around its reads so that a wrong-shape refusal says why that shape was expected.
@@ -85,11 +85,11 @@ def norm_stats(mean: np.ndarray, std: np.ndarray, *, mean_path=None, std_path=No
 def load_array_file(path, *, npz: bool = False):
     """A ``.npy`` array (or, with ``npz``, a ``.npz`` archive as a dict) read without pickles; a file of
     another kind (a text file, a pickle, an array of Python objects) is refused by what it is
-    (``handx_jax.infra.read``), not with numpy's hint to load it with ``allow_pickle``, which would run
+    (``handx_jax.infra.readers``), not with numpy's hint to load it with ``allow_pickle``, which would run
     whatever the file names."""
     from pathlib import Path
 
-    from handx_jax.infra.read import NPY_MAGIC, ZIP_MAGICS, read_head, read_npy, read_npz
+    from handx_jax.infra.readers import NPY_MAGIC, ZIP_MAGICS, read_head, read_npy, read_npz
 
     p = Path(path)
     head = read_head(p)

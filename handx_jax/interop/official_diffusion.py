@@ -30,8 +30,10 @@ import numpy as np
 
 from handx_jax.interop import torch_layers as tl
 from handx_jax.interop import torch_pickle
-from handx_jax.io import DataError, atomic_write_text
-from handx_jax.io import sha256_file as sha256
+from handx_jax.infra.atomic import atomic_write_text
+from handx_jax.infra.checksums import sha256_file as sha256
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.outputs import exclusive_output, refuse_existing
 from handx_jax.config import to_dict
 from handx_jax.models.dit import DiTConfig, sinusoidal_table, size_name
 
@@ -274,7 +276,7 @@ def read_stats(*, data: str | os.PathLike | None = None, stats: str | os.PathLik
     if (data is None) == (stats is None):
         raise DataError("give exactly one of --data DATASET or --stats FILE for the normalisation statistics")
     if data is not None:
-        from handx_jax.data.dataset import Dataset
+        from handx_jax.dataset.format import Dataset
 
         ds = Dataset.open(data)
         return rep.NormStats.from_npz_dict(ds.stats, "diffusion", path=ds.root / "stats.npz")
@@ -317,11 +319,13 @@ def import_checkpoint(model_pt: str | os.PathLike, out: str | os.PathLike, *, en
     import orbax.checkpoint as ocp
 
     from handx_jax.families import get_family
-    from handx_jax.io import atomic_dir, atomic_write_json, write_tree_checksum
+    from handx_jax.infra.atomic import atomic_dir, atomic_write_json
+    from handx_jax.infra.checksums import write_tree_checksum
     from handx_jax.text.hf import as_encoder
 
     from handx_jax.interop import checks
-    from handx_jax.io import check_free_space, library_output_held, refuse_existing
+    from handx_jax.infra.diskspace import check_free_space
+    from handx_jax.infra.quiet import library_output_held
 
     fam = get_family("diffusion")
     refuse_existing(out, overwrite=overwrite)  # at once, not after reading the weights
@@ -372,8 +376,8 @@ def import_checkpoint(model_pt: str | os.PathLike, out: str | os.PathLike, *, en
 
         state = {"params": jax.tree_util.tree_map(jnp.asarray, params), "opt_state": {}, "ema": {},
                  "step": jnp.zeros((), jnp.int32)}
-        # orbax needs about the weights' bytes; a full disk is one line naming --out (io.atomic_dir), and what
-        # orbax and tensorstore print while failing is held back (io.library_output_held).
+        # orbax needs about the weights' bytes; a full disk is one line naming --out (atomic_dir), and what orbax
+        # and tensorstore print while failing is held back (library_output_held).
         check_free_space(tmp / "checkpoints", 2 * sum(a.nbytes for a in jax.tree_util.tree_leaves(params)))
         with library_output_held():
             mngr = ocp.CheckpointManager((tmp / "checkpoints").absolute(), options=ocp.CheckpointManagerOptions(
@@ -411,8 +415,6 @@ def _export_targets(out, config, stats, overwrite: bool) -> list[tuple[str, Path
     """Every file ``export`` writes, each named by its flag, checked before anything is read or written: an
     existing one is refused without ``--force``, a directory where a file goes (or a file where the
     ``--stats`` folder goes) names the flag."""
-    from handx_jax.io import refuse_existing
-
     targets = [("--out", Path(out))]
     if config:
         targets.append(("--config", Path(config)))
@@ -435,14 +437,14 @@ def export_run(run_dir: str | os.PathLike, out: str | os.PathLike, *, config: st
     out as the official training loop saves it), and optionally its ``config.yaml`` and statistics. Returns
     what was written and what the official format does not carry (``dropped``).
 
-    All or nothing: every output is checked first (``_export_targets``) and held (``io.exclusive_output``:
+    All or nothing: every output is checked first (``_export_targets``) and held (``infra.outputs.exclusive_output``:
     a second export to the same file is refused), each is written atomically, and if one fails the ones
     already written are removed again."""
     import contextlib
 
     from handx_jax.families import get_family, run_config
     from handx_jax.interop import checks
-    from handx_jax.io import atomic_save_npy, exclusive_output
+    from handx_jax.infra.atomic import atomic_save_npy
     from handx_jax.train import load_params
 
     targets = _export_targets(out, config, stats, overwrite)

@@ -33,7 +33,7 @@ import numpy as np
 
 from handx_jax.interop import torch_layers as tl
 from handx_jax.interop import torch_pickle
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 ENCODERS = {"text": "textencoder", "motion": "motionencoder"}
 T5_PREFIX = "textencoder.text_model."
@@ -155,14 +155,14 @@ def import_checkpoint(ckpt: str | os.PathLike, out: str | os.PathLike, *, mean: 
     from handx_jax.evaluation.checkpoint import FORMAT, FORMAT_VERSION, save_evaluator
     from handx_jax.evaluation.features import TextPolicy
     from handx_jax.evaluation.model import TrainedEvaluator, param_shapes
-    from handx_jax.io import sha256_file as sha256
-    from handx_jax.io import atomic_dir
+    from handx_jax.infra.checksums import sha256_file as sha256
+    from handx_jax.infra.atomic import atomic_dir
     from handx_jax.text.hf import as_encoder, save_hf_t5_encoder
 
     import jax
 
     from handx_jax.interop import checks
-    from handx_jax.io import refuse_existing
+    from handx_jax.infra.outputs import refuse_existing
 
     refuse_existing(out, overwrite=overwrite)  # at once, not after reading the weights
     ckpt = Path(ckpt)

@@ -13,7 +13,7 @@ from typing import Mapping
 
 import numpy as np
 
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 
 StateDict = Mapping[str, np.ndarray]
 

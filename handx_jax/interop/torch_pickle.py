@@ -7,7 +7,7 @@ key), ``byteorder``, ``version``, ``.format_version``, ``.storage_alignment`` an
 offset, size, stride, requires_grad, hooks)`` whose storage is a persistent id ``("storage",
 torch.FloatStorage, key, location, numel)``.
 
-:func:`load` unpickles ``data.pkl`` with :class:`TorchUnpickler` (``handx_jax.safe_pickle``): tensors
+:func:`load` unpickles ``data.pkl`` with :class:`TorchUnpickler` (``handx_jax.infra.safe_pickle``): tensors
 become NumPy arrays (a copy in their own layout; views of one storage stay consistent because each
 storage is read once), plain containers become Python objects, NumPy values are rebuilt by NumPy's own
 reconstructors. Any other global (an omegaconf config, ``typing.Any``, a function of the official
@@ -40,8 +40,9 @@ from typing import Any
 import ml_dtypes
 import numpy as np
 
-from handx_jax.io import DataError, atomic_write_bytes
-from handx_jax.safe_pickle import RestrictedUnpickler
+from handx_jax.infra.atomic import atomic_write_bytes
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.safe_pickle import RestrictedUnpickler
 
 # PyTorch's typed storage names (as they appear in the pickle) and their little-endian dtypes.
 STORAGE_DTYPES: dict[str, np.dtype] = {

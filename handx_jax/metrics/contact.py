@@ -1,5 +1,5 @@
 """Contact feasibility: the contacts a clip's interaction caption and hand captions name are the contact
-events of its structured record (data/events.py; the captioner never leaves out a contact, data/caption
+events of its structured record (annotation/events.py; the captioner never leaves out a contact, annotation/caption
 inter.py, hand.py). Each is one channel of a per-frame distance and a half-open frame range;
 a named contact is realised when the generated motion brings the pair within the project's contact
 threshold in at least one frame of that range (BimArt §4 "Con" asks the same of hand–object contact).
@@ -20,7 +20,7 @@ from handx_jax.metrics.chunking import map_chunks
 
 
 def _contact_channels() -> dict[tuple[str, str], int]:
-    from handx_jax.data import events as evm
+    from handx_jax.annotation import events as evm
 
     keys = [(h, k) for h in ("left_hand_events", "right_hand_events") for k in evm.INTRA_KEYS]
     keys += [("finger_tip_contact", k) for k in evm.INTER_KEYS] + [("finger_palm_distance", k) for k in evm.FP_KEYS]
@@ -48,7 +48,7 @@ def named_contacts(records) -> NamedContacts:
     """The contact events of each clip's record (events.annotate layout, reference §6.3): tip–tip runs
     within and across hands, and the "contact" periods of the finger–palm series (the captioner's own
     reading, caption.inter.contact_periods). Palm–palm contact is not a tip contact and is not counted."""
-    from handx_jax.data.caption.inter import contact_periods
+    from handx_jax.annotation.caption.inter import contact_periods
 
     rows = []
     for n, rec in enumerate(records):
@@ -68,7 +68,7 @@ def named_contacts(records) -> NamedContacts:
 def contact_thresholds() -> np.ndarray:
     """(43,) m: tip–tip below AnnotationConfig.tip_contact_m (Table A: 2 cm), tip–palm below the
     finger–palm "contact" state edge (2.5 cm), the thresholds that made the records' contact events."""
-    from handx_jax.data import events as evm
+    from handx_jax.annotation import events as evm
 
     tip, palm = evm.AnnotationConfig().tip_contact_m, evm.FINGER_PALM.state_edges[0]
     return np.array([palm if sec == "finger_palm_distance" else tip for sec, _ in CONTACT_CHANNELS], np.float32)

@@ -47,7 +47,7 @@ def palm_barycentric(points: int = 100, seed: int = 0) -> np.ndarray:
     The same sampler as the annotation pipeline's palm clouds (``features.palm_weights``), fixed by the
     seed (the reference redraws them unseeded on every call, §9.17).
     """
-    from handx_jax.data.features import FeatureConfig, palm_weights
+    from handx_jax.annotation.descriptors import FeatureConfig, palm_weights
 
     return palm_weights(FeatureConfig(palm_points=points, palm_seed=seed))
 

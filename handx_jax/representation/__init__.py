@@ -32,11 +32,12 @@ from handx_jax.representation.evaluator import (EVALUATOR_DIM, EVALUATOR_HAND_FR
 from handx_jax.representation.geometry import (CONVENTIONS, DEGENERATE_EPS, Convention, local_positions,
                                                rotation_scalar, wrist_frames)
 from handx_jax.representation.norm import (NormPreset, NormStats, compute_norm_stats, compute_preset_stats,
-                                           motion_norm_stats, norm_preset, preset_moments, stats_from_moments)
+                                           motion_norm_stats, norm_preset, norm_presets, preset_moments,
+                                           stats_from_moments)
 
 __all__ = ["AR_DIM", "AR_LAYOUT", "AR_NORM", "ARLayout", "ar_to_joints", "matrix_to_rotation_6d",
            "rotation_6d_to_matrix", "to_ar", "DIFFUSION_NORM", "DIFFUSION_SHAPE", "diffusion_center", "diffusion_to_joints", "to_diffusion",
            "EVALUATOR_DIM", "EVALUATOR_HAND_FRAMES_DIM", "EVALUATOR_INPUTS", "EVALUATOR_NORM", "to_evaluator",
            "to_evaluator_hand_frames", "CONVENTIONS", "DEGENERATE_EPS", "Convention", "local_positions",
            "rotation_scalar", "wrist_frames", "NormPreset", "NormStats", "compute_norm_stats", "compute_preset_stats",
-           "motion_norm_stats", "norm_preset", "preset_moments", "stats_from_moments"]
+           "motion_norm_stats", "norm_preset", "norm_presets", "preset_moments", "stats_from_moments"]

@@ -60,7 +60,7 @@ class NormStats:
                       path=None) -> NormStats:
         """Read back :meth:`to_npz_dict` output. ``eps`` precedence: argument, ``{name}_eps`` key, preset, 0.
         A missing key or unusable values are a ``DataError`` naming ``path`` (the file ``d`` came from)."""
-        from handx_jax.io import DataError
+        from handx_jax.infra.errors import DataError
 
         for key in (f"{name}_mean", f"{name}_std"):
             if key not in d:
@@ -83,8 +83,8 @@ class NormStats:
     @classmethod
     def read(cls, path, name: str) -> NormStats:
         """The statistics ``name`` of a ``.npz`` file (a run's norm file, a dataset's stats.npz), through the
-        project's one reader (``infra.read``: a garbage, truncated or object-array file is one line naming it)."""
-        from handx_jax.infra.read import read_npz
+        project's one reader (``infra.readers``: a garbage, truncated or object-array file is one line naming it)."""
+        from handx_jax.infra.readers import read_npz
 
         return cls.from_npz_dict(read_npz(path, kind="f"), name, path=path)
 
@@ -94,7 +94,7 @@ class NormPreset:
     """How stats are computed for one representation (§1.8, §5.3): ``featurize(joints, convention)`` →
     features ending in ``feature_shape``; ``name`` is its ``stats.npz`` prefix. Which presets a family
     normalises with, and so which a dataset's ``stats.npz`` holds, is the registry's (``Family.norm``,
-    ``families.TRAINABLE_NORMS``; :func:`norm_preset`)."""
+    ``families.TRAINABLE_NORMS``: ``families.norm_presets``, passed down to the dataset writer)."""
 
     name: str
     feature_shape: tuple[int, ...]
@@ -102,15 +102,26 @@ class NormPreset:
     eps: float = 0.0
     featurize: Callable[..., np.ndarray] | None = None
 
+    def __post_init__(self):
+        # Every preset is known by its name from the moment it is defined (the package's beside their layouts,
+        # imported with this package; a family's own when the registry resolves its ``Family.norm``), so this
+        # room looks presets up without asking the registry above it; the first of a name stays.
+        _PRESETS.setdefault(self.name, self)
+
+
+_PRESETS: dict[str, NormPreset] = {}
+
 
 def norm_preset(name: str) -> NormPreset:
-    """The preset the registry declares under the ``stats.npz`` prefix ``name`` (``families.norm_presets``)."""
-    from handx_jax.families import norm_presets
+    """The preset defined under the ``stats.npz`` prefix ``name`` (the one a family's ``Family.norm`` names)."""
+    if name not in _PRESETS:
+        raise ValueError(f"unknown normalisation preset {name!r}; expected one of {tuple(_PRESETS)}")
+    return _PRESETS[name]
 
-    presets = norm_presets()
-    if name not in presets:
-        raise ValueError(f"unknown normalisation preset {name!r}; expected one of {tuple(presets)}")
-    return presets[name]
+
+def norm_presets() -> dict[str, NormPreset]:
+    """Every preset defined so far, by its ``stats.npz`` prefix, in the order they were defined."""
+    return dict(_PRESETS)
 
 
 def _iter_chunks(x: np.ndarray | Iterable[np.ndarray], chunk_size: int) -> Iterator[np.ndarray]:

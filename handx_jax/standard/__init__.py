@@ -45,7 +45,7 @@ One concern per module:
 The names below are the package's public surface (``from handx_jax import standard``; ``standard.X``).
 """
 
-from handx_jax.data.dataset import MOTION_ATOL
+from handx_jax.dataset.format import MOTION_ATOL
 from handx_jax.standard.assets import (ASSETS, CARD_JSON, CARD_MD, CARD_SHA, ENCODER_DIR, EVALUATOR_DIR, MANIFEST, NAME,
                                        VERSION, archived, asset_files, assets_folder, assets_for, encoder_dir,
                                        evaluator_dir, evaluator_meta, is_standard, read_card, reference_cache_dir,

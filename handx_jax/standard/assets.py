@@ -7,13 +7,14 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from handx_jax.infra.read import read_json
-from handx_jax.io import DataError, sha256_file, verify_checksum
+from handx_jax.infra.checksums import sha256_file, verify_checksum
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import read_json
 
 VERSION = 7  # of the packaged assets; bumped whenever the recipe or any weight changes
 ASSETS = Path(__file__).resolve().parent.parent / "assets" / "standard"  # handx_jax/assets/standard
 CARD_JSON, CARD_MD, MANIFEST = "card.json", "CARD.md", "test_manifest.npz"
-CARD_SHA = CARD_JSON + ".sha256"  # io.write_checksum's sidecar: the card's own checksum
+CARD_SHA = CARD_JSON + ".sha256"  # infra.checksums.write_checksum's sidecar: the card's own checksum
 ENCODER_DIR, EVALUATOR_DIR = "encoder", "evaluator"
 NAME = "standard"  # `handx eval run --evaluator standard` (the default)
 

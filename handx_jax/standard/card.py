@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Mapping
 
-from handx_jax.data.dataset import MOTION_ATOL
+from handx_jax.dataset.format import MOTION_ATOL
 from handx_jax.standard.recipe import Recipe
 
 

@@ -41,7 +41,7 @@ def _corpus(a: argparse.Namespace) -> int:
 
 
 def _check(a: argparse.Namespace) -> int:
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
 
     found = standard.check_reference(Dataset.open(a.data))
     if a.json:
@@ -69,7 +69,7 @@ def _package(a: argparse.Namespace) -> int:
         recipe = dataclasses.replace(standard.code_recipe(), clips=int(a.recipe_clips))
     validity = None
     if a.validity:
-        from handx_jax.infra.read import read_json
+        from handx_jax.infra.readers import read_json
 
         validity = read_json(a.validity, expect=dict)
     if a.validity_only:  # the figures of an already packaged evaluator (the suite needs it packaged)

@@ -13,9 +13,9 @@ import numpy as np
 # Per-clip motion moments of the test clips are compared with the dataset identity's tolerance
 # (data.dataset.MOTION_ATOL, 10 µm): float rounding of another numpy/jax build moves them by ~1e-7 m; any
 # change to the generator moves them by millimetres.
-from handx_jax.data.dataset import MOTION_ATOL
-from handx_jax.infra.read import read_npz
-from handx_jax.io import DataError
+from handx_jax.dataset.format import MOTION_ATOL
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import read_npz
 from handx_jax.standard.assets import MANIFEST, NAME, assets_folder, read_card, version_folder, versions
 from handx_jax.standard.recipe import Recipe, recipe_of
 
@@ -101,7 +101,7 @@ def check_reference(ds, card: Mapping[str, Any] | None = None, assets: Path | No
                         f"expected {man['ids'][bad] if bad < len(man['ids']) else 'none'}; {fix}",
                         path=ds.root / "splits.json")
     if got.clips == want.clips:  # the whole corpus: the data package's identity check (every split, caption)
-        from handx_jax.data.dataset import check_compatible
+        from handx_jax.dataset.format import check_compatible
 
         check_compatible(card["corpus"]["record"], ds, what=f"the standard evaluator v{card['version']}", fix=fix)
     cap = np.flatnonzero(mine["captions"] != man["captions"][:k])

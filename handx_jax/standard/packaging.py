@@ -14,7 +14,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from handx_jax.io import DataError, atomic_write_json, atomic_write_text, sha256_file, write_checksum
+from handx_jax.infra.atomic import atomic_write_json, atomic_write_text
+from handx_jax.infra.checksums import sha256_file, write_checksum
+from handx_jax.infra.errors import DataError
 from handx_jax.standard.assets import (CARD_JSON, CARD_MD, ENCODER_DIR, EVALUATOR_DIR, MANIFEST, VERSION, asset_files,
                                        assets_folder, verify_assets)
 from handx_jax.standard.card import card_markdown, validity_summary
@@ -37,7 +39,7 @@ def package(data: str | os.PathLike, encoder: str | os.PathLike, evaluator: str 
             validity: Mapping[str, Any] | None = None, log=print) -> Path:
     """Copy the encoder and evaluator trained on the standard corpus ``data`` into ``out``, score the
     Ground Truth rows (blocks 32 and 16) on the full test split, and write the manifest and the card."""
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.evaluation import EVAL_FILE, META_FILE, PARAMS_FILE, STATS_FILE, evaluate_ground_truth, \
         read_meta
     from handx_jax.metrics import MetricConfig
@@ -66,7 +68,7 @@ def package(data: str | os.PathLike, encoder: str | os.PathLike, evaluator: str 
     atomic_write_json(tmp / EVALUATOR_DIR / META_FILE, meta)
     man = test_manifest(ds)
     np.savez_compressed(tmp / MANIFEST, **man)
-    from handx_jax.data.dataset import dataset_record
+    from handx_jax.dataset.format import dataset_record
 
     card = {"version": VERSION, "recipe": dataclasses.asdict(rec), "recipe_options": opts,
             "corpus": {"record": dataset_record(ds), "fingerprint": ds.fingerprint, "clips": len(ds), "split_sizes": ds.meta["split_sizes"],

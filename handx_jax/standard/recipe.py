@@ -9,7 +9,7 @@ import json
 import os
 from pathlib import Path
 
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.standard.assets import CARD_JSON, CARD_MD, assets_folder, read_card
 
 STANDARD_ANNOTATION = "gist"  # the standard corpus's annotation reading (Recipe.annotation; v1-v4 "reference", v5 "stable")
@@ -47,7 +47,7 @@ class Recipe:
                 + ("" if self.motion == "oscillate" else f" --motion {self.motion}"))
 
     def build_config(self, clips: int | None = None, workers: int = 0):
-        from handx_jax.data.build import BuildConfig, with_motion, with_reading
+        from handx_jax.dataset.build import BuildConfig, with_motion, with_reading
 
         cfg = BuildConfig(clips=self.clips if clips is None else int(clips), seed=self.seed, workers=workers)
         return with_motion(with_reading(cfg, self.annotation), self.motion)
@@ -55,7 +55,7 @@ class Recipe:
 
 def generator_version() -> str:
     """The generator's version as the data package states it (bumped by any change to its output)."""
-    from handx_jax.data.synth import GENERATOR_VERSION
+    from handx_jax.synthesis.bimanual import GENERATOR_VERSION
 
     return str(GENERATOR_VERSION)
 
@@ -70,7 +70,7 @@ def code_recipe() -> Recipe:
 def build_options(recipe: Recipe) -> dict:
     """The build options of the recipe as ``meta.json``'s ``recipe.options`` records them
     (``data.build.recipe``: everything but the clip count, seed and worker count)."""
-    from handx_jax.data.build import recipe as build_recipe
+    from handx_jax.dataset.build import recipe as build_recipe
 
     return json.loads(json.dumps(build_recipe(recipe.build_config())["options"]))
 
@@ -78,7 +78,7 @@ def build_options(recipe: Recipe) -> dict:
 def recipe_of(ds) -> tuple[Recipe | None, dict]:
     """(recipe, build options) from ``meta.json``'s ``recipe`` of a corpus built by the generator
     (``data synth`` / ``standard corpus``); (None, {}) for anything else (imports, older corpora)."""
-    from handx_jax.data.build import reading_of_options
+    from handx_jax.dataset.build import reading_of_options
 
     r = ds.meta.get("recipe") or {}
     if r.get("kind") != "synth":
@@ -93,7 +93,7 @@ def build_standard_corpus(out: str | os.PathLike, clips: int | None = None, *, w
                           overwrite: bool = False, progress: bool = True, recipe: Recipe | None = None,
                           assets: Path | None = None) -> Path:
     """``handx standard corpus``: the standard recipe, or its first ``clips`` clips (a prefix)."""
-    from handx_jax.data.build import build_corpus
+    from handx_jax.dataset.build import build_corpus
 
     rec = recipe or code_recipe()
     assets = assets_folder(assets)
@@ -105,4 +105,7 @@ def build_standard_corpus(out: str | os.PathLike, clips: int | None = None, *, w
     n = rec.clips if clips is None else int(clips)
     if not 0 < n <= rec.clips:
         raise ValueError(f"--clips must be in [1, {rec.clips}] (the standard corpus has {rec.clips}), got {n}")
-    return build_corpus(out, rec.build_config(n, workers), overwrite=overwrite, progress=progress)
+    from handx_jax.families import norm_presets
+
+    return build_corpus(out, rec.build_config(n, workers), overwrite=overwrite, progress=progress,
+                        stats=tuple(norm_presets().values()))  # every family's statistics, as `handx data synth`

@@ -1,6 +1,6 @@
 """Frozen-encoder embedding cache: every caption of a dataset encoded once, memory-mapped on read.
 
-Layout of ``DATA/text_cache/<fingerprint>/`` (written atomically with ``io.atomic_dir``):
+Layout of ``DATA/text_cache/<fingerprint>/`` (written atomically with ``infra.atomic.atomic_dir``):
 
     meta.json    fingerprints (dataset, encoder weights, tokenizer), shapes, dtype, truncation count,
                  analytic encoder FLOPs per caption, build speed
@@ -27,8 +27,11 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from handx_jax.infra.read import read_format_meta
-from handx_jax.io import DataError, NpyWriter, atomic_dir, atomic_write_json, check_free_space
+from handx_jax.infra.atomic import atomic_dir, atomic_write_json
+from handx_jax.infra.diskspace import check_free_space
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.npy_writer import NpyWriter
+from handx_jax.infra.readers import read_format_meta
 
 FORMAT, FORMAT_VERSION = "handx-jax-text-cache", 1
 CACHE_DIRNAME = "text_cache"
@@ -119,7 +122,7 @@ def build_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, 
     existing cache with the same fingerprint is complete by construction (atomic write) and is reused
     unless ``overwrite``.
     """
-    from handx_jax.data.dataset import TEXT_FIELDS, Dataset, dataset_record
+    from handx_jax.dataset.format import TEXT_FIELDS, Dataset, dataset_record
     from handx_jax.text.hf import as_encoder
 
     if dtype not in DTYPES:
@@ -245,7 +248,7 @@ class TextCache:
                                 missing="not a text cache (missing meta.json); build one with `handx text cache`",
                                 upgrade="; rebuild it with `handx text cache`")
         if dataset is not None:
-            from handx_jax.data.dataset import check_compatible
+            from handx_jax.dataset.format import check_compatible
 
             check_compatible(meta.get("dataset", {"fingerprint": meta.get("dataset_fingerprint")}), dataset,
                              what=f"text cache {root}", parts=("ids", "captions"),
@@ -256,7 +259,7 @@ class TextCache:
             if want is not None and have != want:
                 raise DataError(f"text cache fingerprint mismatch: built for {what} {have}, but the {what} in use is "
                                 f"{want}; rebuild it with `handx text cache`", path=root)
-        from handx_jax.infra.read import read_json, read_npy
+        from handx_jax.infra.readers import read_json, read_npy
 
         hidden = read_npy(root / "hidden.npy", mmap=True)
         mask = read_npy(root / "mask.npy", mmap=True)
@@ -297,7 +300,7 @@ def open_cache(data_dir: str | os.PathLike, encoder_dir: str | os.PathLike, *, m
                dtype: str = "float16", joined: bool = False, levels: Sequence[int] | None = None) -> TextCache:
     """The cache for this dataset + encoder folder, verified; a clear error if there is none. ``levels``:
     the caption levels the caller reads; the full cache serves them, else one built for exactly them."""
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.text.hf import as_encoder
 
     ds = Dataset.open(data_dir)

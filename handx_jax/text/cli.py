@@ -14,7 +14,7 @@ import numpy as np
 
 from handx_jax.cliargs import deprecated_command, deprecated_flag
 from handx_jax.config import add_config_args
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.text.prompts import EMPTY_HELP
 
 
@@ -45,7 +45,7 @@ def _encode(args: argparse.Namespace) -> int:
 
 
 def _sentencepiece(args: argparse.Namespace) -> int:
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.text import tokenizer as tk
 
     tok = tk.train_for_dataset(args.data, vocab_size=args.vocab_size, num_extra_ids=args.num_extra_ids,
@@ -102,7 +102,7 @@ def train_from_args(args: argparse.Namespace) -> int:
 
 
 def _cache(args: argparse.Namespace) -> int:
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.text.cache import TextCache, build_cache, neighbour_accuracy
 
     levels = None

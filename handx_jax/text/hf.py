@@ -20,8 +20,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handx_jax.infra.read import get_field, read_json
-from handx_jax.io import DataError, atomic_dir, atomic_write_json, verify_checksum, write_checksum
+from handx_jax.infra.atomic import atomic_dir, atomic_write_json
+from handx_jax.infra.checksums import verify_checksum, write_checksum
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import get_field, read_json
 from handx_jax.text.t5 import FrozenEncoder, Params, T5Config, T5EncoderModel
 from handx_jax.text.tokenizer import MODEL_FILENAME, Tokenizer
 

@@ -30,7 +30,9 @@ import numpy as np
 import optax
 
 from handx_jax.config import ConfigError, get_preset
-from handx_jax.io import DataError, atomic_write_json, read_jsonl
+from handx_jax.infra.atomic import atomic_write_json
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import read_jsonl
 from handx_jax.text import tokenizer as tk
 from handx_jax.text.hf import save_hf_t5_encoder
 from handx_jax.text.t5 import T5Config, T5Model, count_params, encoder_params
@@ -255,7 +257,7 @@ def pretrain(data_dir: str | os.PathLike, out: str | os.PathLike, cfg: PretrainC
     time slice) and returns None; rerunning the same call continues from there. The encoder is
     exported once all ``cfg.steps`` are done.
     """
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.runlog import trainable_renamed
     from handx_jax.train import TrainConfig, TrainSpec, check_resume, train
 

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 from typing import Any, Callable, Sequence
 
-from handx_jax.data.dataset import TEXT_FIELDS
-from handx_jax.io import DataError
+from handx_jax.dataset.format import TEXT_FIELDS
+from handx_jax.infra.errors import DataError
 
 EMPTY_HELP = "must not be empty (an empty text is refused: no model was trained on one)"
 

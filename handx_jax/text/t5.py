@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.text.tokenizer import Encoded, Tokenizer
 
 Params = Any

@@ -26,7 +26,8 @@ from typing import Iterable, Sequence
 import numpy as np
 import sentencepiece as spm
 
-from handx_jax.io import DataError, atomic_write_bytes, atomic_write_json
+from handx_jax.infra.atomic import atomic_write_bytes, atomic_write_json
+from handx_jax.infra.errors import DataError
 
 PAD_ID, EOS_ID, UNK_ID = 0, 1, 2
 HF_EXTRA_IDS = 100  # number of sentinels Hugging Face appends after a stock T5 vocabulary
@@ -226,7 +227,7 @@ class Tokenizer:
 
 def dataset_captions(ds, splits: Sequence[str] | None = None) -> list[str]:
     """Every caption (3 fields × all levels) of the chosen clips, in dataset order."""
-    from handx_jax.data.dataset import TEXT_FIELDS
+    from handx_jax.dataset.format import TEXT_FIELDS
 
     idx = range(len(ds.texts)) if splits is None else sorted(set(np.concatenate(
         [np.asarray(ds.split(s), np.int64) for s in splits]).tolist()))
@@ -243,7 +244,7 @@ def train_for_dataset(data_dir: str | os.PathLike, *, vocab_size: int = 4000, nu
 
     Training on the train split only keeps validation captions unseen by every text component.
     """
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
 
     ds = Dataset.open(data_dir)
     out = tokenizer_dir(data_dir) / MODEL_FILENAME

@@ -52,7 +52,7 @@ def toy_texts(num_clips: int, seed: int = 0) -> list[dict]:
 
 def write_toy_dataset(out: str | os.PathLike, num_clips: int = 64, seed: int = 0, *, val_frac: float = 0.25,
                       overwrite: bool = False) -> Path:
-    from handx_jax.data.dataset import write_dataset
+    from handx_jax.dataset.format import write_dataset
 
     texts = toy_texts(num_clips, seed)
     n_val = int(round(val_frac * num_clips))

@@ -7,8 +7,8 @@ import sys
 
 
 def _run(a: argparse.Namespace) -> int:
-    from handx_jax.data.events import ANNOTATIONS
-    from handx_jax.io import DataError
+    from handx_jax.annotation.events import ANNOTATIONS
+    from handx_jax.infra.errors import DataError
     from handx_jax.validity import suite
 
     if a.annotation and a.annotation not in ANNOTATIONS:

@@ -20,9 +20,9 @@ from typing import Sequence
 
 import numpy as np
 
-from handx_jax.data.build import caption_seed
-from handx_jax.data.caption import LEVELS, TemplateCaptioner
-from handx_jax.data.events import AnnotationConfig, annotate
+from handx_jax.dataset.build import caption_seed
+from handx_jax.annotation.caption import LEVELS, TemplateCaptioner
+from handx_jax.annotation.events import AnnotationConfig, annotate
 
 _FIELDS = ("left", "right", "interaction")
 

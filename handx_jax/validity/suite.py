@@ -29,12 +29,12 @@ from typing import Sequence
 import numpy as np
 
 from handx_jax.config import ConfigError
-from handx_jax.infra.outputs import check_out_apart
+from handx_jax.infra.atomic import atomic_write_text
+from handx_jax.infra.outputs import check_out_apart, remove_stale_temporaries
 from handx_jax.infra.values import check
-from handx_jax.io import atomic_write_text, remove_stale_temporaries
 from handx_jax.validity import perturb as P
 from handx_jax.validity import stability as S
-from handx_jax.data.build import corpus_seed, reading_of
+from handx_jax.dataset.build import corpus_seed, reading_of
 from handx_jax.validity.scores import Scorer, caption_reader_top3, order_test
 
 SCHEMA = 1
@@ -66,7 +66,7 @@ def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: 
     """Run the suite on ``data``'s test split and write the report into the folder ``out`` (see the module
     doc). Everything it is given is checked first (settings, ``out`` apart from ``data``, each tokenizer
     run loaded); ``out``'s lock is held from then on, so a second suite writing the same folder is refused."""
-    from handx_jax.runlock import RunLock
+    from handx_jax.infra.runlock import RunLock
 
     check_args(block=block, seed=seed, limit=limit, kinds=kinds)
     check_out_apart(out, data, replaces=False)
@@ -78,9 +78,9 @@ def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: 
 
 
 def _run(data, out, *, evaluator, tokenizers, annotation, limit, block, seed, kinds, log) -> dict:
-    from handx_jax.data.caption import TemplateCaptioner
-    from handx_jax.data.dataset import Dataset
-    from handx_jax.data.events import annotation_config
+    from handx_jax.annotation.caption import TemplateCaptioner
+    from handx_jax.dataset.format import Dataset
+    from handx_jax.annotation.events import annotation_config
     from handx_jax.families import tokenizer as T
     from handx_jax.generation import split_prompts
 
@@ -94,7 +94,7 @@ def _run(data, out, *, evaluator, tokenizers, annotation, limit, block, seed, ki
     found_reading, wording = reading_of(ds)
     reading = annotation or found_reading
     if reading != found_reading:  # another reading than the corpus's: its own wording goes with it
-        from handx_jax.data.build import WORDING
+        from handx_jax.dataset.build import WORDING
 
         wording = WORDING[reading]
     t0 = time.perf_counter()

@@ -26,8 +26,8 @@ import numpy as np
 
 from handx_jax import representation as rep
 from handx_jax import standard
-from handx_jax.data.dataset import Dataset
-from handx_jax.data.handx_npz import read_handx_npz
+from handx_jax.dataset.format import Dataset
+from handx_jax.interop.handx_npz import read_handx_npz
 from handx_jax.evaluation import evaluate_generated
 from handx_jax.families import tokenizer as T
 from handx_jax.generation import split_prompts, write_generated

@@ -1,7 +1,7 @@
 """Collapse check of generated files: distinct motions among the prompts' first samples; mean distance between
 different prompts' samples vs between one prompt's samples (metres, joints flattened)."""
 import sys, json, numpy as np
-from handx_jax.data.handx_npz import read_handx_npz
+from handx_jax.interop.handx_npz import read_handx_npz
 out = {}
 for f in sys.argv[1:]:
     cl = read_handx_npz(f)

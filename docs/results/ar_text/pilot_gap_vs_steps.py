@@ -2,7 +2,7 @@
 import sys, json, time, argparse, dataclasses, numpy as np, jax, jax.numpy as jnp, optax
 from handx_jax.families import ar as A
 from handx_jax.models import prefix_lm as P
-from handx_jax.data.dataset import Dataset
+from handx_jax.dataset.format import Dataset
 
 ap = argparse.ArgumentParser()
 ap.add_argument("--steps", type=int, default=600); ap.add_argument("--bs", type=int, default=64)

@@ -2,7 +2,7 @@
 import sys, json, numpy as np, jax, jax.numpy as jnp
 from handx_jax.families import ar as A
 from handx_jax.models import prefix_lm as P
-from handx_jax.data.dataset import Dataset
+from handx_jax.dataset.format import Dataset
 from handx_jax.train import load_params
 
 run = sys.argv[1]

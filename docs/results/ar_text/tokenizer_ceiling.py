@@ -2,7 +2,7 @@
 import sys, numpy as np, jax.numpy as jnp
 from handx_jax.families import tokenizer as T
 from handx_jax.families.ar import decode as AD
-from handx_jax.data.dataset import Dataset
+from handx_jax.dataset.format import Dataset
 from handx_jax.generation import split_prompts, write_generated
 tok = T.load(sys.argv[1]); ds = Dataset.open(sys.argv[2])
 clips, prompts, motion = split_prompts(ds, "test", None, 0)

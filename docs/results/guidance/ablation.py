@@ -22,9 +22,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handx_jax import guidance as G
+from handx_jax.families.diffusion import guidance as G
 from handx_jax import metrics as M
-from handx_jax.data.dataset import Dataset
+from handx_jax.dataset.format import Dataset
 from handx_jax.families.diffusion import load
 from handx_jax.families.diffusion.sampling import SampleOptions
 from handx_jax.generation import Prompt, with_records, write_generated

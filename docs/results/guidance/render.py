@@ -16,9 +16,9 @@ import numpy as np
 
 from handx_jax import metrics as M
 from handx_jax import skeleton as sk
-from handx_jax.data.dataset import Dataset
-from handx_jax.data.handx_npz import read_handx_npz
-from handx_jax.data.render import HAND_COLORS, render_gif
+from handx_jax.dataset.format import Dataset
+from handx_jax.interop.handx_npz import read_handx_npz
+from handx_jax.dataset.render import HAND_COLORS, render_gif
 
 N_INTRA = 8
 

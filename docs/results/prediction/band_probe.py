@@ -13,7 +13,7 @@ import sys
 import numpy as np
 
 from handx_jax import representation as rep
-from handx_jax.data.dataset import Dataset
+from handx_jax.dataset.format import Dataset
 from handx_jax.evaluation import prediction as PR
 from handx_jax.families.diffusion import load
 from handx_jax.families.diffusion.sampling import SampleOptions, sample_normalised, to_joints

@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
-from handx_jax.data import events as E
-from handx_jax.data import features as ft
-from handx_jax.data.caption import TemplateCaptioner
-from handx_jax.data.dataset import Dataset
+from handx_jax.annotation import events as E
+from handx_jax.annotation import descriptors as ft
+from handx_jax.annotation.caption import TemplateCaptioner
+from handx_jax.dataset.format import Dataset
 from handx_jax.validity import perturb as P
 from handx_jax.validity import stability as S
 

@@ -10,10 +10,10 @@ import sys
 
 import numpy as np
 
-from handx_jax.data.build import corpus_seed, reading_of
-from handx_jax.data.caption import TemplateCaptioner
-from handx_jax.data.dataset import Dataset
-from handx_jax.data.events import annotation_config
+from handx_jax.dataset.build import corpus_seed, reading_of
+from handx_jax.annotation.caption import TemplateCaptioner
+from handx_jax.dataset.format import Dataset
+from handx_jax.annotation.events import annotation_config
 from handx_jax.generation import split_prompts
 from handx_jax.validity import perturb as P
 from handx_jax.validity import stability as S

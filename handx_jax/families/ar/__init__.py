@@ -41,8 +41,8 @@ from handx_jax.families.ar import decode as AD
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
 from handx_jax.families import tokenizer as T
 from handx_jax.families import entry, generation_config, run_config
-from handx_jax.io import DataError
-from handx_jax.infra.read import read_json
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import read_json
 from handx_jax.models import prefix_lm as P
 from handx_jax.optim import OptimConfig
 from handx_jax.train import TrainConfig
@@ -87,7 +87,7 @@ REFERENCE_TRAIN = TrainConfig(steps=150000, batch_size=128, log_every=100, ckpt_
                                                 warmup_steps=15000, schedule="cosine", grad_clip=1.0))
 # The CPU sizes' recipe (tiny, small): minutes on 2 cores, and something learnt at the tiny sweep's 300
 # steps: the reference's 15,000-step warm-up at 3e-4 would leave such a run near its initial loss.
-# Host memory is set by XLA's temporary buffer of one step, which the glibc heap (handx_jax.hostmem)
+# Host memory is set by XLA's temporary buffer of one step, which the glibc heap (handx_jax.infra.hostmem)
 # holds two or three times over: for `small` on the joined prefix (128 text + 31 motion slots) it was
 # 1,069 MB at batch 64, most of it attention weights and SwiGLU intermediates kept for the backward
 # pass. The LM's own backward passes (models.prefix_lm.attend, swiglu) bring it to 713 MB, and `small`
@@ -192,7 +192,7 @@ class TrainData:
 
 
 def load_train_data(cfg: ARRunConfig):
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.text.cache import open_cache
 
     for key in ("path", "encoder", "tokenizer"):
@@ -287,7 +287,7 @@ def train(run_dir: str | os.PathLike, cfg: ARRunConfig, *, stop_at: int | None =
           encoder=None) -> dict:
     """Train (or resume) an LM run from the token cache and the joined text cache; the evaluation hook logs
     the held-out token NLL on the val split (``make_evaluate``)."""
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax import train as loop
 
     cfg.validate()

@@ -36,7 +36,7 @@ import numpy as np
 from handx_jax.families.diffusion import process as D
 from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset, to_dict
 from handx_jax.families import entry, generation_config, run_config
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.models.dit import PRESETS, DiTConfig, TrebleDenoiser, forward_flops, init_denoiser, param_count, size_name
 from handx_jax.optim import OptimConfig
 from handx_jax.train import TrainConfig
@@ -69,7 +69,7 @@ class SampleConfig:
 
     sampler: str = "ddpm"  # "ddpm" (ancestral, all T steps, the reference) or "ddim"
     steps: int = 50  # DDIM steps (DDPM always takes all diffusion.steps)
-    # Contact guidance at sampling time (handx_jax/guidance.py, issue 33): "" = off (the default);
+    # Contact guidance at sampling time (handx_jax/families/diffusion/guidance.py, issue 33): "" = off (the default);
     # "caption" = the contact events of each prompt's record; or a written list such as
     # "L.thumb-R.thumb@20:40,L.index-R.palm". Strength s scales BimArt's unit step (§3.5: λ_c = 1/‖∇‖);
     # the schedule w(t) is "late" (√ᾱ_t) or "constant". s = 16 realised 59% of the captions' inter-hand
@@ -105,7 +105,7 @@ class DiffusionRunConfig:
             raise ConfigError(f"sample.sampler must be 'ddpm' or 'ddim', got {self.sample.sampler!r}")
         if self.sample.steps < 1:
             raise ConfigError(f"sample.steps must be at least 1, got {self.sample.steps}")
-        from handx_jax import guidance
+        from handx_jax.families.diffusion import guidance
 
         c = self.sample.contact.strip()
         if c and c != guidance.CAPTION:
@@ -188,7 +188,7 @@ class TrainData:
 
 def load_train_data(cfg: DiffusionRunConfig) -> TrainData:
     from handx_jax import representation as rep
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.text.cache import open_cache
 
     ds = Dataset.open(cfg.data.path)

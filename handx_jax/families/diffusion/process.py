@@ -270,7 +270,7 @@ def sample(denoise: DenoiseFn, sched: Schedule, shape, rng, cfg: DiffusionConfig
     fresh noise and forgets x_t, which shrinks their variance.
 
     ``steer(x0_hat, t) -> x0_hat``: applied to the clean prediction (after CFG, before the mask blend, so
-    constrained joints still end on their target) at every step, e.g. contact guidance (handx_jax/guidance.py,
+    constrained joints still end on their target) at every step, e.g. contact guidance (handx_jax/families/diffusion/guidance.py,
     BimArt Eq. 6). None traces nothing extra: the compiled sampler is the unguided one.
     """
     s = cfg.guidance if guidance is None else guidance

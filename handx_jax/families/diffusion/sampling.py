@@ -18,7 +18,7 @@ generated; nothing after frame N of the source is read (``task_gamma``, ``genera
 first N frames are the source's own. A run trained with ``diffusion.observe_prob`` > 0 reads them clean
 at every step (``process.sample``), as it was trained to.
 
-Contact guidance (``sample.contact``, issue 33 item 2; handx_jax/guidance.py): a request (B, F, 43) of named
+Contact guidance (``sample.contact``, issue 33 item 2; handx_jax/families/diffusion/guidance.py): a request (B, F, 43) of named
 contacts per frame, from a written spec or the prompt record's contact events, and its strength are
 traced inputs of the same compiled sampler (a new request or strength does not recompile); every step
 moves x̂0 down the contact energy's gradient (``guidance.make_steer``). Without a request the sampler is
@@ -36,12 +36,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handx_jax import guidance as G
+from handx_jax.families.diffusion import guidance as G
 from handx_jax import metrics as M
 from handx_jax import representation as rep
 from handx_jax.families.diffusion import process as D
 from handx_jax.generation import Prompt
-from handx_jax.xla_options import jit_inference
+from handx_jax.infra.xla_options import jit_inference
 
 if TYPE_CHECKING:
     from handx_jax.families.diffusion import DiffusionRun
@@ -160,7 +160,7 @@ def compile_sampler(model, dcfg: D.DiffusionConfig, *, sampler: str, steps: int,
     (``xla_options``) and, where the host has several CPU devices, the batch split over them
     (``hostdevices``). A request (contact guidance) needs the run's ``norm``; called without one, the
     program is the unguided sampler's."""
-    from handx_jax import hostdevices
+    from handx_jax.infra import hostdevices
 
     mesh = hostdevices.inference_mesh(batch)
     fn = jit_inference(partial(_sample_impl, model=model, sched=D.cosine_schedule(dcfg.steps), dcfg=dcfg,

@@ -49,7 +49,7 @@ from handx_jax.config import ConfigError, from_dict, to_dict
 from handx_jax.families import run_config
 from handx_jax.families.ghtt import common as C
 from handx_jax.families.ghtt import pose as PP
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.models import ghtt as G
 # The run configuration and the loaded run have their own modules; the family's names are these:
 from handx_jax.families.ghtt.config import (FAMILY, PATHS, PRESETS, TASKS, TRAIN_PRESETS, Config,  # noqa: F401
@@ -167,7 +167,7 @@ def recognition_scores(params, cfg: G.GHTTConfig, M_first_NxSxD, text_NxD, block
 
 def train(run_dir: str | os.PathLike, cfg: GHTTRunConfig, *, stop_at=None, on_log=None, encoder=None) -> dict:
     from handx_jax import train as loop
-    from handx_jax.data.dataset import Dataset
+    from handx_jax.dataset.format import Dataset
     from handx_jax.text.cache import open_cache
     from handx_jax.text.t5 import T5Config
     cfg.validate()
@@ -224,7 +224,7 @@ def train(run_dir: str | os.PathLike, cfg: GHTTRunConfig, *, stop_at=None, on_lo
 
 def _train_flops(run_dir) -> float | None:
     """The training compute a run folder's last log line records (P's, carried into the A run's record)."""
-    from handx_jax.io import read_jsonl
+    from handx_jax.infra.readers import read_jsonl
 
     p = Path(run_dir) / "metrics.jsonl"
     rows = [r for r in read_jsonl(p, strict=False) if isinstance(r, dict) and r.get("train_flops")] if p.exists() else []

@@ -10,8 +10,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handx_jax.infra.read import read_npz
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import read_npz
 from handx_jax.models import ghtt as G
 from handx_jax.models import ghtt_motion as HM
 

@@ -160,8 +160,8 @@ def span_errors_mm(params, cfg: G.GHTTConfig, norm: C.Norm, joints_NxFx2x21x3) -
 
 def train(run_dir: str | os.PathLike, cfg: PoseRunConfig, *, stop_at=None, on_log=None, encoder=None) -> dict:
     from handx_jax import train as loop
-    from handx_jax.data.dataset import Dataset
-    from handx_jax.io import DataError
+    from handx_jax.dataset.format import Dataset
+    from handx_jax.infra.errors import DataError
 
     cfg.validate()
     if not cfg.data.path:

@@ -19,7 +19,7 @@ from handx_jax.config import from_dict
 from handx_jax.families import generation_config, run_config
 from handx_jax.families.ghtt import common as C
 from handx_jax.families.ghtt import pose as PP
-from handx_jax.io import DataError
+from handx_jax.infra.errors import DataError
 from handx_jax.models import ghtt as G
 from handx_jax.models import ghtt_motion as HM
 from handx_jax.families.ghtt.config import FAMILY, PATHS, TASKS, GHTTRunConfig

@@ -7,9 +7,9 @@ from collections import defaultdict
 
 import numpy as np
 
-from handx_jax.data import events as E
-from handx_jax.data import features as ft
-from handx_jax.data.synth import SynthConfig, synth_chunk
+from handx_jax.annotation import events as E
+from handx_jax.annotation import descriptors as ft
+from handx_jax.synthesis.bimanual import SynthConfig, synth_chunk
 
 cfg = SynthConfig(motion="transition", segments_per_sequence=1)
 R = defaultdict(list)

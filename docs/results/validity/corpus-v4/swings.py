@@ -8,10 +8,10 @@ import collections
 
 import numpy as np
 
-from handx_jax.data import events as E
-from handx_jax.data import features as ft
-from handx_jax.data.segment import swings
-from handx_jax.data.synth import SynthConfig, synth_chunk
+from handx_jax.annotation import events as E
+from handx_jax.annotation import descriptors as ft
+from handx_jax.annotation.segment import swings
+from handx_jax.synthesis.bimanual import SynthConfig, synth_chunk
 
 BINS = [8, 12, 16, 20, 24, 28, 32, 40, 60, 100]
 for motion in ("transition", "chain"):

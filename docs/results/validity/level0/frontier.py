@@ -30,13 +30,13 @@ from pathlib import Path
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
-from handx_jax.data import events as E
-from handx_jax.data import features as ft
-from handx_jax.data import segment
-from handx_jax.data.build import caption_seed, corpus_seed
-from handx_jax.data.caption import TemplateCaptioner
-from handx_jax.data.caption.words import FINGERS, FLEX_ORDER, finger_group, join_words
-from handx_jax.data.dataset import Dataset
+from handx_jax.annotation import events as E
+from handx_jax.annotation import descriptors as ft
+from handx_jax.annotation import segment
+from handx_jax.dataset.build import caption_seed, corpus_seed
+from handx_jax.annotation.caption import TemplateCaptioner
+from handx_jax.annotation.caption.words import FINGERS, FLEX_ORDER, finger_group, join_words
+from handx_jax.dataset.format import Dataset
 from handx_jax.validity import perturb as P
 
 PERTS = {"white 1 mm": ("white", 0.001), "white 3 mm": ("white", 0.003), "lowfreq 1 mm": ("lowfreq", 0.001),

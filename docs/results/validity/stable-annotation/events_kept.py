@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from handx_jax.data import events as E
-from handx_jax.data.dataset import Dataset
+from handx_jax.annotation import events as E
+from handx_jax.dataset.format import Dataset
 from handx_jax.validity import perturb as P
 from handx_jax.validity.stability import _event_lists, descriptor_lists
 

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from handx_jax import standard
-from handx_jax.data.dataset import Dataset
+from handx_jax.dataset.format import Dataset
 from handx_jax.generation import split_prompts
 from handx_jax.validity import perturb as P
 from handx_jax.validity.scores import (Scorer, finger_error_mm, hybrids, tokenizer_reconstruction,

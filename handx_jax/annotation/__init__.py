@@ -1,0 +1,1 @@
+"""Annotation: kinematic descriptors, segmentation into events, and captions from event records."""

@@ -1,0 +1,1 @@
+"""The dataset format: files, splits, statistics, and the corpus build that writes them."""

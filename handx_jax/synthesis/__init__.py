@@ -1,0 +1,1 @@
+"""Procedural hands: motion synthesised from programs, the corpus build's source."""
