@@ -2,8 +2,8 @@
 interval of 0, a negative step count, a non-finite learning rate) are one line and exit 2 before the run
 folder exists, for every family (the one config system checks the loop's ``train.*`` group); a run killed
 with -9 before its first checkpoint resumes without a second copy of any metrics row (a real process); a
-G-HTT P run's frame statistics that are garbage, incomplete or pickled are one line naming the file and
-the field. Milliseconds each, but the kill (a process of its own, ~3 CPU-s)."""
+run that diverges is one line. (A G-HTT P run's damaged frame statistics: tests/test_bad_input_files.py.)
+Milliseconds each, but the kill (a process of its own, ~3 CPU-s)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from handx_jax.cli import main
@@ -97,35 +96,6 @@ def test_kill_9_before_the_first_checkpoint_leaves_no_metrics_row_twice(tmp_path
     rows = [json.loads(x) for x in metrics.read_text().splitlines()]
     assert [(r["step"], "eval/mse" in r) for r in rows] == [(0, True), (1, False), (2, False), (3, False)]
     assert rows[0]["eval/mse"] == before[0]["eval/mse"]  # the same untrained model's numbers, logged once
-
-
-# ------------------------------------------------------------------------------------------------
-# A G-HTT P run's frame statistics (ghtt_norm.npz), read by every G-HTT run trained on it
-
-
-def _norm_dir(tmp_path, write) -> Path:
-    d = tmp_path / "P"
-    d.mkdir()
-    write(d / "ghtt_norm.npz")
-    return d
-
-
-@pytest.mark.parametrize("write, words", [
-    (lambda p: p.write_text("garbage"), "not a .npz file"),
-    (lambda p: np.savez(p, mean=np.zeros(153, np.float32)), "field 'std': missing (the archive holds mean)"),
-    (lambda p: np.savez(p, mean=np.zeros(153, np.float32), std=np.array([{"a": 1}] * 153, dtype=object)),
-     "field 'std': holds Python objects"),
-])
-def test_a_bad_ghtt_norm_file_is_one_line_naming_file_and_field(tmp_path, write, words):
-    from handx_jax.families.ghtt.common import Norm
-    from handx_jax.infra.errors import DataError
-
-    d = _norm_dir(tmp_path, write)
-    with pytest.raises(DataError) as e:
-        Norm.load(d)
-    msg = str(e.value)
-    assert words in msg and "ghtt_norm.npz" in msg and "\n" not in msg, msg
-    assert "allow_pickle" not in msg and "pickle.load" not in msg
 
 
 def test_a_run_that_diverges_is_one_line(tmp_path, capsys, monkeypatch):
