@@ -5,7 +5,7 @@ Bad input to the commands that build, read and derive datasets (issue 54): ``dat
 ``data reverse``, ``data stats``, ``standard check`` and ``eval prediction --baseline``. Every refusal is one
 line and exit 2 before any work, and nothing is written: a numeric flag out of range (``infra.values``), split
 fractions that leave a split empty, an ``--out`` that is (inside, or holds) the ``--data`` it reads
-(``infra.outputs``), a damaged meta.json or splits.json and a symlink loop (``infra.read``). In-process, an
+(``infra.outputs``), a damaged meta.json or splits.json and a symlink loop (``infra.readers``). In-process, an
 8-clip dataset written directly: no synthesis, no training."""
 
 import json

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import handmade_hands as hh
+from handx_jax import hand_surface as hs
 from handx_jax import metrics as M
 from handx_jax import skeleton as sk
 
@@ -64,30 +65,6 @@ def test_apd_known_values():
         M.apd_mm(x[None])
 
 
-def test_segment_distance_closed_forms_and_brute_force():
-    f = lambda *v: float(M.segment_distance(*(np.asarray(a, np.float32) for a in v)))
-    # Skew perpendicular segments crossing above each other at height 0.03.
-    assert f([-1, 0, 0], [1, 0, 0], [0, -1, 0.03], [0, 1, 0.03]) == pytest.approx(0.03, abs=1e-6)
-    # Parallel, overlapping along x, 0.02 apart; collinear with a gap of 0.5; a point against a segment.
-    assert f([0, 0, 0], [1, 0, 0], [0.5, 0.02, 0], [2, 0.02, 0]) == pytest.approx(0.02, abs=1e-6)
-    assert f([0, 0, 0], [1, 0, 0], [1.5, 0, 0], [3, 0, 0]) == pytest.approx(0.5, abs=1e-6)
-    assert f([0, 0, 0], [0, 0, 0], [-1, 0.3, 0.4], [1, 0.3, 0.4]) == pytest.approx(0.5, abs=1e-6)
-    # Random segments: never above the densely sampled minimum, and within its sampling error.
-    P = np.random.default_rng(1).normal(size=(40, 4, 3))
-    d = np.asarray(M.segment_distance(*(P[:, i].astype(np.float32) for i in range(4))))
-    s = np.linspace(0, 1, 201)[None, :, None]
-    a, b = P[:, None, 0] + s * (P[:, 1] - P[:, 0])[:, None], P[:, None, 2] + s * (P[:, 3] - P[:, 2])[:, None]
-    brute = np.linalg.norm(a[:, :, None] - b[:, None], axis=-1).min((1, 2))
-    assert np.all(d <= brute + 1e-5) and np.all(brute - d < 0.01)
-
-
-def test_capsule_overlap_depth():
-    pen = lambda *v: float(M.capsule_penetration(*(np.asarray(a, np.float32) for a in v)))
-    # Radii 10 and 8 mm, axes 12 mm apart: 6 mm deep; 25 mm apart: apart, 0.
-    assert pen([-1, 0, 0], [1, 0, 0], 0.010, [0, -1, 0.012], [0, 1, 0.012], 0.008) == pytest.approx(0.006, abs=1e-6)
-    assert pen([-1, 0, 0], [1, 0, 0], 0.010, [0, -1, 0.025], [0, 1, 0.025], 0.008) == 0.0
-
-
 def _flat_hands(dz_T) -> np.ndarray:
     """(1, T, 2, 21, 3): one flat hand shape (all joints at z = 0) for both hands, the second dz above."""
     h = hh.right_hand() * np.array([1.0, 1.0, 0.0])
@@ -101,10 +78,10 @@ def test_penetration_known_depths():
     pen1, mean = M.penetration_stats(depth)
     assert pen1[0] == 0.0 and mean[0] == 0.0
     # Stacked flat hands dz apart: every left capsule axis is >= dz from every right one, and each palm
-    # bone lies exactly dz above its copy, so the deepest overlap is 2 * palm radius - dz. dz = 4 mm gives
+    # bone lies exactly dz above its copy, so the deepest overlap is 2 * palm radius - dz. dz = 6 mm gives
     # 20 mm in half the frames; 30 cm apart in the other half gives 0: Pen 1cm 50 %, mean depth 10 mm.
-    r_palm = M.CAPSULE_RADIUS_M["palm"]
-    assert r_palm == max(M.CAPSULE_RADIUS_M.values())
+    r_palm = hs.PALM_RADIUS_M
+    assert r_palm == pytest.approx(float(max(hs.CAPSULE_RADII_M)))
     dz = 2 * r_palm - 0.020
     depth = np.asarray(M.interhand_penetration(_flat_hands([dz, 0.3] * 5)))
     np.testing.assert_allclose(depth[0, ::2], 0.020, atol=1e-6)

@@ -17,6 +17,17 @@ def _data_arg(s) -> None:
     deprecated_positional(s, s.add_argument("--data", required=True, metavar="DIR", help="dataset directory"), "data")
 
 
+def _build_args(s) -> None:
+    """The options of ``handx data objects``'s corpus build (``handx data synth`` declares its own, each checked while
+    the command line is parsed by ``infra.values``; ``_objects`` checks ``--clips`` itself)."""
+    s.add_argument("--clips", type=int, required=True, help="number of clips to keep")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--out", required=True, help="dataset directory to create")
+    s.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
+    s.add_argument("--val-fraction", type=float, default=0.05)
+    s.add_argument("--test-fraction", type=float, default=0.05)
+
+
 def add_parser(subparsers) -> None:
     from handx_jax.dataset.clips import defect_reasons_help
     from handx_jax.synthesis.bimanual import MOTIONS
@@ -51,6 +62,18 @@ def add_parser(subparsers) -> None:
     s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_synth)
+
+    s = sub.add_parser("objects", help="build the procedural hand-object corpus (BimArt, issue 52)",
+                       description="Synthesise two hands that take an articulated object (box, laptop, scissors, "
+                                   "cabinet, bottle) and lift it (grab) or open and close it (use), keep the clips "
+                                   "whose physics holds on every frame, annotate contact maps, held parts and "
+                                   "captions, and write a dataset (synthesis/object_build.py).")
+    _build_args(s)
+    s.add_argument("--categories", default=None,
+                   help="comma-separated object categories (default: all of objects.CATEGORIES)")
+    s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
+    s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.set_defaults(func=_objects)
 
     s = sub.add_parser("stats", help="corpus statistics (Table 1(b) quantities, caption uniqueness)")
     _data_arg(s)
@@ -152,6 +175,34 @@ def _synth(a: argparse.Namespace) -> int:
     return 0
 
 
+def _objects(a: argparse.Namespace) -> int:
+    import dataclasses
+
+    from handx_jax.dataset.format import Dataset
+    from handx_jax.infra.errors import DataError
+    from handx_jax.objects import CATEGORIES
+    from handx_jax.synthesis.object_build import ObjectBuildConfig, build_object_corpus
+
+    if a.clips < 1:
+        raise DataError(f"--clips is {a.clips}; it must be a whole number >= 1")
+    cfg = ObjectBuildConfig(clips=a.clips, seed=a.seed, workers=a.workers, val_fraction=a.val_fraction,
+                            test_fraction=a.test_fraction)
+    if a.categories:
+        cats = tuple(c.strip() for c in a.categories.split(",") if c.strip())
+        bad = [c for c in cats if c not in CATEGORIES]
+        if bad or not cats:
+            raise DataError(f"--categories: unknown {', '.join(bad) or '(none given)'}; known: {', '.join(CATEGORIES)}")
+        cfg = dataclasses.replace(cfg, synth=dataclasses.replace(cfg.synth, categories=cats))
+    out = build_object_corpus(a.out, cfg, overwrite=a.force, progress=not a.quiet)
+    ds = Dataset.open(out)
+    rep = ds.report
+    print(f"wrote {out}  ({len(ds)} clips in {rep.get('seconds')} s, {rep.get('clips_per_second')} clips/s; "
+          f"splits {ds.meta['split_sizes']})")
+    print(f"synthesised {rep['synthesised_clips']}, rejected by physics {rep['rejected_by_physics']}")
+    print(json.dumps(rep["statistics"], indent=1))
+    return 0
+
+
 def _reverse(a: argparse.Namespace) -> int:
     from handx_jax.dataset.reverse import build_reversed
 
@@ -184,8 +235,13 @@ def _show(a: argparse.Namespace) -> int:
     if not -levels <= lv < levels:
         raise SystemExit(f"handx: error: --level {lv} out of range: {ds.root} has {levels} caption levels "
                          f"(0..{levels - 1}, or -{levels}..-1 from the most detailed)")
-    out = render_gif(np.asarray(ds.motion[i]), a.out, texts=(t["left"][lv], t["right"][lv], t["interaction"][lv]),
-                     title=t["id"])
+    texts = (t["left"][lv], t["right"][lv], t["interaction"][lv])
+    if (ds.root / "objects.jsonl").exists():  # a hand-object corpus: the object beside the hands
+        from handx_jax.synthesis.object_render import render_object_clip
+
+        out = render_object_clip(ds.root, i, a.out, texts=texts, title=t["id"])
+    else:
+        out = render_gif(np.asarray(ds.motion[i]), a.out, texts=texts, title=t["id"])
     print(f"wrote {out}")
     return 0
 

@@ -263,8 +263,14 @@ def write_dataset(
     stats: bool | Sequence[NormPreset] = True,
     workers: int = 1,
     recipe: dict | None = None,
+    arrays: dict[str, np.ndarray] | None = None,
+    records: dict[str, Sequence[Any]] | None = None,
 ) -> Path:
     """Write a complete dataset atomically. ``motion`` may be a memory-mapped array.
+
+    ``arrays`` ({name: array with one row per clip}) and ``records`` ({name: one JSON record per clip}) are a
+    corpus's own per-clip annotations, written as ``name.npy`` and ``name.jsonl`` beside the motion (the
+    hand–object corpus's object states, held parts and contact maps: synthesis/object_build.py).
 
     Without ``splits`` every clip goes to train. Fractions are nested subsets of train. ``stats``: the
     normalisation presets whose statistics ``stats.npz`` holds, given by the caller (the command layer passes
@@ -307,6 +313,15 @@ def write_dataset(
         _write_lines(tmp / "texts.jsonl", texts)
         if events is not None:
             _write_lines(tmp / "events.jsonl", events)
+        for name, a in (arrays or {}).items():
+            if len(a) != n:
+                raise DataError(f"{n} motion clips but {len(a)} rows of {name}")
+            with disk_full_as_error(tmp / f"{name}.npy"):
+                np.save(tmp / f"{name}.npy", np.ascontiguousarray(a))
+        for name, rows in (records or {}).items():
+            if len(rows) != n:
+                raise DataError(f"{n} motion clips but {len(rows)} records of {name}")
+            _write_lines(tmp / f"{name}.jsonl", rows)
         atomic_write_json(tmp / "splits.json", split_doc, indent=None)
         if report is not None:
             atomic_write_json(tmp / "report.json", report)
@@ -399,8 +414,7 @@ def read_splits(path: Path, n: int) -> tuple[dict[str, np.ndarray], dict[str, np
     sp = read_json(path, expect=dict)
     splits = {k: _index_list(sp.get(k, []), k, n, path) for k in SPLITS}
     fr = get_field(sp, "fractions", dict, path=path, default={})
-    fractions = {k: _index_list(v, f"fractions[{k!r}]", n, path) for k, v in fr.items()}
-    return splits, fractions
+    return splits, {k: _index_list(v, f"fractions[{k!r}]", n, path) for k, v in fr.items()}
 
 
 @dataclass
@@ -419,10 +433,9 @@ class Dataset:
         root = require_dir(root, "dataset directory")
         meta = read_format_meta(root / "meta.json", FORMAT, FORMAT_VERSION,
                                 missing="missing meta.json: not a handx-jax dataset")
-        n = get_field(meta, "num_clips", int, path=root / "meta.json", check=lambda v: v >= 0, must="a count >= 0")
-        clip_len = get_field(meta, "clip_len", int, path=root / "meta.json", check=lambda v: v >= 1,
-                             must="a frame count >= 1")
-        get_field(meta, "fingerprint", str, path=root / "meta.json")
+        mp = root / "meta.json"
+        n = get_field(meta, "num_clips", int, path=mp, check=lambda v: v >= 0, must="a count >= 0")
+        clip_len = get_field(meta, "clip_len", int, path=mp, check=lambda v: v >= 1, must="a frame count >= 1")
         motion = read_npy(root / "motion.npy", kind="f", mmap=True)
         if motion.shape != (n, clip_len, 2, sk.NUM_JOINTS, 3):
             raise DataError(f"shape {motion.shape} does not match meta.json (num_clips={n})",
@@ -439,7 +452,7 @@ class Dataset:
 
     @property
     def fingerprint(self) -> str:
-        return self.meta["fingerprint"]
+        return get_field(self.meta, "fingerprint", str, path=self.root / "meta.json")
 
     @property
     def ids(self) -> list[str]:

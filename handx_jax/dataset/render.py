@@ -38,9 +38,15 @@ def contact_tips(joints_Tx2x21x3: np.ndarray, intra_m: float = 0.020, inter_m: f
     return out
 
 
+OBJECT_COLORS = ("#1b9e77", "#7f7f7f")  # an object's top part green, its bottom part grey
+
+
 def render_gif(joints_Tx2x21x3: np.ndarray, out: str | os.PathLike, *, texts: tuple[str, str, str] | None = None,
-               fps: int = sk.FPS, title: str | None = None, dpi: int = 90) -> Path:
-    """Write an animated GIF of both hands. ``texts`` = (left, right, interaction)."""
+               fps: int = sk.FPS, title: str | None = None, dpi: int = 90,
+               object_points: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
+    """Write an animated GIF of both hands. ``texts`` = (left, right, interaction). ``object_points`` =
+    (points (T, P, 3) of an object's surface per frame, part (P,) of each point: 0 top, 1 bottom) draws the object
+    as points beside the hands (the hand–object corpus, synthesis/object_motion.py)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -62,7 +68,9 @@ def render_gif(joints_Tx2x21x3: np.ndarray, out: str | os.PathLike, *, texts: tu
     fig = plt.figure(figsize=(6.0, 5.4 + text_h))
     frac = text_h / (5.4 + text_h)
     ax = fig.add_axes([0.0, frac, 1.0, 1.0 - frac], projection="3d")
-    lo, hi = np.nanmin(x.reshape(-1, 3), 0), np.nanmax(x.reshape(-1, 3), 0)
+    extent = x.reshape(-1, 3) if object_points is None else np.concatenate([x.reshape(-1, 3),
+                                                                            object_points[0].reshape(-1, 3)])
+    lo, hi = np.nanmin(extent, 0), np.nanmax(extent, 0)
     centre, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 0.05) * 0.8  # equal axes, tight
     ax.set_xlim(centre[0] - half, centre[0] + half)
     ax.set_ylim(centre[1] - half, centre[1] + half)
@@ -78,6 +86,8 @@ def render_gif(joints_Tx2x21x3: np.ndarray, out: str | os.PathLike, *, texts: tu
     lines = [[ax.plot([], [], [], color=HAND_COLORS[h], lw=1.6)[0] for _ in sk.BONES] for h in (0, 1)]
     joints_art = [ax.plot([], [], [], "o", color=HAND_COLORS[h], ms=2.5)[0] for h in (0, 1)]
     contact_art = ax.plot([], [], [], "o", color=CONTACT_COLOR, ms=6)[0]
+    object_art = [ax.plot([], [], [], ".", color=c, ms=1.5, alpha=0.6)[0] for c in OBJECT_COLORS] \
+        if object_points is not None else []
     label = ax.set_title(title or "", fontsize=9)
 
     def draw(t: int):
@@ -91,8 +101,12 @@ def render_gif(joints_Tx2x21x3: np.ndarray, out: str | os.PathLike, *, texts: tu
         c = x[t][:, list(sk.TIPS)][contacts[t]]
         contact_art.set_data(c[:, 0], c[:, 1])
         contact_art.set_3d_properties(c[:, 2])
+        for part, art in enumerate(object_art):
+            pts = object_points[0][t][object_points[1] == part]
+            art.set_data(pts[:, 0], pts[:, 1])
+            art.set_3d_properties(pts[:, 2])
         label.set_text(f"{title + '  ' if title else ''}frame {t + 1}/{T}  ({(t + 1) / fps:.2f} s)")
-        return [*lines[0], *lines[1], *joints_art, contact_art, label]
+        return [*object_art, *lines[0], *lines[1], *joints_art, contact_art, label]
 
     # The axes, panes, ticks and texts are the same in every frame (fixed view and limits), so they are drawn
     # once and each frame restores that background and draws only the moving artists (blitting by hand;

@@ -13,8 +13,9 @@ One kind of metric per module:
     config.py       ``MetricConfig``
     embedding.py    R-Precision, MM-Dist, FID, Diversity, MultiModality (on evaluator embeddings)
     motion.py       MPJPE, acceleration, jitter, contact labels and their P/R/F1 (on joints)
-    hand_papers.py  G-HTT's MPJPE-RA / -PA and APD, BimArt's inter-hand penetration
+    hand_papers.py  G-HTT's MPJPE-RA / -PA and APD, BimArt's inter-hand penetration (geometry: hand_surface.py)
     contact.py      contact feasibility: the contacts a clip's captions name, realised or not
+    objects.py      BimArt's hand -> object metrics (obj_pen_1cm, Con, Art, Mul, Accel, CM, part F1); import the module
     intervals.py    confidence intervals: over generation groups, or a bootstrap over prompts
     replicate.py    the evaluation's rows: every metric over G groups as (point value, ± half-width)
     chunking.py     the chunked map the per-frame scans share
@@ -28,10 +29,9 @@ from handx_jax.metrics.contact import (CONTACT_CHANNELS, N_CONTACT_CHANNELS, Nam
 from handx_jax.metrics.embedding import (GRAM_CHUNK, diversity, diversity_indices, expected_hit, fid, fid_resampled,
                                          multimodality, pairwise_dist, r_precision, resampled_moments,
                                          resampled_pair_mean)
-from handx_jax.metrics.hand_papers import (BONE_RADII_M, CAPSULE_RADIUS_M, apd_frames_mm, apd_mm, best_rotation,
-                                           capsule_penetration, hand_capsules, interhand_penetration,
+from handx_jax.metrics.hand_papers import (apd_frames_mm, apd_mm, best_rotation, interhand_penetration,
                                            joint_error_frames_mm, mpjpe_pa_frames_mm, mpjpe_pa_mm, mpjpe_ra_mm,
-                                           penetration_stats, procrustes_align, segment_distance)
+                                           penetration_stats, procrustes_align)
 from handx_jax.metrics.chunking import MOTION_CHUNK
 from handx_jax.metrics.intervals import (BETWEEN_GROUPS, CI_BOOTSTRAP, CI_GROUPS, bootstrap_half_width,
                                          bootstrap_indices, ci_method, mean_ci, prompt_mean_ci)
@@ -45,9 +45,8 @@ __all__ = [
     "contact_feasibility_counts", "contact_thresholds", "named_contacts",
     "GRAM_CHUNK", "diversity", "diversity_indices", "expected_hit", "fid", "fid_resampled", "multimodality",
     "pairwise_dist", "r_precision", "resampled_moments", "resampled_pair_mean",
-    "BONE_RADII_M", "CAPSULE_RADIUS_M", "apd_frames_mm", "apd_mm", "best_rotation", "capsule_penetration", "hand_capsules",
-    "interhand_penetration", "joint_error_frames_mm", "mpjpe_pa_frames_mm", "mpjpe_pa_mm", "mpjpe_ra_mm",
-    "penetration_stats", "procrustes_align", "segment_distance",
+    "apd_frames_mm", "apd_mm", "best_rotation", "interhand_penetration", "joint_error_frames_mm",
+    "mpjpe_pa_frames_mm", "mpjpe_pa_mm", "mpjpe_ra_mm", "penetration_stats", "procrustes_align",
     "MOTION_CHUNK",
     "BETWEEN_GROUPS", "CI_BOOTSTRAP", "CI_GROUPS", "bootstrap_half_width", "bootstrap_indices", "ci_method", "mean_ci",
     "prompt_mean_ci",

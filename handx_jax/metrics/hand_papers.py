@@ -1,5 +1,5 @@
 """The neighbouring hand papers' metrics (issue 33): G-HTT's MPJPE-RA / MPJPE-PA (per hand, root-aligned and
-Procrustes-aligned) and APD, and BimArt's inter-hand penetration ("Pen 1cm") between bone capsules."""
+Procrustes-aligned) and APD, and BimArt's inter-hand penetration ("Pen 1cm") between the hands' surfaces (hand_surface.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from handx_jax import skeleton as sk
+from handx_jax import hand_surface
 from handx_jax.metrics.chunking import map_chunks
 
 
@@ -117,99 +117,12 @@ def _apd(x_KxNxTx2x21x3, a_P, b_P):
     return 1000.0 * total / a_P.shape[0]
 
 
-# Capsule radii (m) of the 20 bones of sk.BONES (parent → child), for inter-hand penetration. Each bone
-# is a capsule around the segment between its joints; the radii are round numbers in the range of adult
-# finger thickness as MANO's template hand has it (issue 33: ~8–10 mm finger radius, palm larger):
-# finger breadths are ~18–20 mm at the proximal phalanx and ~14–16 mm at the distal one in hand
-# anthropometry, and the palm at the metacarpals is ~25 mm thick. They are not fitted to meshes: a
-# MANO mesh would give the real surface (BimArt §4 counts penetrating hand *vertices*), which this
-# project does not carry. The palm is covered by the wrist → MCP (and wrist → thumb CMC) capsules.
-CAPSULE_RADIUS_M = {"palm": 0.012, "thumb_metacarpal": 0.011, "proximal": 0.009, "middle": 0.008, "distal": 0.007}
-
-
-def _bone_part(parent: int, child: int) -> str:
-    chain = next(c for c in sk.CHAINS.values() if child in c)
-    level = chain.index(child)  # 1: wrist → base, 2..4 along the finger
-    if sk.JOINT_NAMES[chain[1]] == "thumb_cmc":  # thumb: wrist → CMC, metacarpal, proximal, distal
-        return ("palm", "thumb_metacarpal", "proximal", "distal")[level - 1]
-    return ("palm", "proximal", "middle", "distal")[level - 1]
-
-
-BONE_RADII_M = np.array([CAPSULE_RADIUS_M[_bone_part(p, c)] for p, c in sk.BONES], np.float32)  # (20,)
-_BONE_PARENT = np.array([p for p, _ in sk.BONES])
-_BONE_CHILD = np.array([c for _, c in sk.BONES])
-_BONE_IS_TIP = np.isin(_BONE_CHILD, sk.TIPS)
-
-
 @jax.jit
-def segment_distance(p1: jax.Array, q1: jax.Array, p2: jax.Array, q2: jax.Array) -> jax.Array:
-    """Closest distance between segments [p1, q1] and [p2, q2] (…, 3) → (…), broadcasting.
-
-    Ericson, Real-Time Collision Detection §5.1.9: the closest points minimise over (s, t) ∈ [0, 1]²;
-    s is clamped from the unconstrained solution, t follows from s and is clamped, then s is recomputed
-    for a clamped t. Parallel segments (a·e − b² = 0) start from s = 0; degenerate segments (points)
-    are handled by the same clamps.
-    """
-    mv = lambda v: jnp.moveaxis(v, -1, 0)
-    return _segment_distance_cm(*(mv(jnp.broadcast_to(v, jnp.broadcast_shapes(p1.shape, q1.shape, p2.shape, q2.shape)))
-                                  for v in (p1, q1, p2, q2)))
-
-
-def _segment_distance_cm(p1, q1, p2, q2) -> jax.Array:
-    """:func:`segment_distance` with the xyz coordinates on the FIRST axis (3, …): the dot products are
-    then sums of three whole arrays, not reductions over a trailing axis of length 3 (~5x slower on CPU,
-    as in _tip_palm_min_dist)."""
-    dot = lambda u, v: u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a, e = dot(d1, d1), dot(d2, d2)
-    b, c, f = dot(d1, d2), dot(d1, r), dot(d2, r)
-    eps = 1e-12
-    safe = lambda x: jnp.where(x > eps, x, 1.0)
-    denom = a * e - b * b
-    s = jnp.where(denom > eps * jnp.maximum(a * e, eps), jnp.clip((b * f - c * e) / safe(denom), 0.0, 1.0), 0.0)
-    s = jnp.where(a > eps, s, 0.0)
-    t = jnp.where(e > eps, (b * s + f) / safe(e), 0.0)
-    s = jnp.where(t < 0.0, jnp.where(a > eps, jnp.clip(-c / safe(a), 0.0, 1.0), 0.0), s)
-    s = jnp.where(t > 1.0, jnp.where(a > eps, jnp.clip((b - c) / safe(a), 0.0, 1.0), 0.0), s)
-    t = jnp.clip(t, 0.0, 1.0)
-    g = (p1 + d1 * s) - (p2 + d2 * t)
-    return jnp.sqrt(dot(g, g))
-
-
-@jax.jit
-def capsule_penetration(p1, q1, r1, p2, q2, r2) -> jax.Array:
-    """Overlap depth of two capsules (segment + radius), 0 when apart: max(0, r1 + r2 − dist(segments))."""
-    return jnp.maximum(r1 + r2 - segment_distance(p1, q1, p2, q2), 0.0)
-
-
-def hand_capsules(joints_Mx21x3: jax.Array, radii_20=BONE_RADII_M) -> tuple[jax.Array, jax.Array]:
-    """Capsule segments (M, 20, 3) × 2 of one hand's bones. A fingertip joint lies on the skin (MANO's tip
-    vertices), so a distal capsule ends its radius short of the tip: its rounded end touches the tip."""
-    x = joints_Mx21x3
-    p, q = x[..., _BONE_PARENT, :], x[..., _BONE_CHILD, :]
-    d = q - p
-    length = jnp.linalg.norm(d, axis=-1, keepdims=True)
-    r = jnp.asarray(radii_20)[:, None]
-    keep = jnp.where(length > 0, jnp.clip(length - r, 0.0, None) / jnp.where(length > 0, length, 1.0), 0.0)
-    q = jnp.where(jnp.asarray(_BONE_IS_TIP)[:, None], p + d * keep, q)
-    return p, q
-
-
-@jax.jit
-def interhand_penetration(joints_NxTx2x21x3: jax.Array, radii_20=BONE_RADII_M) -> jax.Array:
-    """Per frame (N, T), m: the deepest overlap between any left-hand bone capsule and any right-hand one
-    (:data:`CAPSULE_RADIUS_M`), 0 where the hands' capsules do not touch. BimArt's "Pen 1cm" (§4,
-    "Evaluation Metrics") is the share of frames where this exceeds 1 cm."""
-    r = jnp.asarray(radii_20, jnp.float32)
-
-    def one(x_CxTx2x21x3):
-        cm = lambda v: jnp.moveaxis(v, -1, 0)  # (3, C, T, 20)
-        pl, ql = map(cm, hand_capsules(x_CxTx2x21x3[:, :, 0], r))
-        pr, qr = map(cm, hand_capsules(x_CxTx2x21x3[:, :, 1], r))
-        dist = _segment_distance_cm(pl[..., :, None], ql[..., :, None], pr[..., None, :], qr[..., None, :])
-        return jnp.maximum(jnp.max(r[:, None] + r[None, :] - dist, axis=(-2, -1)), 0.0)  # (C, T)
-
-    return map_chunks(one, joints_NxTx2x21x3)
+def interhand_penetration(joints_NxTx2x21x3: jax.Array) -> jax.Array:
+    """Per frame (N, T), m: the deepest overlap between the two hands' surfaces (the bone and palm capsules
+    of handx_jax/hand_surface.py, the one hand surface of the project), 0 where they do not touch.
+    BimArt's "Pen 1cm" (§4, "Evaluation Metrics") is the share of frames where this exceeds 1 cm."""
+    return map_chunks(hand_surface.interhand_penetration_depth, joints_NxTx2x21x3)
 
 
 def penetration_stats(depth_NxT, threshold_m: float = 0.01) -> tuple[np.ndarray, np.ndarray]:

@@ -1,1 +1,1 @@
-"""Procedural hands: motion synthesised from programs, the corpus build's source."""
+"""Procedural hands: motion synthesised from programs (the two-hand corpus) and the hand–object corpus (BimArt)."""

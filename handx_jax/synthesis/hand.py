@@ -110,26 +110,27 @@ def clip_to_limits(pose_x16: np.ndarray) -> np.ndarray:
     return np.clip(pose_x16, LIMITS_LO_16, LIMITS_HI_16)
 
 
-def _thumb_axes(pose_x16: np.ndarray, radians: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def _thumb_axes(pose_x16: np.ndarray, radians: bool = False, xp=None) -> tuple[np.ndarray, np.ndarray]:
     """Thumb metacarpal direction and nail-side axis after the 2-DoF CMC rotation, (..., 3) each.
 
     R = Rz(−flex) · Ry(−abd) · T0 · Ry_local(roll): flexion swings the thumb across the palm toward
     the pinky, abduction lifts it out of the palm plane, and the coupled roll pronates it so the
     pad turns toward the finger pads (opposition).
     """
-    to_rad = (lambda x: x) if radians else np.radians
+    xp = np if xp is None else xp  # looked up per call (a test swaps the module's numpy for one with other sin/cos)
+    to_rad = (lambda x: x) if radians else xp.radians
     f, a = to_rad(pose_x16[..., T_CMC_FLEX]), to_rad(pose_x16[..., T_CMC_ABD])
     roll = THUMB_ROLL_PER_FLEX * f
-    cf, sf, ca, sa = np.cos(f), np.sin(f), np.cos(a), np.sin(a)
+    cf, sf, ca, sa = xp.cos(f), xp.sin(f), xp.cos(a), xp.sin(a)
     # Rows of Rz(−f)·Ry(−a), written out so that no (...,3,3) matrices are materialised.
     def apply(v: np.ndarray) -> np.ndarray:
         vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
-        return np.stack([cf * ca * vx + sf * vy - cf * sa * vz,
+        return xp.stack([cf * ca * vx + sf * vy - cf * sa * vz,
                          -sf * ca * vx + cf * vy + sf * sa * vz,
                          sa * vx + ca * vz], -1)
-    t_along, t_lat, t_nail = (v.astype(f.dtype) for v in (_T_ALONG, _T_LAT, _T_NAIL))
-    along = apply(np.broadcast_to(t_along, f.shape + (3,)))
-    nail_local = np.sin(roll)[..., None] * t_lat + np.cos(roll)[..., None] * t_nail
+    t_along, t_lat, t_nail = (xp.asarray(v, dtype=f.dtype) for v in (_T_ALONG, _T_LAT, _T_NAIL))
+    along = apply(xp.broadcast_to(t_along, f.shape + (3,)))
+    nail_local = xp.sin(roll)[..., None] * t_lat + xp.cos(roll)[..., None] * t_nail
     return along, apply(nail_local)
 
 
@@ -140,7 +141,7 @@ _MODEL_TO_OFFICIAL = np.argsort(_MODEL_ORDER)
 _FRAME = {"dir": _FINGER_DIR_4x3, "lat": _FINGER_LAT_4x3, "back": _FINGER_BACK_4x3[:, None, :]}
 
 
-def hand_fk(pose_x16: np.ndarray, geom: dict[str, np.ndarray]) -> np.ndarray:
+def hand_fk(pose_x16: np.ndarray, geom: dict[str, np.ndarray], xp=None) -> np.ndarray:
     """Joint positions (..., 21, 3) float64 in the right-hand frame, official joint order, metres.
 
     ``pose_x16`` is (..., 16) degrees; ``geom`` arrays (from hand_geometry) must broadcast against
@@ -150,28 +151,32 @@ def hand_fk(pose_x16: np.ndarray, geom: dict[str, np.ndarray]) -> np.ndarray:
     of the joints flip ~0.6 % of the captions (thresholds in the annotation). In float64 those
     differences (~1e-16) vanish in the float32 the corpus stores, so a recipe rebuilds the same
     captions and clip ids on another build (issue 14.5). Measured: no slower (0.55 vs 0.63 s a chunk).
+    ``xp=jax.numpy`` gives the same function traceable under jit/vmap (in JAX's default float32), which
+    the hand–object synthesizer's finger closing needs (synthesis/object_grasp.py).
     """
-    p = np.radians(np.asarray(pose_x16, dtype=np.float64))
+    xp = np if xp is None else xp
+    dtype = np.float64 if xp is np else np.float32
+    p = xp.radians(xp.asarray(pose_x16, dtype=dtype))
     lead = p.shape[:-1]
-    g = {k: np.asarray(v, dtype=np.float64) for k, v in geom.items()}
+    g = {k: xp.asarray(v, dtype=dtype) for k, v in geom.items()}
     # Fingers: abduction turns the finger in the palm plane, then the three flexions act about one
     # axis, so each finger is planar and bone k points at cumulative flexion phi_k.
     a = p[..., ABD, None]
-    dir_a = np.cos(a) * _FRAME["dir"] - np.sin(a) * _FRAME["lat"]                   # (..., 4, 3)
+    dir_a = xp.cos(a) * _FRAME["dir"] - xp.sin(a) * _FRAME["lat"]                   # (..., 4, 3)
     f1, f2 = p[..., MCP], p[..., PIP]
-    phi = np.stack([f1, f1 + f2, f1 + f2 * (1.0 + DIP_PER_PIP)], -1)[..., None]  # (..., 4, 3, 1)
-    bone = (np.cos(phi) * dir_a[..., None, :] - np.sin(phi) * _FRAME["back"]) * g["bones_Nx4x3"][..., None]
-    mcp = np.broadcast_to(g["mcp_Nx4x3"], lead + (4, 3))
-    fingers = np.cumsum(np.concatenate([mcp[..., None, :], bone], -2), axis=-2)  # (..., 4, 4, 3)
+    phi = xp.stack([f1, f1 + f2, f1 + f2 * (1.0 + DIP_PER_PIP)], -1)[..., None]  # (..., 4, 3, 1)
+    bone = (xp.cos(phi) * dir_a[..., None, :] - xp.sin(phi) * _FRAME["back"]) * g["bones_Nx4x3"][..., None]
+    mcp = xp.broadcast_to(g["mcp_Nx4x3"], lead + (4, 3))
+    fingers = xp.cumsum(xp.concatenate([mcp[..., None, :], bone], -2), axis=-2)  # (..., 4, 4, 3)
     # Thumb: CMC sets the metacarpal; MCP and IP flex toward the pad side (−nail).
-    along, nail = _thumb_axes(p, radians=True)
+    along, nail = _thumb_axes(p, radians=True, xp=xp)
     m, i = p[..., T_MCP, None], p[..., T_IP, None]
     tb = g["thumb_bones_Nx3"]
-    cmc = np.broadcast_to(g["cmc_Nx3"], lead + (3,))
+    cmc = xp.broadcast_to(g["cmc_Nx3"], lead + (3,))
     t_mcp = cmc + tb[..., 0:1] * along
-    t_ip = t_mcp + tb[..., 1:2] * (np.cos(m) * along - np.sin(m) * nail)
-    t_tip = t_ip + tb[..., 2:3] * (np.cos(m + i) * along - np.sin(m + i) * nail)
-    model = np.concatenate([np.zeros(lead + (1, 3)), np.stack([cmc, t_mcp, t_ip, t_tip], -2),
+    t_ip = t_mcp + tb[..., 1:2] * (xp.cos(m) * along - xp.sin(m) * nail)
+    t_tip = t_ip + tb[..., 2:3] * (xp.cos(m + i) * along - xp.sin(m + i) * nail)
+    model = xp.concatenate([xp.zeros(lead + (1, 3), dtype=dtype), xp.stack([cmc, t_mcp, t_ip, t_tip], -2),
                             fingers.reshape(lead + (16, 3))], -2)
     return model[..., _MODEL_TO_OFFICIAL, :]
 
