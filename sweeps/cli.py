@@ -15,7 +15,7 @@ def _kv(items):
     for it in items or []:
         k, _, v = it.partition("=")
         if not _:
-            raise SystemExit(f"handx: error: expected KEY=VALUE, got {it!r}")
+            raise ValueError(f"expected KEY=VALUE, got {it!r}")
         try:
             out[k] = json.loads(v)
         except json.JSONDecodeError:
@@ -40,9 +40,30 @@ def _sweep_kwargs(a: argparse.Namespace) -> dict:
     params = inspect.signature(_import(a.sweep).runs).parameters
     if a.preset is not None:
         if "preset" not in params:
-            raise SystemExit(f"handx: error: {a.sweep} has no presets (its runs() takes no 'preset')")
+            raise ValueError(f"{a.sweep} has no presets (its runs() takes no 'preset')")
         kw["preset"] = a.preset
     return kw
+
+
+RUN = "handx sweep run"
+
+
+def _fail(command: str, message: object) -> int:
+    """``handx sweep COMMAND: error: MESSAGE`` on stderr; exit status 2 (bad input, as every command)."""
+    print(f"{command}: error: {message}", file=sys.stderr)
+    return 2
+
+
+def _bad_counts(a: argparse.Namespace) -> str | None:
+    """What is wrong with the numbers of ``sweep run`` (checked before the sweep file is run or a folder made)."""
+    from handx_jax.infra.values import problem
+
+    for flag, value in (("--eval-limit", a.eval_limit), ("--eval-samples", a.eval_samples),
+                        ("--max-parallel", a.max_parallel)):
+        wrong = problem(value, whole=True, minimum=1)
+        if wrong:
+            return f"{flag} {wrong}"
+    return None
 
 
 def _run(a: argparse.Namespace) -> int:
@@ -51,6 +72,9 @@ def _run(a: argparse.Namespace) -> int:
     from handx_jax.infra.errors import DataError
     from sweeps.launcher import SweepConfig, launch, load_resources, load_rprec_block, load_sweep
 
+    bad = _bad_counts(a) or _bad_sets(a.set)
+    if bad:
+        return _fail(RUN, bad)
     try:  # the sweep file is user code: every way it can fail is one line naming it (launcher.load_sweep)
         kw = _sweep_kwargs(a)
         specs = load_sweep(a.sweep, **kw)
@@ -59,13 +83,12 @@ def _run(a: argparse.Namespace) -> int:
         block = a.rprec_block or load_rprec_block(a.sweep)
         named = _evaluator(a.evaluator) if a.evaluator else None  # a bad name or folder, even with --dry-run
     except (DataError, FileNotFoundError, ValueError) as e:
-        print(f"handx sweep run: error: {e}", file=sys.stderr)
-        return 2
+        return _fail(RUN, e)
     if a.only:
         keep = set(a.only.split(","))
         unknown = keep - {s.name for s in specs}
         if unknown:
-            raise SystemExit(f"handx: error: --only names runs the sweep does not have: {', '.join(sorted(unknown))}")
+            return _fail(RUN, f"--only names runs the sweep does not have: {', '.join(sorted(unknown))}")
         specs = [s for s in specs if s.name in keep]
     if a.dry_run:
         for s in specs:
@@ -83,20 +106,14 @@ def _run(a: argparse.Namespace) -> int:
 
     if not a.data or (not a.encoder and any(needs_encoder(s) for s in specs)):
         fams = sorted({s.family for s in specs if needs_encoder(s)})
-        raise SystemExit(f"handx sweep run: error: --data (and --encoder for {', '.join(fams) or 'these'} runs) "
-                         f"are required")
-    bad = [o for o in a.set if not o.split("=", 1)[0].strip().startswith("sample.") or "=" not in o]
-    if bad:
-        raise SystemExit(f"handx sweep run: error: --set takes the runs' generation settings, sample.KEY=VALUE; "
-                         f"got {', '.join(map(repr, bad))}")
+        return _fail(RUN, f"--data (and --encoder for {', '.join(fams) or 'these'} runs) are required")
     if named is not None:  # the evaluator's pair with the data, before the first run trains (issue 54 item 2)
         from handx_jax.dataset.format import Dataset
 
         try:
             named.check_data(Dataset.open(a.data))
         except (DataError, FileNotFoundError, ValueError) as e:
-            print(f"handx sweep run: error: {e}", file=sys.stderr)
-            return 2
+            return _fail(RUN, e)
     cfg = SweepConfig(data=str(Path(a.data).absolute()), encoder=str(Path(a.encoder).absolute()) if a.encoder else "",
                       out=a.out, evaluator=str(named.folder.absolute()) if named else None,
                       eval_limit=a.eval_limit, eval_samples=a.eval_samples, rprec_block=block, sample=tuple(a.set),
@@ -115,6 +132,13 @@ def _evaluator(value: str | None, data: str | None = None):
     if data is not None:
         named.check_data(Dataset.open(data))
     return named
+
+
+def _bad_sets(sets) -> str | None:
+    bad = [o for o in sets if not o.split("=", 1)[0].strip().startswith("sample.") or "=" not in o]
+    if bad:
+        return f"--set takes the runs' generation settings, sample.KEY=VALUE; got {', '.join(map(repr, bad))}"
+    return None
 
 
 def _launched(command: str, go, total: int | None = None) -> int:

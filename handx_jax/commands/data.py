@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from handx_jax.cliargs import deprecated_positional
+from handx_jax.infra.values import number_flag, whole_flag
 
 
 def _data_arg(s) -> None:
@@ -17,13 +18,17 @@ def _data_arg(s) -> None:
 
 
 def _build_args(s) -> None:
-    """The options every corpus build takes (``handx data synth``, ``handx data objects``)."""
-    s.add_argument("--clips", type=int, required=True, help="number of clips to keep")
-    s.add_argument("--seed", type=int, default=0)
+    """The corpus-build options of ``handx data synth`` and ``handx data objects``, each checked while the command
+    line is parsed (``infra.values``): nothing is built or written for a bad value."""
+    s.add_argument("--clips", type=whole_flag(1), required=True, help="number of clips to keep")
+    s.add_argument("--seed", type=whole_flag(0), default=0)
     s.add_argument("--out", required=True, help="dataset directory to create")
-    s.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
-    s.add_argument("--val-fraction", type=float, default=0.05)
-    s.add_argument("--test-fraction", type=float, default=0.05)
+    s.add_argument("--workers", type=whole_flag(0), default=0, help="processes (0 = one per core)")
+    s.add_argument("--val-fraction", type=number_flag(above=0, below=1), default=0.05,
+                   help="share of the sequences in the validation split, in (0, 1) (default 0.05)")
+    s.add_argument("--test-fraction", type=number_flag(above=0, below=1), default=0.05,
+                   help="share of the sequences in the test split, in (0, 1); with --val-fraction below 1 "
+                        "(default 0.05)")
 
 
 def add_parser(subparsers) -> None:
@@ -117,8 +122,9 @@ def add_parser(subparsers) -> None:
     _data_arg(s)
     s.add_argument("--out", required=True, help="dataset directory to create")
     s.add_argument("--split", choices=("train", "val", "test"), default="train", help="the split to reverse")
-    s.add_argument("--clips", type=int, default=None, help="at most this many clips, evenly spaced over the split")
-    s.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
+    s.add_argument("--clips", type=whole_flag(1), default=None,
+                   help="at most this many clips, evenly spaced over the split")
+    s.add_argument("--workers", type=whole_flag(0), default=0, help="processes (0 = one per core)")
     s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
     s.set_defaults(func=_reverse)
 
@@ -151,7 +157,14 @@ def _synth(a: argparse.Namespace) -> int:
     from handx_jax.dataset.build import BuildConfig, build_corpus, with_motion, with_reading
     from handx_jax.dataset.format import Dataset
     from handx_jax.dataset.stats import dataset_stats, format_stats
+    from handx_jax.commands import fail
+    from handx_jax.config import ConfigError
+    from handx_jax.infra.values import check_split_fractions
 
+    try:  # the two fractions together (each flag was checked as it was parsed)
+        check_split_fractions(a.val_fraction, a.test_fraction, names=("--val-fraction", "--test-fraction"))
+    except ConfigError as e:
+        return fail("handx data synth", e)
     cfg = with_reading(with_motion(BuildConfig(clips=a.clips, seed=a.seed, workers=a.workers,
                                                val_fraction=a.val_fraction, test_fraction=a.test_fraction),
                                    a.motion), a.annotation)
@@ -197,8 +210,6 @@ def _objects(a: argparse.Namespace) -> int:
 def _reverse(a: argparse.Namespace) -> int:
     from handx_jax.dataset.reverse import build_reversed
 
-    if a.clips is not None and a.clips < 1:
-        raise SystemExit(f"handx: error: --clips is {a.clips}; it must be a whole number >= 1")
     out = build_reversed(a.data, a.out, split=a.split, limit=a.clips, workers=a.workers, overwrite=a.force,
                          stats=dataset_norms())
     print(f"wrote {out}")

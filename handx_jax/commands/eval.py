@@ -181,8 +181,11 @@ def _predict(args: argparse.Namespace) -> int:
     N, K = args.observed_frames, args.samples
     if bool(args.run) == bool(args.baseline):
         return fail(PREDICTION, f"give --run RUN or --baseline {'|'.join(PR_BASELINES)}, not both or neither")
-    if K < 1 or (args.limit is not None and args.limit < 1):
-        return fail(PREDICTION, f"--samples and --limit must be at least 1, got {K} and {args.limit}")
+    from handx_jax.generation import check_limit
+    from handx_jax.infra.values import check
+
+    check(K, "--samples", whole=True, minimum=1)
+    check_limit(args.limit)
     if N < 1:
         return fail(PREDICTION, f"--observed-frames must be at least 1, got {N}")
     if args.extra and not args.run:
@@ -192,12 +195,9 @@ def _predict(args: argparse.Namespace) -> int:
     fam = fp = None
     if args.run:  # the run's family parses its own flags (as handx generate does); nothing here names one
         from handx_jax.commands.generate import family_parser
-        from handx_jax.families import entry, family_of
+        from handx_jax.families import check_task, family_of
 
-        name = family_of(args.run)
-        if "prediction" not in entry(name).tasks:  # the registry says which families predict
-            return fail(PREDICTION, f"family {name} does not do --task prediction; it does "
-                                    f"{', '.join(entry(name).tasks) or 'no generation'}")
+        check_task(family_of(args.run), "prediction")  # the registry says which families predict
         fam, fp = family_parser(args.run)
         fp.prog = f"{PREDICTION} --run {args.run}"  # argparse's own errors (a bad family flag) name this command
     data = args.data or PR.run_data(args.run)

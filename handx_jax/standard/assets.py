@@ -4,12 +4,12 @@ load verifies. Which ``--evaluator`` values name one of them: :mod:`handx_jax.st
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
 from handx_jax.infra.checksums import sha256_file, verify_checksum
 from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import read_json
 
 VERSION = 7  # of the packaged assets; bumped whenever the recipe or any weight changes
 ASSETS = Path(__file__).resolve().parent.parent / "assets" / "standard"  # handx_jax/assets/standard
@@ -32,7 +32,7 @@ def read_card(assets: Path | None = None) -> dict:
     if not p.exists():
         raise DataError(f"the standard evaluator's card is missing (is the package installed with its assets? "
                         f"see pyproject package-data)", path=p)
-    return json.loads(p.read_text())
+    return read_json(p, expect=dict)
 
 
 def asset_files(assets: Path) -> list[str]:

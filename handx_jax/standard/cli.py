@@ -9,9 +9,9 @@ import dataclasses
 import json
 import sys
 import time
-from pathlib import Path
 
 from handx_jax import standard
+from handx_jax.infra.values import whole_flag
 
 
 def _info(a: argparse.Namespace) -> int:
@@ -71,10 +71,9 @@ def _package(a: argparse.Namespace) -> int:
         recipe = dataclasses.replace(standard.code_recipe(), clips=int(a.recipe_clips))
     validity = None
     if a.validity:
-        try:
-            validity = json.loads(Path(a.validity).read_text())
-        except (OSError, json.JSONDecodeError) as e:
-            return _usage_error(f"--validity {a.validity}: {e}")
+        from handx_jax.infra.readers import read_json
+
+        validity = read_json(a.validity, expect=dict)
     if a.validity_only:  # the figures of an already packaged evaluator (the suite needs it packaged)
         if validity is None:
             return _usage_error("--validity-only needs --validity FILE")
@@ -101,8 +100,8 @@ def add_parser(subparsers) -> None:
     i.set_defaults(func=_info)
     c = sub.add_parser("corpus", help="build the standard corpus, or its first --clips M clips (a prefix)")
     c.add_argument("--out", required=True, help="dataset directory to create")
-    c.add_argument("--clips", type=int, help="build only the first M clips (default: the whole standard corpus)")
-    c.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
+    c.add_argument("--clips", type=whole_flag(1), help="build only the first M clips (default: the whole standard corpus)")
+    c.add_argument("--workers", type=whole_flag(0), default=0, help="processes (0 = one per core)")
     c.add_argument("--corpus", choices=standard.CORPUS_VERSIONS,
                    help="a named corpus version instead of the standard one (v4): v5 = v4 with the hands resolved "
                         "against the hand surface and contacts read from it (no evaluator trained on it yet)")
