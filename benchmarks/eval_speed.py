@@ -43,7 +43,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/_peak.py,
 from _peak import emit  # noqa: E402
 
 from handx_jax.evaluation import (TextPolicy, TrainedEvaluator, _init_params,  # noqa: E402
-                                  evaluate_embeddings_and_motion, load_evaluator, model_config, motion_features,
+                                  evaluate_embeddings_and_motion, model_config, motion_features,
                                   reference_embeddings)
 from handx_jax.metrics import MetricConfig  # noqa: E402
 
@@ -79,7 +79,7 @@ def main(argv=None) -> dict:
     p.add_argument("--clips", type=int, default=2000)
     p.add_argument("--groups", type=int, default=1, help="generation groups (clips = prompts × groups)")
     p.add_argument("--replications", type=int, default=20)
-    p.add_argument("--evaluator")
+    p.add_argument("--evaluator", help="standard, a version such as standard-v7, or an evaluator folder")
     p.add_argument("--reference")
     p.add_argument("--preset", default="small")
     p.add_argument("--encoder", default=str(ROOT / "tests" / "fixtures" / "t5_tiny_gated"))
@@ -89,7 +89,9 @@ def main(argv=None) -> dict:
     if a.evaluator:
         from handx_jax.dataset.format import Dataset
 
-        ev = load_evaluator(a.evaluator)
+        from handx_jax.standard.naming import resolve_evaluator
+
+        ev = resolve_evaluator(a.evaluator).load()  # standard, standard-vN or an evaluator folder
         ds = Dataset.open(a.reference or ev.meta["dataset"]["path"])
         clips = np.arange(min(N, len(ds)))
         N = len(clips)

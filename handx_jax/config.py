@@ -8,8 +8,9 @@ dataclasses. Everything that can be set from the command line is set the same wa
 
 Each value is parsed for the field's declared type (``1e3`` is a valid int, ``2.5`` is not; ``none``
 sets an Optional field to None; a tuple takes comma-separated items, optionally in brackets), unknown
-keys are an error with a "did you mean" hint, and the top-level class's ``validate()`` (if it has
-one) runs after all overrides, so ``model.dim`` and ``model.heads`` can change together.
+keys are an error with a "did you mean" hint, and :func:`validate` runs after all overrides (each nested
+group's ``check_values``, e.g. the training loop's ``train.*`` ranges, then the top-level class's
+``validate()``), so ``model.dim`` and ``model.heads`` can change together.
 
 ``to_dict`` gives the JSON form written to a run's ``config.json``; ``from_dict`` rebuilds the
 dataclass from it (ignoring keys the class does not have, e.g. ``params``; tuples come back as
@@ -27,9 +28,7 @@ import types
 import typing
 from typing import Any, Mapping, Sequence
 
-
-class ConfigError(ValueError):
-    """A bad preset name, override or config file; the message says which key and why."""
+from handx_jax.infra.errors import ConfigError  # noqa: F401  (its home: infra.values raises it too)
 
 
 _SCALARS = (bool, int, float, str)
@@ -120,23 +119,46 @@ def _set_path(obj, path: list[str], text: str, key: str, done: list[str]):
     return dataclasses.replace(obj, **{name: parse_value(text, _hints(type(obj))[name], key)})
 
 
-def apply_overrides(cfg, overrides: Sequence[str]):
-    """Apply ``key.sub=value`` strings to a (nested) frozen dataclass, type-checked, then ``validate()``."""
+def apply_overrides(cfg, overrides: Sequence[str], *, groups: bool = True):
+    """Apply ``key.sub=value`` strings to a (nested) frozen dataclass, type-checked, then :func:`validate`.
+    ``groups=False`` leaves out the nested groups' ``check_values`` (the config's own ``validate()`` still
+    runs): a trained run's config read back to generate from, whose ``train.*`` values are its history (an
+    imported official model records ``train.steps`` 0), not a run to start."""
     for item in overrides:
         if "=" not in item:
             raise ConfigError(f"--set {item!r}: expected key=value (e.g. train.optim.lr=3e-4)")
         key, text = item.split("=", 1)
         key = key.strip()
         cfg = _set_path(cfg, key.split("."), text.strip(), key, [])
-    validate(cfg)
+    if groups:
+        validate(cfg)
+    else:
+        check = getattr(cfg, "validate", None)
+        if callable(check):
+            check()
     return cfg
 
 
-def validate(cfg) -> None:
-    """Run the config's own ``validate()`` if it has one (raises ValueError naming the key)."""
+def validate(cfg, key: str = "") -> None:
+    """Check a config before anything runs on it: every nested config's ``check_values(key)`` (a group of
+    values checked wherever it is used, named by its dotted key: ``TrainConfig`` as ``train.ckpt_every``,
+    ``OptimConfig`` as ``train.optim.lr``), then the config's own ``validate()`` if it has one (the checks
+    across groups). ``key``: the dotted key ``cfg`` itself has (``"train"`` for a bare ``TrainConfig``).
+    Raises ConfigError naming the key."""
+    _check_groups(cfg, key)
     check = getattr(cfg, "validate", None)
     if callable(check):
         check()
+
+
+def _check_groups(obj, where: str) -> None:
+    if not dataclasses.is_dataclass(obj) or isinstance(obj, type):
+        return
+    own = getattr(obj, "check_values", None)
+    if callable(own):
+        own(where)
+    for f in dataclasses.fields(obj):
+        _check_groups(getattr(obj, f.name), f"{where}.{f.name}" if where else f.name)
 
 
 def to_dict(cfg) -> dict:

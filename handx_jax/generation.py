@@ -79,11 +79,29 @@ def with_records(prompts: Sequence[Prompt], ds, clips) -> list[Prompt]:
     return [dataclasses.replace(p, record=events[int(c)]) for p, c in zip(prompts, clips)]
 
 
+def check_level(level: int, levels: int, where) -> None:
+    """``level`` must index one of the ``levels`` caption levels of the dataset at ``where`` (-1, -2, ...
+    count from the most detailed): a ValueError naming ``--level`` otherwise."""
+    if isinstance(level, bool) or not isinstance(level, int) or not -levels <= level < levels:
+        raise ValueError(f"--level must be in 0..{levels - 1} or -{levels}..-1 (-1 = the most detailed): the dataset "
+                         f"{where} has {levels} caption levels, got {level}")
+
+
+def check_limit(limit: int | None) -> None:
+    """``--limit`` of the commands that score or generate a split's clips: None (all) or at least 1."""
+    if limit is not None:
+        from handx_jax.infra.values import check
+
+        check(limit, "--limit", whole=True, minimum=1, why="or left out: every clip")
+
+
 def split_prompts(ds, split: str, limit: int | None = None, level: int = -1):
     """Batch mode's prompts (``handx generate --data``, ``handx eval prediction``): the clips of a
     dataset split (at most ``limit``: shuffled with seed 42, the first ``limit`` taken, sorted back, as
     the reference selects its evaluation clips), their captions at ``level`` and their motion.
     Returns (clip indices, prompts, motions (float32, one per clip))."""
+    check_limit(limit)
+    check_level(level, int(ds.meta["levels"]), ds.root)
     clips = np.asarray(ds.split(split))
     if limit and limit < len(clips):
         clips = np.sort(np.random.default_rng(42).permutation(clips)[:limit])

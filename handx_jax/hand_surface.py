@@ -8,6 +8,7 @@ a guidance step can take its gradient, and a metric can count its overlaps with 
 - :func:`capsules` — the capsule segments of one hand; radii :data:`CAPSULE_RADII_M`.
 - :func:`surface_points` — a fixed set of points on the capsules, with outward normals (rings per capsule,
   and a cap on each fingertip: the tip keypoint lies on the skin).
+- :func:`interhand_separation` — the same with the separating direction (synthesizers push along it).
 - :func:`interhand_signed_distance` — min over capsule pairs of (axis distance − r1 − r2) between the two
   hands of a frame: > 0 a gap, 0 contact, < 0 penetration depth.
 - :func:`hand_sdf` — the signed distance of any points to one hand's surface (contact maps, BimArt §3.2).
@@ -72,6 +73,13 @@ CAPSULE_RADII_M = np.array([_bone_radius(c) for _, c in sk.BONES] + [r for _, _,
 N_CAPSULES = len(CAPSULE_A)
 CAPSULE_IS_TIP = np.isin(CAPSULE_B, sk.TIPS) & (np.arange(N_CAPSULES) < len(sk.BONES))
 
+# The palm's capsules (both ends on the wrist, a finger base or the other cross-capsule end: the fan and the
+# two cross capsules) and each finger's distal capsule (sk.FINGER_NAMES order): where "palms touch" and
+# "fingertips touch" are read from (events.py's surface reading).
+_PALM_JOINTS = (0,) + sk.BASES
+PALM_CAPSULES = np.flatnonzero(np.isin(CAPSULE_A, _PALM_JOINTS) & np.isin(CAPSULE_B, _PALM_JOINTS)).astype(np.int32)
+TIP_CAPSULES = np.array([int(np.flatnonzero(CAPSULE_B == sk.CHAINS[f][4])[0]) for f in sk.FINGER_NAMES], np.int32)
+
 # Surface sampling: RINGS rings of RING_POINTS points around every capsule's cylinder, and on each fingertip
 # capsule's rounded end the tip itself plus one ring at 45°. 22·3·8 + 5·9 = 573 points per hand: a point
 # every ~7 mm along a finger and ~60% of the pad arc, dense enough that a finger 5 mm from an object surface
@@ -106,9 +114,10 @@ def _safe_norm_cm(g) -> jax.Array:
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, n2, 1.0)), 0.0)
 
 
-def _segment_distance_cm(p1, q1, p2, q2) -> jax.Array:
-    """:func:`segment_distance` with the xyz coordinates on the FIRST axis (3, …): the dot products are then
-    sums of three whole arrays, not reductions over a trailing axis of length 3 (~5x faster on CPU)."""
+def _segment_closest_cm(p1, q1, p2, q2) -> tuple[jax.Array, jax.Array]:
+    """The closest points (3, …) × 2 of segments [p1, q1] and [p2, q2], coordinates on the FIRST axis: the dot
+    products are then sums of three whole arrays, not reductions over a trailing axis of length 3 (~5x faster
+    on CPU). Ericson, Real-Time Collision Detection §5.1.9 (see :func:`segment_distance`)."""
     dot = lambda u, v: u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
     d1, d2, r = q1 - p1, q2 - p2, p1 - p2
     a, e = dot(d1, d1), dot(d2, d2)
@@ -122,7 +131,13 @@ def _segment_distance_cm(p1, q1, p2, q2) -> jax.Array:
     s = jnp.where(t < 0.0, jnp.where(a > eps, jnp.clip(-c / safe(a), 0.0, 1.0), 0.0), s)
     s = jnp.where(t > 1.0, jnp.where(a > eps, jnp.clip((b - c) / safe(a), 0.0, 1.0), 0.0), s)
     t = jnp.clip(t, 0.0, 1.0)
-    return _safe_norm_cm((p1 + d1 * s) - (p2 + d2 * t))
+    return p1 + d1 * s, p2 + d2 * t
+
+
+def _segment_distance_cm(p1, q1, p2, q2) -> jax.Array:
+    """:func:`segment_distance` with the xyz coordinates on the first axis (3, …)."""
+    c1, c2 = _segment_closest_cm(p1, q1, p2, q2)
+    return _safe_norm_cm(c1 - c2)
 
 
 def _cm(v):
@@ -179,6 +194,28 @@ def interhand_signed_distance(joints_Mx2x21x3: jax.Array) -> jax.Array:
     pr, qr = capsules(x[..., sk.RIGHT, :, :])
     r = jnp.asarray(CAPSULE_RADII_M)
     return segment_distance(pick(pl, i), pick(ql, i), pick(pr, j), pick(qr, j)) - r[i] - r[j]
+
+
+@jax.jit
+def interhand_separation(joints_Mx2x21x3: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """(signed distance (M,), separating direction (M, 3)) per frame: the direction from the left hand's
+    closest surface point to the right hand's, i.e. the gradient of the signed distance with respect to a
+    translation of the right hand (the left's is its negative). Moving the right hand by +δ/2 along it and
+    the left by −δ/2 changes the distance by δ while the closest pair stays the closest. Where the two
+    closest axis points coincide (axes crossing) it is the direction between the two palms' centres."""
+    x = jnp.asarray(joints_Mx2x21x3)
+    r = jnp.asarray(CAPSULE_RADII_M)
+    pl, ql = map(_cm, capsules(x[..., sk.LEFT, :, :]))
+    pr, qr = map(_cm, capsules(x[..., sk.RIGHT, :, :]))
+    cl, cr = _segment_closest_cm(pl[..., :, None], ql[..., :, None], pr[..., None, :], qr[..., None, :])
+    g_all = (cr - cl).reshape(3, *cl.shape[1:-2], -1)  # (3, M, C·C)
+    d = _safe_norm_cm(g_all) - (r[:, None] + r[None, :]).reshape(-1)
+    k = jnp.argmin(d, axis=-1)
+    g = jnp.moveaxis(jnp.take_along_axis(g_all, k[None, ..., None], axis=-1)[..., 0], 0, -1)  # (M, 3)
+    palm = list(sk.BASES) + [0]
+    fallback = x[..., sk.RIGHT, palm, :].mean(-2) - x[..., sk.LEFT, palm, :].mean(-2)
+    g = jnp.where(jnp.linalg.norm(g, axis=-1, keepdims=True) > 1e-7, g, fallback)
+    return jnp.min(d, axis=-1), g / jnp.maximum(jnp.linalg.norm(g, axis=-1, keepdims=True), 1e-12)
 
 
 def _ring_frame(joints_Mx21x3, p, q):
@@ -262,3 +299,20 @@ def object_penetration(joints_Mx21x3: jax.Array, sdf) -> jax.Array:
 def interhand_penetration_depth(joints_Mx2x21x3: jax.Array) -> jax.Array:
     """(M,): the deepest inter-hand overlap per frame, m, 0 where the surfaces do not touch."""
     return jnp.maximum(-interhand_signed_distance(joints_Mx2x21x3), 0.0)
+
+
+BATCH_FRAMES = 512
+
+
+def in_batches(fn, x_Kx_: np.ndarray, batch: int = BATCH_FRAMES):
+    """``fn`` (one of the functions above) over K frames in padded batches of ``batch``, as numpy: one compiled
+    shape whatever K is, for host-side loops (synthesis, annotation) whose frame counts vary call to call."""
+    x = np.asarray(x_Kx_, np.float32)
+    K = x.shape[0]
+    if K == 0:
+        return jax.tree_util.tree_map(lambda o: np.asarray(o)[:0], fn(np.zeros((batch, *x.shape[1:]), np.float32)))
+    pad = -K % batch
+    if pad:
+        x = np.concatenate([x, np.repeat(x[:1], pad, 0)])
+    outs = [jax.tree_util.tree_map(np.asarray, fn(x[b:b + batch])) for b in range(0, K + pad, batch)]
+    return jax.tree_util.tree_map(lambda *o: np.concatenate(o)[:K], *outs)

@@ -29,6 +29,22 @@ class OptimConfig:
     schedule: str = "constant"  # "constant" (reference) or "cosine" (decay to 0 at the last step)
     grad_clip: float = 1.0  # 0 disables
 
+    def check_values(self, key: str = "train.optim") -> None:
+        """Finite numbers in range (``config.validate``): a NaN learning rate would otherwise train until the
+        first logged loss is NaN, with the run folder written."""
+        from handx_jax.config import ConfigError
+        from handx_jax.infra.values import check
+
+        name = lambda n: f"{key}.{n}" if key else n  # noqa: E731
+        for n in ("lr", "weight_decay", "grad_clip"):
+            check(getattr(self, n), name(n), minimum=0)
+        check(self.eps, name("eps"), above=0)
+        for n in ("b1", "b2"):
+            check(getattr(self, n), name(n), minimum=0, below=1)
+        check(self.warmup_steps, name("warmup_steps"), whole=True, minimum=0)
+        if self.schedule not in ("constant", "cosine"):
+            raise ConfigError(f"{name('schedule')} must be constant or cosine, got {self.schedule!r}")
+
 
 
 def effective_warmup(warmup_steps: int, total_steps: int) -> int:

@@ -66,9 +66,13 @@ class RunLogger:
             self._wandb.log({k: v for k, v in row.items() if k != "step"}, step=int(row["step"]))
 
     def truncate_after(self, step: int) -> None:
-        """On resume, drop metric lines logged after the checkpoint we restart from."""
+        """On resume, drop the metric rows that the run logs again from ``step``, the checkpoint it restarts
+        from: those after it, and with no checkpoint yet (``step`` 0) every row, the step-0 evaluation
+        included (a fresh start logs it again; kept, a run killed before its first checkpoint held that row
+        twice). Rows of a restored step were written before its checkpoint and are kept."""
         if self.enabled and self.metrics_path.exists():
-            rows = [r for r in read_jsonl(self.metrics_path, strict=False) if r.get("step", 0) <= step]
+            rows = [r for r in read_jsonl(self.metrics_path, strict=False)
+                    if step > 0 and isinstance(r, dict) and r.get("step", 0) <= step]
             from handx_jax.infra.atomic import atomic_write_jsonl
 
             atomic_write_jsonl(self.metrics_path, rows)
@@ -81,7 +85,9 @@ class RunLogger:
 
 
 def read_config(run_dir: str | os.PathLike) -> dict:
-    return json.loads((Path(run_dir) / "config.json").read_text())
+    from handx_jax.infra.readers import read_json
+
+    return read_json(Path(run_dir) / "config.json", expect=dict)
 
 
 def trainable_renamed(old_family: str, trainable: str) -> Callable[[dict], dict]:

@@ -16,8 +16,8 @@ record; everything else lives here, the optimiser in ``handx_jax.optim`` and the
 - The run folder gets ``config.json``, ``metrics.jsonl`` (``runlog.RunLogger``) and
   ``checkpoints/``. Re-running on a
   folder resumes it, only with the same configuration (:func:`check_resume`), and ``metrics.jsonl`` is
-  trimmed to the restored step (step 0 when no checkpoint was written yet), so a killed run never
-  logs a step twice.
+  trimmed to the restored step (emptied when no checkpoint was written yet: the step-0 evaluation is
+  logged again), so a killed run never logs a row twice.
 - ``evaluate(params, ema, step) -> dict`` runs every ``eval_every`` steps and at the end; its row
   (``{"step", "eval/...": ...}``) goes to ``metrics.jsonl`` beside the training rows.
 - Data parallel across all devices through ``jax.sharding``: the batch is split along a ("data",)
@@ -31,7 +31,6 @@ from __future__ import annotations
 import collections
 import dataclasses
 import itertools
-import json
 import math
 import os
 import time
@@ -45,12 +44,13 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from handx_jax.config import ConfigError, validate
 from handx_jax.infra.checksums import TREE_CHECKSUMS, verify_tree_checksum, write_tree_checksum
 from handx_jax.infra.errors import DataError
 from handx_jax.infra.param_files import check_finite_params
+from handx_jax.infra.readers import read_json
 from handx_jax.optim import OptimConfig, effective_warmup, learning_rate, optimizer_for, schedule_values
 from handx_jax.runlog import RunLogger
-
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,23 @@ class TrainConfig:
     microbatch: int = 0
     optim: OptimConfig = OptimConfig()
 
+    def check_values(self, key: str = "train") -> None:
+        """The loop's ranges, checked before any run folder is made (``config.validate``; :func:`train` again
+        for a caller that built the config itself): a step count, batch or interval of 0 divides by zero in
+        the loop, a negative step count trains nothing, a negative seed cannot order the data."""
+        from handx_jax.infra.values import check
 
+        name = lambda n: f"{key}.{n}" if key else n  # noqa: E731
+        for n in ("steps", "batch_size", "log_every", "ckpt_every", "keep_checkpoints"):
+            check(getattr(self, n), name(n), whole=True, minimum=1)
+        for n in ("seed", "prefetch", "eval_every", "microbatch"):
+            check(getattr(self, n), name(n), whole=True, minimum=0)
+        check(self.ema_decay, name("ema_decay"), minimum=0, below=1, why="0 disables EMA")
+        if self.wandb not in ("offline", "online", "disabled"):
+            raise ConfigError(f"{name('wandb')} must be offline, online or disabled, got {self.wandb!r}")
+        if 0 < self.microbatch < self.batch_size and self.batch_size % self.microbatch:
+            raise ConfigError(f"{name('microbatch')} {self.microbatch} must divide {name('batch_size')} "
+                              f"{self.batch_size} (0: the whole batch)")
 
 
 def batch_indices(n: int, batch_size: int, seed: int, step: int) -> np.ndarray:
@@ -185,11 +201,7 @@ def check_resume(run_dir: str | os.PathLike, config: dict, keys: Sequence[str] |
     p = Path(run_dir) / "config.json"
     if not p.exists():
         return
-    try:
-        old = json.loads(p.read_text())
-    except json.JSONDecodeError as e:
-        raise DataError(f"config.json is not valid JSON ({e}); move the folder away or use a new --out",
-                        path=p) from None
+    old = read_json(p, expect=dict)  # corrupt or not an object: one line naming it
     if upgrade is not None:
         old = upgrade(old)
     if isinstance(old.get("train"), dict) and isinstance(config.get("train"), dict):
@@ -271,6 +283,7 @@ def train(run_dir: str | os.PathLike, spec: TrainSpec, *, stop_at: int | None = 
     from jax.sharding import NamedSharding, PartitionSpec as P
 
     run_dir = Path(run_dir).absolute()
+    validate(cfg, "train")  # before the run folder exists: a bad value is refused with nothing written
     doc = {**config, "train": dataclasses.asdict(cfg)}
     check_resume(run_dir, doc, spec.resume_keys, spec.upgrade_config)
     # The run-folder lock (handx_jax.infra.runlock.RunLock, issue 14.8) is taken by `handx train` around the
@@ -293,9 +306,6 @@ def train(run_dir: str | os.PathLike, spec: TrainSpec, *, stop_at: int | None = 
     replicated = NamedSharding(mesh, P())
     if cfg.batch_size % mesh.size:
         raise ValueError(f"batch size {cfg.batch_size} is not divisible by {mesh.size} devices")
-    if cfg.microbatch < 0 or (0 < cfg.microbatch < cfg.batch_size and cfg.batch_size % cfg.microbatch):
-        raise ValueError(f"train.microbatch {cfg.microbatch} must divide train.batch_size {cfg.batch_size} "
-                         "(0: the whole batch)")
 
     rng = jax.random.PRNGKey(cfg.seed)
 
@@ -325,8 +335,8 @@ def train(run_dir: str | os.PathLike, spec: TrainSpec, *, stop_at: int | None = 
         state = jax.device_put(state, replicated)
         print(f"resumed from step {start}")
     sched_v = jax.device_put(jnp.asarray(sched_v), replicated)
-    # Always, also with no checkpoint yet (start 0): rows of a killed attempt beyond the restored step
-    # would otherwise be logged twice (10, 20, 30, 10, 20, …).
+    # Always, also with no checkpoint yet (start 0, when every row goes, the step-0 evaluation too): rows of
+    # a killed attempt beyond the restored step would otherwise be logged twice (10, 20, 30, 10, 20, …).
     logger.truncate_after(start)
 
     compute_dtype = jnp.bfloat16 if cfg.bf16 else jnp.float32

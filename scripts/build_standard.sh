@@ -56,15 +56,20 @@ t2=$(date +%s)
     --set data.augment_white_mm="$AUG_WHITE" --set data.augment_lowfreq_mm="$AUG_LOWFREQ" \
     --set model.mask_same_text="$MASK_SAME_TEXT" --set model.reverse_negative="$REVERSE_NEGATIVE"
 t3=$(date +%s)
-# Keep the packaged evaluator being replaced loadable by its id (--evaluator standard-vN).
+# Keep the packaged evaluator being replaced loadable by its name (--evaluator standard-vN) from a clone: it moves
+# to evaluators/standard-vN/ (not installed; evaluators/README.md is the index: add its line).
 OLD=$("$PY" -c "import json; from handx_jax import standard as s; print(json.loads((s.ASSETS / s.CARD_JSON).read_text())['version'])" 2>/dev/null || echo "")
 NEW=$("$PY" -c "from handx_jax import standard as s; print(s.VERSION)")
 ASSETS=$("$PY" -c "from handx_jax import standard as s; print(s.ASSETS)")
-if [ -n "$OLD" ] && [ "$OLD" != "$NEW" ] && [ ! -d "$ASSETS-v$OLD" ]; then cp -r "$ASSETS" "$ASSETS-v$OLD"; fi
+ARCHIVED=$("$PY" -c "from handx_jax import standard as s; print(s.ARCHIVE)")/standard-v$OLD
+if [ -n "$OLD" ] && [ "$OLD" != "$NEW" ] && [ ! -d "$ARCHIVED" ]; then cp -r "$ASSETS" "$ARCHIVED"; fi
 "${H[@]}" standard package --data "$DATA" --encoder "$WORK/t5/encoder" --evaluator "$WORK/evaluator" \
   --note "corpus build=$((t1 - t0)) s" --note "tokenizer + tiny T5=$((t2 - t1)) s" \
   --note "text cache + evaluator training=$((t3 - t2)) s" \
   --note "command=STEPS=$STEPS BATCH=$BATCH LR=$LR WARMUP=$WARMUP DROPOUT=$DROPOUT PRESET=$PRESET AUG_WHITE=$AUG_WHITE AUG_LOWFREQ=$AUG_LOWFREQ MASK_SAME_TEXT=$MASK_SAME_TEXT REVERSE_NEGATIVE=$REVERSE_NEGATIVE${ENCODER:+ ENCODER=$ENCODER} scripts/build_standard.sh"
+# The archived version keeps no copy of an encoder byte-identical to the new one (standard.asset_path reads the
+# packaged one, still checked against the archived card's sha256).
+if [ -d "$ARCHIVED/encoder" ] && diff -rq "$ARCHIVED/encoder" "$ASSETS/encoder" > /dev/null; then rm -r "$ARCHIVED/encoder"; fi
 # The validity suite on a prefix with the packaged evaluator (a plain evaluator folder refuses a prefix of its
 # corpus; the standard one accepts it), then its figures on the card.
 PREFIX=$WORK/prefix$VALIDITY_CLIPS

@@ -15,7 +15,7 @@ def _kv(items):
     for it in items or []:
         k, _, v = it.partition("=")
         if not _:
-            raise SystemExit(f"handx: error: expected KEY=VALUE, got {it!r}")
+            raise ValueError(f"expected KEY=VALUE, got {it!r}")
         try:
             out[k] = json.loads(v)
         except json.JSONDecodeError:
@@ -40,9 +40,30 @@ def _sweep_kwargs(a: argparse.Namespace) -> dict:
     params = inspect.signature(_import(a.sweep).runs).parameters
     if a.preset is not None:
         if "preset" not in params:
-            raise SystemExit(f"handx: error: {a.sweep} has no presets (its runs() takes no 'preset')")
+            raise ValueError(f"{a.sweep} has no presets (its runs() takes no 'preset')")
         kw["preset"] = a.preset
     return kw
+
+
+RUN = "handx sweep run"
+
+
+def _fail(command: str, message: object) -> int:
+    """``handx sweep COMMAND: error: MESSAGE`` on stderr; exit status 2 (bad input, as every command)."""
+    print(f"{command}: error: {message}", file=sys.stderr)
+    return 2
+
+
+def _bad_counts(a: argparse.Namespace) -> str | None:
+    """What is wrong with the numbers of ``sweep run`` (checked before the sweep file is run or a folder made)."""
+    from handx_jax.infra.values import problem
+
+    for flag, value in (("--eval-limit", a.eval_limit), ("--eval-samples", a.eval_samples),
+                        ("--max-parallel", a.max_parallel)):
+        wrong = problem(value, whole=True, minimum=1)
+        if wrong:
+            return f"{flag} {wrong}"
+    return None
 
 
 def _run(a: argparse.Namespace) -> int:
@@ -51,20 +72,23 @@ def _run(a: argparse.Namespace) -> int:
     from handx_jax.infra.errors import DataError
     from sweeps.launcher import SweepConfig, launch, load_resources, load_rprec_block, load_sweep
 
+    bad = _bad_counts(a) or _bad_sets(a.set)
+    if bad:
+        return _fail(RUN, bad)
     try:  # the sweep file is user code: every way it can fail is one line naming it (launcher.load_sweep)
         kw = _sweep_kwargs(a)
         specs = load_sweep(a.sweep, **kw)
         preset = kw.get("preset", "")
         resources = {**load_resources(a.sweep, preset), **_kv(a.slurm)}
         block = a.rprec_block or load_rprec_block(a.sweep)
+        named = _evaluator(a.evaluator) if a.evaluator else None  # a bad name or folder, even with --dry-run
     except (DataError, FileNotFoundError, ValueError) as e:
-        print(f"handx sweep run: error: {e}", file=sys.stderr)
-        return 2
+        return _fail(RUN, e)
     if a.only:
         keep = set(a.only.split(","))
         unknown = keep - {s.name for s in specs}
         if unknown:
-            raise SystemExit(f"handx: error: --only names runs the sweep does not have: {', '.join(sorted(unknown))}")
+            return _fail(RUN, f"--only names runs the sweep does not have: {', '.join(sorted(unknown))}")
         specs = [s for s in specs if s.name in keep]
     if a.dry_run:
         for s in specs:
@@ -82,18 +106,39 @@ def _run(a: argparse.Namespace) -> int:
 
     if not a.data or (not a.encoder and any(needs_encoder(s) for s in specs)):
         fams = sorted({s.family for s in specs if needs_encoder(s)})
-        raise SystemExit(f"handx sweep run: error: --data (and --encoder for {', '.join(fams) or 'these'} runs) "
-                         f"are required")
-    bad = [o for o in a.set if not o.split("=", 1)[0].strip().startswith("sample.") or "=" not in o]
-    if bad:
-        raise SystemExit(f"handx sweep run: error: --set takes the runs' generation settings, sample.KEY=VALUE; "
-                         f"got {', '.join(map(repr, bad))}")
+        return _fail(RUN, f"--data (and --encoder for {', '.join(fams) or 'these'} runs) are required")
+    if named is not None:  # the evaluator's pair with the data, before the first run trains (issue 54 item 2)
+        from handx_jax.dataset.format import Dataset
+
+        try:
+            named.check_data(Dataset.open(a.data))
+        except (DataError, FileNotFoundError, ValueError) as e:
+            return _fail(RUN, e)
     cfg = SweepConfig(data=str(Path(a.data).absolute()), encoder=str(Path(a.encoder).absolute()) if a.encoder else "",
-                      out=a.out, evaluator=str(Path(a.evaluator).absolute()) if a.evaluator else None,
+                      out=a.out, evaluator=str(named.folder.absolute()) if named else None,
                       eval_limit=a.eval_limit, eval_samples=a.eval_samples, rprec_block=block, sample=tuple(a.set),
                       executor=a.executor, slurm=resources,
                       name=a.name or "", preset=preset, max_parallel=a.max_parallel, existing=a.existing)
     return _launched("run", lambda: launch(specs, cfg), len(specs))
+
+
+def _evaluator(value: str | None, data: str | None = None):
+    """The evaluator (``standard``, ``standard-vN`` or a path, resolved by ``standard.naming``), checked
+    against the sweep's dataset when it is given; the stages are passed its folder."""
+    from handx_jax.dataset.format import Dataset
+    from handx_jax.standard.naming import resolve_evaluator
+
+    named = resolve_evaluator(value)
+    if data is not None:
+        named.check_data(Dataset.open(data))
+    return named
+
+
+def _bad_sets(sets) -> str | None:
+    bad = [o for o in sets if not o.split("=", 1)[0].strip().startswith("sample.") or "=" not in o]
+    if bad:
+        return f"--set takes the runs' generation settings, sample.KEY=VALUE; got {', '.join(map(repr, bad))}"
+    return None
 
 
 def _launched(command: str, go, total: int | None = None) -> int:
@@ -139,10 +184,14 @@ def _status(a: argparse.Namespace) -> int:
 
 
 def _rescore(a: argparse.Namespace) -> int:
-    from handx_jax import standard
+    from handx_jax.infra.errors import DataError
     from sweeps.launcher import rescore
 
-    ev = standard.evaluator_dir(standard.assets_for(a.evaluator)) if standard.is_standard(a.evaluator) else a.evaluator
+    try:
+        ev = str(_evaluator(a.evaluator, a.data).folder.absolute())
+    except (DataError, FileNotFoundError, ValueError) as e:
+        print(f"handx sweep rescore: error: {e}", file=sys.stderr)
+        return 2
     return _launched("rescore", lambda: rescore(a.out, ev, data=a.data, executor=a.executor,
                                                 max_parallel=a.max_parallel, rprec_block=a.rprec_block))
 
@@ -171,7 +220,9 @@ def add_parser(subparsers) -> None:
     r.add_argument("--data", help="dataset directory")
     r.add_argument("--encoder", help="frozen T5 encoder folder")
     r.add_argument("--out", required=True, help="sweep folder (runs/, steps/, results.jsonl, results.csv)")
-    r.add_argument("--evaluator", help="evaluator checkpoint; without it runs are trained but not scored")
+    r.add_argument("--evaluator", help="'standard' (the packaged one), a version such as standard-v6, or an evaluator "
+                                       "folder; checked against --data before any run trains. Without it runs are "
+                                       "trained but not scored")
     r.add_argument("--eval-limit", type=int, default=512, help="test clips generated per run")
     r.add_argument("--eval-samples", type=int, default=1, help="generations per prompt")
     deprecated_flag(r, "--rprec-block", r.add_argument(
@@ -205,7 +256,8 @@ def add_parser(subparsers) -> None:
                                    "(regenerated first only if EVALUATOR scores another caption level); the old "
                                    "scores stay as RUN/eval.<old id>.json.")
     deprecated_positional(q, q.add_argument("--out", required=True, metavar="OUT", help="sweep folder (must exist)"), "out")
-    q.add_argument("--evaluator", help="evaluator folder; default (or 'standard'): the packaged standard evaluator")
+    q.add_argument("--evaluator", help="'standard' (default, the packaged one), a version such as standard-v6, or an "
+                                       "evaluator folder")
     q.add_argument("--data", help="the sweep's dataset, if it moved since the launch")
     q.add_argument("--executor", choices=("local", "slurm", "debug"), default="local")
     q.add_argument("--max-parallel", type=int, default=None, help="runs scored at once (default: the sweep's)")

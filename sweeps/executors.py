@@ -193,14 +193,21 @@ def launch(specs: Sequence[RunSpec], cfg: SweepConfig) -> LaunchResult:
     # Keep the runs of earlier launches (e.g. `--only`) in the table, in their order, then the new ones.
     runs = [r for r in prev if r["name"] not in names] + [dataclasses.asdict(s) for s in specs]
     atomic_write_json(out / "sweep.json", {"config": dataclasses.asdict(cfg), "runs": runs})
+    # A relaunch does only what is not done: a finished run (trained, and scored by this evaluator at this
+    # block where the sweep scores) is not started again, and a finished sweep says so and does nothing.
+    todo = [s for s in specs if not is_complete(cfg, s)]
+    if len(todo) < len(specs):
+        what = "trained and scored" if cfg.evaluator else "trained"
+        print(f"{len(specs) - len(todo)} of {len(specs)} run(s) already {what}: "
+              + (f"running the other {len(todo)}" if todo else "nothing to do"), flush=True)
     if cfg.executor == "local":
-        failed = _local(specs, cfg, out)
+        failed = _local(todo, cfg, out)
     elif cfg.executor == "slurm":
         failed = _slurm(specs, cfg, out)
     elif cfg.executor == "debug":
         ex = _submitit().AutoExecutor(folder=str(out / "submitit"), cluster="debug")
         failed = {}
-        for s in specs:
+        for s in todo:
             try:
                 ex.submit(_Job(s, cfg)).result()
             except Exception as e:

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
 import os
 import shutil
 import signal
@@ -70,7 +69,14 @@ def _sweep_task(family: str) -> str:
 def _evaluator_identity(path: str, stamp: tuple) -> tuple[str, int]:
     from handx_jax.evaluation.checkpoint import META_FILE, evaluator_id
 
-    return evaluator_id(path), int(json.loads((Path(path) / META_FILE).read_text())["text"]["eval_level"])
+    return evaluator_id(path), evaluator_level(Path(path) / META_FILE)
+
+
+def evaluator_level(meta_path: Path) -> int:
+    """The caption level an evaluator scores (its ``evaluator.json``'s ``text.eval_level``)."""
+    from handx_jax.infra.readers import get_field, read_json
+
+    return get_field(read_json(meta_path, expect=dict), "text.eval_level", int, path=meta_path)
 
 
 def evaluator_identity(evaluator: str | os.PathLike) -> tuple[str, int]:
@@ -90,6 +96,19 @@ def _generated_level(d: Path) -> int | None:
 def scored_block(eval_json: Path) -> int:
     """The R-Precision block a scores file (``RUN/eval.json``) was made at (32, the default, where unrecorded)."""
     return int(read_json_or_empty(eval_json).get("_meta", {}).get("rprec_block") or 32)
+
+
+def scored_at_another_block(eval_json: Path, block: int) -> bool:
+    """Whether scores were made at another R-Precision block than scoring them at ``block`` now would use.
+    ``handx eval run`` uses one block of all the prompts where there are fewer than asked
+    (``evaluation.scoring.rprec_block_used``) and records how many prompts it scored: 16 prompts asked at
+    block 32 were scored at block 16, which is what asking for 32 again gives, so they are not redone (every
+    relaunch of a sweep with ``--eval-limit 16`` rescored every run)."""
+    meta = read_json_or_empty(eval_json).get("_meta", {})
+    used, prompts = int(meta.get("rprec_block") or 32), meta.get("prompts")
+    if isinstance(prompts, int) and not isinstance(prompts, bool) and prompts > 0:
+        return used != min(block, prompts)
+    return used != block
 
 
 def _keep_old_scores(d: Path, block: int) -> Path:
@@ -122,7 +141,7 @@ def stale_scores(cfg: SweepConfig, d: Path) -> str | None:
         return "generate"
     if (d / "eval.json").exists() and read_json_or_empty(d / "eval.json").get("_meta", {}).get("evaluator_id") != want_id:
         return "evaluate"
-    if (d / "eval.json").exists() and scored_block(d / "eval.json") != cfg.rprec_block:
+    if (d / "eval.json").exists() and scored_at_another_block(d / "eval.json", cfg.rprec_block):
         return "block"
     return None
 
@@ -133,10 +152,11 @@ def is_complete(cfg: SweepConfig, spec: RunSpec) -> bool:
 
 
 def read_json_or_empty(path: Path) -> dict:
-    try:
-        return json.loads(path.read_text())
-    except (FileNotFoundError, json.JSONDecodeError):
-        return {}
+    """A sweep's own JSON object (status.json, sweep.json), or {} when absent. A file that is not a JSON
+    object (a ``[]``, a damaged file) is a ``DataError`` naming it (``infra.readers``), not an AttributeError later."""
+    from handx_jax.infra.readers import read_json
+
+    return read_json(path, expect=dict, default={})
 
 
 def update_json(path: Path, **kv) -> None:
@@ -350,7 +370,7 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
             if not state["generate"]:
                 # Prompt at the caption level the evaluator scores (its text policy), so that the
                 # generated file's captions are the ones the evaluator embeds.
-                level = json.loads((Path(cfg.evaluator) / "evaluator.json").read_text())["text"]["eval_level"]
+                level = evaluator_level(Path(cfg.evaluator) / "evaluator.json")
                 stage("generate", _subst(["handx", "generate", "--run", str(d), "--data", cfg.data, "--split",
                                           cfg.eval_split, "--level", str(level), "--limit", str(cfg.eval_limit),
                                           "--samples", str(cfg.eval_samples), *_task_args(spec),

@@ -259,3 +259,65 @@ def test_a_second_writer_of_one_evaluator_folder_is_refused(tmp_path, capsys):
     assert rc == 2 and err.count("\n") == 1
     assert err.startswith(f"handx: error: {tmp_path / 'EV'} is in use by pid {holder.pid} on ")
     assert sorted(p.name for p in tmp_path.iterdir()) == [".EV.lock", "data"]  # nothing written, the lock kept
+
+
+# Issue 54: a caption level the dataset does not have and a --limit below 1 are one line in both scoring
+# commands, before any evaluator or run is read.
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory):
+    from diffusion_fixtures import make_dataset
+
+    return make_dataset(tmp_path_factory.mktemp("levels"))
+
+
+def _recognition_run(tmp_path):
+    run = tmp_path / "ghtt"
+    run.mkdir()
+    (run / "config.json").write_text('{"family": "ghtt"}')  # the family is all that is read before the refusal
+    return run
+
+
+LEVEL = "--level must be in 0..4 or -5..-1 (-1 = the most detailed): the dataset {d} has 5 caption levels, got {v}"
+
+
+@pytest.mark.parametrize("level", ["99", "-6"])
+def test_a_caption_level_the_dataset_lacks_is_one_line(corpus, tmp_path, capsys, level):
+    assert main(["eval", "prediction", "--baseline", "last-frame", "--data", str(corpus), "--observed-frames", "16",
+                 "--level", level, "--evaluator", "none"]) == 2
+    assert capsys.readouterr().err.strip() == "handx eval prediction: error: " + LEVEL.format(d=corpus, v=level)
+    run = _recognition_run(tmp_path)
+    assert main(["eval", "recognition", "--run", str(run), "--data", str(corpus), "--level", level]) == 2
+    assert capsys.readouterr().err.strip() == "handx eval recognition: error: " + LEVEL.format(d=corpus, v=level)
+    assert sorted(p.name for p in run.iterdir()) == ["config.json"]
+
+
+@pytest.mark.parametrize("limit", ["0", "-1"])
+def test_recognition_refuses_a_limit_below_one_like_prediction(tmp_path, capsys, limit):
+    run = _recognition_run(tmp_path)
+    says = f"--limit must be a whole number >= 1, got {limit} (or left out: every clip)"
+    for cmd, extra in (("recognition", []), ("prediction", ["--observed-frames", "16"])):
+        assert main(["eval", cmd, "--run", str(run), *extra, "--limit", limit]) == 2
+        assert capsys.readouterr().err.strip() == f"handx eval {cmd}: error: {says}"
+
+
+def test_an_evaluator_norm_stats_of_python_objects_is_one_line_naming_file_and_field(nan_evaluator, tmp_path,
+                                                                                     capsys):
+    """Issue 54: an evaluator's norm_stats.npz holding object arrays (pickles) is refused from the array's
+    header, naming the file and the array; NumPy's own error suggested loading it with allow_pickle."""
+    import shutil
+
+    ev = tmp_path / "ev"
+    shutil.copytree(nan_evaluator, ev)
+    with np.load(ev / "norm_stats.npz") as z:
+        arrays = dict(z)
+    arrays["evaluator_std"] = np.array([{"x": 1}] * len(arrays["evaluator_std"]), dtype=object)
+    np.savez(ev / "norm_stats.npz", **arrays)
+    g = write_handx_npz(tmp_path / "gen.npz", _clips(-1, 1.0))
+    rc = main(["eval", "run", "--evaluator", str(ev), "--generated", str(g), "--data", str(tmp_path / "ds"),
+               "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err.startswith(f"handx: error: file {ev / 'norm_stats.npz'}, field 'evaluator_std': holds "
+                                      "Python objects"), err
+    assert "allow_pickle" not in err and "\n" not in err and not (tmp_path / "run").exists()

@@ -237,3 +237,57 @@ def test_contact_caption_says_how_many_prompts_of_a_batch_it_guides(capsys):
     Gd.check_named(M.NamedContacts(*(v[:2] for v in (named.clip_E, named.channel_E, named.start_E, named.end_E))), 1)
     # every prompt guided (one prompt, two contacts): nothing to say
     assert capsys.readouterr().err == ""
+
+
+# Issue 54: a family–task pair is refused the same way by every command, before the run is read, and a
+# step family says what it is for (never an empty list); a flag the task does not read is refused.
+
+
+def _run_of(tmp_path, family):
+    run = tmp_path / family
+    run.mkdir()
+    (run / "config.json").write_text(f'{{"family": "{family}"}}')
+    return run
+
+
+STEP = ("family ghtt-pose does not do {what}: it is G-HTT's pose block P, the step a G-HTT run is trained from, "
+        "which generates nothing; use the ghtt run trained on it")
+
+
+@pytest.mark.parametrize("family, argv, says", [
+    ("ghtt-pose", ["generate", *PROMPT], STEP.format(what="--task text2motion")),
+    ("ghtt-pose", ["eval", "prediction", "--observed-frames", "16"], STEP.format(what="--task prediction")),
+    ("ghtt-pose", ["eval", "recognition"], STEP.format(what="recognition")),
+    ("ghtt", ["generate", *PROMPT], "family ghtt does not do --task text2motion; it does prediction, recognition"),
+    ("diffusion", ["eval", "recognition"], "family diffusion does not do recognition; it does text2motion, inbetween, "
+                                           "keyframes, wrist, reaction, long, prediction"),
+    ("tokenizer", ["generate", "--task", "prediction", "--source", "x.npz"],
+     "family tokenizer does not do --task prediction: it is the FSQ motion tokenizer of the AR family (paper §5.2), "
+     "which generates nothing; use the ar run trained on it"),
+])
+def test_every_command_refuses_a_task_the_family_does_not_serve_alike(tmp_path, capsys, family, argv, says):
+    run = _run_of(tmp_path, family)
+    cmd = " ".join(argv[:2]) if argv[0] == "eval" else argv[0]
+    rc = main([*argv[:2 if argv[0] == "eval" else 1], "--run", str(run), *argv[2 if argv[0] == "eval" else 1:],
+               "--out", str(tmp_path / "out.json")])
+    assert (rc, capsys.readouterr().err.strip()) == (2, f"handx {cmd}: error: {says}")
+    assert not (tmp_path / "out.json").exists()
+
+
+def test_observed_frames_without_the_prediction_task_is_refused(tmp_path, capsys):
+    run = _run_of(tmp_path, "diffusion")
+    out = tmp_path / "gen.npz"
+    assert main(["generate", "--run", str(run), *PROMPT, "--observed-frames", "16", "--out", str(out)]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "handx generate: error: --observed-frames is read by --task prediction only (the observed start of each "
+        "clip); --task text2motion would ignore it")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("limit", ["0", "-1"])
+def test_generate_limit_below_one_is_refused(tmp_path, capsys, limit):
+    run = _run_of(tmp_path, "diffusion")
+    assert main(["generate", "--run", str(run), "--data", str(tmp_path), "--limit", limit,
+                 "--out", str(tmp_path / "g.npz")]) == 2
+    assert capsys.readouterr().err.strip() == (f"handx generate: error: --limit must be a whole number >= 1, got "
+                                               f"{limit} (or left out: every clip)")

@@ -3,6 +3,9 @@ a ``runs()`` that raises, returns None or nothing, a syntax error or duplicate r
 naming the file (exit 2, no traceback, no sweep folder made); ``sweep status`` on a corrupt
 ``sweep.json`` says it is corrupt, not that there is none. In-process, no training: milliseconds."""
 
+import json
+from pathlib import Path
+
 import pytest
 
 from handx_jax.cli import main
@@ -62,3 +65,95 @@ def test_sweep_status_on_a_corrupt_sweep_json_names_it(tmp_path, capsys, content
 def test_sweep_status_without_sweep_json_still_says_so(tmp_path, capsys):
     assert main(["sweep", "status", "--out", str(tmp_path)]) == 2
     assert "not a sweep folder (no sweep.json)" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------------
+# Issue 54: the launcher's numbers and flags, damaged state files, idempotent relaunches
+
+
+SWEEP_FILE = ("import sys\nfrom sweeps.launcher import RunSpec\n"
+              "def runs(**kw):\n    return [RunSpec('a', 'diffusion', command=(sys.executable, '-c', 'pass'))]\n")
+
+
+@pytest.mark.parametrize("flags, words", [
+    (["--eval-limit", "-1", "--eval-samples", "0"], "--eval-limit must be a whole number >= 1, got -1"),
+    (["--eval-samples", "0"], "--eval-samples must be a whole number >= 1, got 0"),
+    (["--max-parallel", "0"], "--max-parallel must be a whole number >= 1, got 0"),
+    (["--set", "foo=1"], "--set takes the runs' generation settings, sample.KEY=VALUE; got 'foo=1'")])
+@pytest.mark.parametrize("dry_run", [True, False])
+def test_sweep_run_refuses_bad_numbers_and_settings_before_anything(tmp_path, capsys, flags, words, dry_run):
+    f = tmp_path / "s.py"
+    f.write_text(SWEEP_FILE)
+    argv = ["sweep", "run", str(f), "--out", str(tmp_path / "out"), "--data", str(tmp_path), *flags]
+    assert main(argv + (["--dry-run"] if dry_run else [])) == 2
+    cap = capsys.readouterr()
+    assert (cap.err.strip(), cap.out) == (f"handx sweep run: error: {words}", "")
+    assert not (tmp_path / "out").exists()
+
+
+def test_sweep_run_without_data_is_exit_2(tmp_path, capsys):
+    f = tmp_path / "s.py"
+    f.write_text(SWEEP_FILE)
+    assert main(["sweep", "run", str(f), "--out", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err.strip() == "handx sweep run: error: --data (and --encoder for these runs) are required"
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_sweep_json_or_status_json_that_is_a_list_is_one_line_naming_it(tmp_path, capsys):
+    f = tmp_path / "s.py"
+    f.write_text(SWEEP_FILE)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "sweep.json").write_text("[]")
+    assert main(["sweep", "run", str(f), "--out", str(out), "--data", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"handx sweep run: error: file {out / 'sweep.json'}: expected an object") and "\n" not in err
+    assert (out / "sweep.json").read_text() == "[]" and not (out / "runs").exists()  # nothing run, nothing rewritten
+    (out / "sweep.json").unlink()
+    assert main(["sweep", "run", str(f), "--out", str(out), "--data", str(tmp_path)]) == 0
+    capsys.readouterr()
+    (out / "runs" / "a" / "train_done.json").unlink()  # an unfinished run: its status.json is read
+    (out / "runs" / "a" / "status.json").write_text("[]")
+    assert main(["sweep", "status", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"handx sweep status: error: file {out / 'runs/a/status.json'}: expected an object"), err
+
+
+def test_a_finished_sweep_scored_on_fewer_prompts_than_its_block_is_not_rescored(tmp_path, monkeypatch, capsys):
+    """--eval-limit 16 at block 32: the evaluator scores the 16 prompts as one block of 16 (and says so in
+    eval.json); relaunching the finished sweep as it is does nothing and says so, and writes no
+    eval.<id>.b16.N.json."""
+    from test_sweeps import _fake_evaluator, _fake_handx_stages, cfg_for, fake
+
+    from handx_jax.evaluation import evaluator_id
+    from sweeps.launcher import launch, status
+
+    def on_stage(stage, argv):
+        if stage == "generate":
+            Path(argv[argv.index("--out") + 1]).write_bytes(b"samples")
+            return "generate"
+        E, block = argv[argv.index("--evaluator") + 1], int(argv[argv.index("--block") + 1])
+        prompts = 16  # what --eval-limit 16 generated; eval run's block is one block of them (scoring.rprec_block_used)
+        (Path(argv[argv.index("--out") + 1]) / "eval.json").write_text(json.dumps(
+            {"rprec_top3": 0.2, "_meta": {"evaluator_id": evaluator_id(E), "prompts": prompts,
+                                          "rprec_block": min(block, prompts), "rprec_block_requested": block}}))
+        return ("evaluate", block)
+
+    calls = _fake_handx_stages(monkeypatch, on_stage)
+    (tmp_path / "data").mkdir()
+    E = _fake_evaluator(tmp_path / "E")
+    cfg = cfg_for(tmp_path, evaluator=str(E), eval_limit=16)
+    assert not launch([fake("a")], cfg).failed and calls == ["train", "generate", ("evaluate", 32)]
+    capsys.readouterr()
+    for _ in range(2):
+        assert not launch([fake("a")], cfg).failed
+        assert "1 of 1 run(s) already trained and scored: nothing to do" in capsys.readouterr().out
+    run = tmp_path / "sweep" / "runs" / "a"
+    assert len(calls) == 3 and sorted(p.name for p in run.glob("eval*.json")) == ["eval.json"]
+    assert [r["status"] for r in status(tmp_path / "sweep")] == ["done"]
+    # asking for block 16 itself gives the same scores (one block of the 16 prompts): nothing to redo either
+    assert not launch([fake("a")], cfg_for(tmp_path, evaluator=str(E), eval_limit=16, rprec_block=16)).failed
+    assert len(calls) == 3
+    # a block the 16 prompts would be scored at differently (8) is a rescore, the old scores kept
+    assert not launch([fake("a")], cfg_for(tmp_path, evaluator=str(E), eval_limit=16, rprec_block=8)).failed
+    assert calls[3:] == [("evaluate", 8)] and (run / f"eval.{evaluator_id(E)}.b16.json").exists()

@@ -8,7 +8,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from jax import enable_x64
 
 import handmade_hands as hh
 from handx_jax import hand_surface as hs
@@ -16,31 +15,34 @@ from handx_jax import skeleton as sk
 
 
 def test_segment_distance_closed_forms_and_brute_force():
-    f = lambda *v: float(hs.segment_distance(*(np.asarray(a, np.float32) for a in v)))
-    # Skew perpendicular segments crossing above each other at height 0.03.
-    assert f([-1, 0, 0], [1, 0, 0], [0, -1, 0.03], [0, 1, 0.03]) == pytest.approx(0.03, abs=1e-6)
-    # Parallel, overlapping along x, 0.02 apart; collinear with a gap of 0.5; a point against a segment.
-    assert f([0, 0, 0], [1, 0, 0], [0.5, 0.02, 0], [2, 0.02, 0]) == pytest.approx(0.02, abs=1e-6)
-    assert f([0, 0, 0], [1, 0, 0], [1.5, 0, 0], [3, 0, 0]) == pytest.approx(0.5, abs=1e-6)
-    assert f([0, 0, 0], [0, 0, 0], [-1, 0.3, 0.4], [1, 0.3, 0.4]) == pytest.approx(0.5, abs=1e-6)
-    # Random segments: never above the densely sampled minimum, and within its sampling error.
+    # Skew perpendicular segments crossing above each other at height 0.03; parallel, overlapping along x,
+    # 0.02 apart; collinear with a gap of 0.5; a point against a segment. Then random segments: never above
+    # the densely sampled minimum, and within its sampling error. One batched call (one compiled shape).
+    closed = np.array([[[-1, 0, 0], [1, 0, 0], [0, -1, 0.03], [0, 1, 0.03]],
+                       [[0, 0, 0], [1, 0, 0], [0.5, 0.02, 0], [2, 0.02, 0]],
+                       [[0, 0, 0], [1, 0, 0], [1.5, 0, 0], [3, 0, 0]],
+                       [[0, 0, 0], [0, 0, 0], [-1, 0.3, 0.4], [1, 0.3, 0.4]]])
     P = np.random.default_rng(1).normal(size=(40, 4, 3))
-    d = np.asarray(hs.segment_distance(*(P[:, i].astype(np.float32) for i in range(4))))
+    allP = np.concatenate([closed, P]).astype(np.float32)
+    d = np.asarray(hs.segment_distance(*(allP[:, i] for i in range(4))))
+    np.testing.assert_allclose(d[:4], [0.03, 0.02, 0.5, 0.5], atol=1e-6)
     s = np.linspace(0, 1, 201)[None, :, None]
     a, b = P[:, None, 0] + s * (P[:, 1] - P[:, 0])[:, None], P[:, None, 2] + s * (P[:, 3] - P[:, 2])[:, None]
     brute = np.linalg.norm(a[:, :, None] - b[:, None], axis=-1).min((1, 2))
-    assert np.all(d <= brute + 1e-5) and np.all(brute - d < 0.01)
+    assert np.all(d[4:] <= brute + 1e-5) and np.all(brute - d[4:] < 0.01)
 
 
 def test_two_capsules_at_known_distance():
-    pen = lambda *v: float(hs.capsule_penetration(*(np.asarray(a, np.float32) for a in v)))
-    sd = lambda *v: float(hs.capsule_signed_distance(*(np.asarray(a, np.float32) for a in v)))
-    # Radii 10 and 8 mm, axes crossing 12 mm apart: 6 mm deep; 25 mm apart: a 7 mm gap.
-    assert pen([-1, 0, 0], [1, 0, 0], 0.010, [0, -1, 0.012], [0, 1, 0.012], 0.008) == pytest.approx(0.006, abs=1e-6)
-    assert pen([-1, 0, 0], [1, 0, 0], 0.010, [0, -1, 0.025], [0, 1, 0.025], 0.008) == 0.0
-    assert sd([-1, 0, 0], [1, 0, 0], 0.010, [0, -1, 0.025], [0, 1, 0.025], 0.008) == pytest.approx(0.007, abs=1e-6)
-    # End to end along one line: the rounded caps are 0.1 − 0.01 − 0.008 apart.
-    assert sd([0, 0, 0], [0.2, 0, 0], 0.010, [0.3, 0, 0], [0.5, 0, 0], 0.008) == pytest.approx(0.082, abs=1e-6)
+    # Radii 10 and 8 mm, axes crossing 12 mm apart: 6 mm deep; 25 mm apart: a 7 mm gap; end to end along one
+    # line, the rounded caps are 0.1 − 0.01 − 0.008 apart.
+    seg = np.array([[[-1, 0, 0], [1, 0, 0], [0, -1, 0.012], [0, 1, 0.012]],
+                    [[-1, 0, 0], [1, 0, 0], [0, -1, 0.025], [0, 1, 0.025]],
+                    [[0, 0, 0], [0.2, 0, 0], [0.3, 0, 0], [0.5, 0, 0]]], np.float32)
+    r1, r2 = np.float32(0.010), np.float32(0.008)
+    sd = np.asarray(hs.capsule_signed_distance(seg[:, 0], seg[:, 1], r1, seg[:, 2], seg[:, 3], r2))
+    np.testing.assert_allclose(sd, [-0.006, 0.007, 0.082], atol=1e-6)
+    pen = np.asarray(hs.capsule_penetration(seg[:, 0], seg[:, 1], r1, seg[:, 2], seg[:, 3], r2))
+    np.testing.assert_allclose(pen, [0.006, 0.0, 0.0], atol=1e-6)
 
 
 def _posed_right_hand() -> np.ndarray:
@@ -104,57 +106,48 @@ def test_hand_facing_its_mirror_image_at_a_known_gap():
         c = hh.MCP_X["pinky"] + hs.PALM_RADIUS_M + g / 2
         left = right * [-1, 1, 1] + [2 * c, 0, 0]
         frames.append(np.stack([left, right]))
-    x = jnp.asarray(np.stack(frames), jnp.float32)
-    np.testing.assert_allclose(np.asarray(hs.interhand_signed_distance(x)), gaps, atol=2e-6)
-    np.testing.assert_allclose(np.asarray(hs.interhand_penetration_depth(x)), np.maximum(-gaps, 0), atol=2e-6)
-    # Vectorised: (clips, frames) leading axes give the per-frame values, and vmap agrees.
-    xx = jnp.stack([x, x[::-1]])
+    x = np.stack(frames).astype(np.float32)
+    # (clips, frames) leading axes: per-frame values, the second clip the first reversed.
+    xx = jnp.asarray(np.stack([x, x[::-1]]))
     np.testing.assert_allclose(np.asarray(hs.interhand_signed_distance(xx)), np.stack([gaps, gaps[::-1]]), atol=2e-6)
-    np.testing.assert_allclose(np.asarray(jax.vmap(hs.interhand_signed_distance)(xx)),
-                               np.asarray(hs.interhand_signed_distance(xx)), atol=1e-7)
 
 
-def test_surface_against_a_half_space_object_at_a_known_depth():
+def test_surface_against_a_half_space_object_at_a_known_depth_and_slope():
     # A flat hand (joints at z = 0) over the object z < h. Its lowest surface is the palm capsules' bottom,
-    # z = −r_palm, and a ring point sits exactly there (the rings start along the palm normal), so a
-    # surface point is h + r_palm deep when that is positive.
-    x = jnp.asarray(np.stack([_flat_right_hand()] * 3), jnp.float32)
-    hs_ = np.array([-hs.PALM_RADIUS_M + 0.004, -0.02, 0.0])
-    depth = []
-    for h in hs_:
-        depth.append(np.asarray(hs.object_penetration(x[:1], lambda p, h=h: p[:, 2] - h))[0])
-    np.testing.assert_allclose(depth, [0.004, 0.0, hs.PALM_RADIUS_M], atol=2e-6)
+    # z = −r_palm, and a ring point sits exactly there (the rings start along the palm normal), so a surface
+    # point is h + r_palm deep when that is positive; lifting the hand by ε lessens that depth by ε.
+    flat = jnp.asarray(_flat_right_hand(), jnp.float32)
+    depth = jax.jit(jax.vmap(jax.value_and_grad(
+        lambda z, h: hs.object_penetration(z[None], lambda p: p[:, 2] - h)[0]), in_axes=(None, 0)))
+    hz = np.array([-hs.PALM_RADIUS_M + 0.004, -0.02, 0.0], np.float32)
+    d, g = depth(flat, jnp.asarray(hz))
+    np.testing.assert_allclose(np.asarray(d), [0.004, 0.0, hs.PALM_RADIUS_M], atol=2e-6)
+    np.testing.assert_allclose(np.asarray(g)[[0, 2]].sum(1), [[0.0, 0.0, -1.0]] * 2, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(g)[1], 0.0)
 
 
-def _fd_check(f, x0: np.ndarray, n_dirs: int = 6, h: float = 1e-6, seed: int = 0) -> None:
-    """jax.grad of scalar f at x0 against central differences along random directions, in float64 (one
-    compiled gradient, and the 2·n_dirs shifted inputs evaluated in one vmapped call)."""
-    with enable_x64():
-        x = jnp.asarray(x0, jnp.float64)
-        g = np.asarray(jax.jit(jax.grad(f))(x))
-        assert np.all(np.isfinite(g)) and np.abs(g).sum() > 0
-        v = np.random.default_rng(seed).normal(size=(n_dirs, *x0.shape))
-        vals = np.asarray(jax.jit(jax.vmap(f))(jnp.concatenate([x + h * v, x - h * v])))
-        fd = (vals[:n_dirs] - vals[n_dirs:]) / (2 * h)
-        np.testing.assert_allclose(np.sum(g * v, axis=tuple(range(1, v.ndim))), fd, rtol=1e-4, atol=1e-7)
-
-
-def test_gradients_finite_and_match_finite_differences():
+def test_gradients_finite_and_match_finite_differences_and_known_slopes():
+    grad_sd = jax.jit(jax.grad(lambda z: hs.interhand_signed_distance(z)))
+    # Overlapping hands (the posed hand against a shifted mirror image: the surfaces interpenetrate): the
+    # gradient against central differences along random directions (one batched call for the shifts).
     right = _posed_right_hand()
-    left = right * [-1, 1, 1] + [2 * right[:, 0].max() + 0.01, 0.003, 0.0]
-    pair = np.stack([left, right])
-    # Overlapping hands (the posed hand against a shifted mirror image: the surfaces interpenetrate).
-    pair[0] -= [0.025, 0.0, 0.0]
-    assert float(hs.interhand_signed_distance(jnp.asarray(pair, jnp.float32))) < 0
-    _fd_check(lambda z: hs.interhand_signed_distance(z), pair)
-    # One hand's SDF at fixed points, and the surface against a sphere object, in the joints.
-    pts = np.random.default_rng(2).normal(0, 0.03, (40, 3)) + right[0]
-    _fd_check(lambda z: jnp.sum(hs.hand_sdf(jnp.asarray(pts)[None], z[None])), right)
-    centre = right[sk.JOINT_INDEX["middle_pip"]] + [0.0, 0.0, 0.02]
-    sphere = lambda p: jnp.linalg.norm(p - centre, axis=-1) - 0.025
-    _fd_check(lambda z: jnp.sum(jnp.minimum(hs.surface_sdf(z, sphere), 0.0)), right)
+    pair = np.stack([right * [-1, 1, 1] + [2 * right[:, 0].max() - 0.015, 0.003, 0.0], right]).astype(np.float32)
+    assert float(hs.interhand_signed_distance(jnp.asarray(pair))) < 0
+    g = np.asarray(grad_sd(jnp.asarray(pair)), np.float64)
+    assert np.all(np.isfinite(g))
+    v = np.random.default_rng(0).normal(size=(4, *pair.shape))
+    h, v = 1e-4, v / np.linalg.norm(v.reshape(4, -1), axis=1)[:, None, None, None]  # unit directions
+    vals = np.asarray(hs.interhand_signed_distance(jnp.asarray(np.concatenate([pair + h * v, pair - h * v]),
+                                                               jnp.float32)), np.float64)
+    np.testing.assert_allclose(np.sum(g * v, axis=(1, 2, 3)), (vals[:4] - vals[4:]) / (2 * h), atol=2e-3)
+    # Known slopes: the flat hand and its mirror image 2 cm apart across x = c (their pinky sides face along
+    # x): moving the right hand by ε along +x opens the gap by ε, moving the left one closes it.
+    flat = _flat_right_hand()
+    c = hh.MCP_X["pinky"] + hs.PALM_RADIUS_M + 0.01
+    mirror = np.stack([flat * [-1, 1, 1] + [2 * c, 0, 0], flat]).astype(np.float32)  # left is the image: +x of right
+    g = np.asarray(grad_sd(jnp.asarray(mirror)), np.float64)
+    np.testing.assert_allclose(g[1].sum(0), [-1.0, 0.0, 0.0], atol=1e-5)  # the right hand lies on the −x side
+    np.testing.assert_allclose(g[0].sum(0), [1.0, 0.0, 0.0], atol=1e-5)
     # Segments that intersect exactly (distance 0): the gradient is finite, not NaN.
-    with enable_x64():
-        z = jnp.asarray([[-1.0, 0, 0], [1.0, 0, 0], [0, -1.0, 0], [0, 1.0, 0]])
-        g = jax.grad(lambda z: hs.segment_distance(z[0], z[1], z[2], z[3]))(z)
-        assert np.all(np.isfinite(np.asarray(g)))
+    z = jnp.asarray([[-1.0, 0, 0], [1.0, 0, 0], [0, -1.0, 0], [0, 1.0, 0]])
+    assert np.all(np.isfinite(np.asarray(jax.grad(lambda z: hs.segment_distance(z[0], z[1], z[2], z[3]))(z))))

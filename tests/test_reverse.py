@@ -70,6 +70,20 @@ def test_a_thin_subset_is_reversed_from_its_own_rows(corpus, monkeypatch):
     assert sub.ids == [ds.ids[c] + "~rev" for c in picked]
 
 
+def test_a_reversed_corpus_reversed_again_keeps_its_recorded_reading(corpus):
+    """A reversed corpus records its reading in ``source`` (it has no build recipe): reversing it again reads and
+    words it that way (issue 54: it fell back to the reference reading and the shared wording)."""
+    root, ds, rds = corpus
+    back = Dataset.open(build_reversed(rds.root, root / "revrev", limit=4, workers=1, log=lambda s: None))
+    src = back.meta["source"]
+    assert (src["annotation"], src["wording"], src["seed"]) == ("stable", "per_fact", 3)
+    picked = pick_clips(rds, "train", 4)
+    recs = annotate(np.ascontiguousarray(np.asarray(rds.motion[picked], np.float32)[:, ::-1]), annotation_config("stable"))
+    cap = TemplateCaptioner("per_fact")
+    for i, (rec, c) in enumerate(zip(recs, picked)):
+        assert [lv["left"] for lv in cap.caption(rec, seed=caption_seed(3, rds.ids[c]))] == back.texts[i]["left"]
+
+
 def test_caption_ids_match_identical_captions_across_datasets(corpus):
     _, ds, rds = corpus
     train = pick_clips(ds, "train", None)

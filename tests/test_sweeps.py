@@ -484,7 +484,7 @@ def test_rescore_a_sweep_with_a_new_evaluator(tmp_path, monkeypatch, capsys):
     assert main(["sweep", "rescore", "--out", str(tmp_path / "nope"), "--evaluator", str(E2)]) == 2
     assert "no sweep folder" in capsys.readouterr().err
     assert main(["sweep", "rescore", "--out", str(tmp_path / "sweep"), "--evaluator", str(tmp_path / "E9")]) == 2
-    assert "E9: no evaluator folder here" in capsys.readouterr().err
+    assert "--evaluator " + str(tmp_path / "E9") + ": no such folder" in capsys.readouterr().err  # standard.naming
     # a sweep whose evaluator has since been deleted still reports its status
     shutil.rmtree(E2)
     assert [r["status"] for r in status(tmp_path / "sweep")] == ["done", "done", "failed"]

@@ -306,21 +306,22 @@ def test_standard_evaluators_by_id_and_the_recipe_each_accepts(tmp_path):
 
     assert standard.VERSION == 7
     assert (standard.code_recipe().annotation, standard.code_recipe().motion) == ("gist", "chain")
-    v4, v5, v6 = (standard.assets_for(f"standard-v{v}") for v in (4, 5, 6))
+    named = standard.resolve_evaluator
+    v4, v5, v6 = (named(f"standard-v{v}").assets for v in (4, 5, 6))
     assert (v4, v5, v6) == (standard.archived(4), standard.archived(5), standard.archived(6))
+    assert v4.parent == standard.ARCHIVE and standard.ARCHIVE.parent == standard.ASSETS.parents[2]  # out of the package
     assert [standard.verify_assets(v)["version"] for v in (v4, v5, v6)] == [4, 5, 6]
-    assert standard.assets_for(None) == standard.assets_for("standard") == standard.assets_for("standard-v7") == standard.ASSETS
-    assert standard.assets_for(standard.evaluator_dir(v4)) == v4 and standard.is_standard("standard-v5")
-    assert standard.assets_for(tmp_path) is None
-    with pytest.raises(DataError, match="no such standard evaluator; this package has standard-v4, standard-v5, standard-v6, standard-v7"):
-        standard.assets_for("standard-v9")
+    assert named(None).assets == named("standard").assets == named("standard-v7").assets == standard.ASSETS
+    assert named(standard.evaluator_dir(v4)).assets == v4 and named(v5).standard and named("standard-v5").name == "standard-v5"
+    with pytest.raises(DataError, match="no such standard evaluator; at hand: standard-v4, standard-v5, standard-v6, standard-v7"):
+        named("standard-v9")
     assert standard.reference_cache_dir(v4).parent.name == "standard-v4"
     assert standard.reference_cache_dir().parent.name == "standard-v7"
-    old = standard.Recipe(**standard.read_card(v4)["recipe"])
+    old = standard.Recipe.from_card(standard.read_card(v4)["recipe"])
     assert (old.annotation, old.motion) == ("reference", "oscillate")  # v4's card predates both fields
-    mid = standard.Recipe(**standard.read_card(v5)["recipe"])
+    mid = standard.Recipe.from_card(standard.read_card(v5)["recipe"])
     assert (mid.annotation, mid.motion) == ("stable", "oscillate")  # v5's predates the motion
-    v3 = standard.Recipe(**standard.read_card(v6)["recipe"])
+    v3 = standard.Recipe.from_card(standard.read_card(v6)["recipe"])
     assert (v3.annotation, v3.motion) == ("gist", "transition")
     p1 = standard.build_standard_corpus(tmp_path / "v1", 120, recipe=dataclasses.replace(old, clips=120000),
                                         assets=tmp_path / "none", workers=1, progress=False)

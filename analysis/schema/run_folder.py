@@ -35,7 +35,7 @@ from typing import Any, Mapping
 from analysis.schema.columns import METRICS, ROW_KINDS, Row, validate_row
 from handx_jax.families import family_axes
 from handx_jax.infra.errors import DataError
-from handx_jax.infra.readers import read_jsonl
+from handx_jax.infra.readers import read_json, read_jsonl
 
 
 # The columns a run folder's config.json gives (beside the registered families' axes: _config_keys).
@@ -48,13 +48,7 @@ _LOGGED_STATIC = ("params", "params_non_embedding", "flops_per_sample", "text_fl
 
 
 def _read_json_object(path: Path) -> dict[str, Any]:
-    try:
-        obj = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as e:
-        raise DataError(f"not valid JSON ({e.msg}, line {e.lineno})", path=path) from None
-    if not isinstance(obj, dict):
-        raise DataError(f"expected a JSON object, got {type(obj).__name__}", path=path)
-    return obj
+    return read_json(path, expect=dict)  # the project's one reader: damaged or not an object, one line naming it
 
 
 def _config_keys() -> tuple[str, ...]:

@@ -116,6 +116,12 @@ class AnnotationConfig:
     # a threshold far from both the noise (1 mm white moves the curl by ~0.5°, 3 mm low-frequency by ~3°)
     # and the acting fingers' travel (≥ 35° on corpus v3's motion, ``SynthConfig.motion="transition"``).
     finger_curl_swing_deg: float = 0.0
+    # --- The "surface" reading (corpus v5, issue 55 item 3; 0 = off, every reading before it) ---
+    # Contacts between the hands are read from the hand surface (hand_surface.py), the one the penetration
+    # metric uses: a tip–tip contact counts only on frames where the two tips' capsules are within this
+    # distance, and the record gains ``two_hand_relationships.surface_contact``: the runs of frames with the two
+    # hands' surfaces (``"left_hand, right_hand"``) and the two palms' (``"left_palm, right_palm"``) within it.
+    surface_contact_m: float = 0.0
 
     def __post_init__(self):
         if self.segmentation not in ("greedy", "states"):
@@ -124,6 +130,8 @@ class AnnotationConfig:
             raise ValueError("sign_ratio must lie in (0.5, 1]")
         if self.smooth_sigma_frames < 0 or self.contact_hysteresis_m < 0:
             raise ValueError("smooth_sigma_frames and contact_hysteresis_m must be ≥ 0")
+        if self.surface_contact_m < 0:
+            raise ValueError("surface_contact_m must be ≥ 0 (0 = contacts read from the joints only)")
         if self.finger_curl_swing_deg < 0:
             raise ValueError("finger_curl_swing_deg must be ≥ 0 (0 = no finger_curl record)")
         if self.contact_gap_frames < 0 or self.contact_min_frames < 1:
@@ -202,6 +210,10 @@ def annotate(joints_NxTx2x21x3: np.ndarray, cfg: AnnotationConfig = AnnotationCo
         # clip by clip; "nearest" keeps the first and last frames' values at the clip borders.
         x = gaussian_filter1d(x, cfg.smooth_sigma_frames, axis=1, mode="nearest")
     f = ft.compute_features(x, cfg.features)
+    gate = None
+    if cfg.surface_contact_m > 0:
+        gate = surface_gates(ft._as_joints(joints_NxTx2x21x3), cfg.surface_contact_m)
+        f = _gated_features(f, gate, cfg)
     records = [_empty_record(T, cfg.fps) for _ in range(N)]
     if ids is not None:
         for r, cid in zip(records, ids):
@@ -248,13 +260,60 @@ def annotate(joints_NxTx2x21x3: np.ndarray, cfg: AnnotationConfig = AnnotationCo
         records[c][_HANDS_KEYS[k // 4]]["finger_tip_contact"].setdefault(INTRA_KEYS[k % 4], []).append(
             {"start": a, "end": b, "state": "contact"})
     s, st, en = runs(series(f.inter_tip_NxTx5x5))
+    if gate is not None:  # runs merged over a short gap split where the tips' surfaces are not touching
+        s, st, en = _split_runs(s, st, en, series(gate["tips_NxTx5x5"]), cfg.contact_min_frames)
     for s_, a, b in zip(s.tolist(), st.tolist(), en.tolist()):
         c, k = divmod(s_, 25)
         records[c]["two_hand_relationships"]["finger_tip_contact"].setdefault(INTER_KEYS[k], []).append(
             {"start": a, "end": b, "state": "contact"})
+    if gate is not None:
+        for key, mask in (("left_hand, right_hand", gate["any_NxT"]), ("left_palm, right_palm", gate["palms_NxT"])):
+            for r in records:
+                r["two_hand_relationships"].setdefault("surface_contact", {})[key] = []
+            s, st, en = _split_runs(np.arange(N), np.zeros(N, np.int64), np.full(N, T), mask, 1)
+            for c, a, b in zip(s.tolist(), st.tolist(), en.tolist()):
+                records[c]["two_hand_relationships"]["surface_contact"][key].append(
+                    {"start": a, "end": b, "state": "contact"})
     if cfg.finger_curl_swing_deg > 0:
         _emit_finger_curl(records, f.flexion_NxTx2x14, cfg.finger_curl_swing_deg)
     return records
+
+
+def surface_gates(joints_NxTx2x21x3: np.ndarray, contact_m: float) -> dict[str, np.ndarray]:
+    """Where the two hands' surfaces touch (signed capsule distance ≤ ``contact_m``), per frame: any part
+    (``any_NxT``), the palms (``palms_NxT``: palm capsules, hand_surface.PALM_CAPSULES) and each left tip with
+    each right tip (``tips_NxTx5x5``: distal capsules), bool."""
+    from handx_jax import hand_surface as hs
+
+    x = np.nan_to_num(np.asarray(joints_NxTx2x21x3, np.float32))
+    N, T = x.shape[:2]
+    D = hs.in_batches(hs.interhand_capsule_distances, x.reshape(N * T, 2, sk.NUM_JOINTS, 3)).reshape(N, T, *[hs.N_CAPSULES] * 2)
+    P, K = hs.PALM_CAPSULES, hs.TIP_CAPSULES
+    return {"any_NxT": D.min((-2, -1)) <= contact_m, "palms_NxT": D[..., P, :][..., P].min((-2, -1)) <= contact_m,
+            "tips_NxTx5x5": D[..., K, :][..., K] <= contact_m}
+
+
+def _gated_features(f: ft.Features, gate: dict, cfg: AnnotationConfig) -> ft.Features:
+    """The features with each inter-hand tip pair held out of contact (past the contact distance by the
+    hysteresis and 1 cm) on frames where the two tips' surfaces do not touch (:func:`surface_gates`). The
+    palm and finger–palm distances are left as they are: a floor would make their series jump, and a jump
+    shorter than a transition's minimum duration loses the exit from "contact"; the palms' touch is the
+    intersection with ``surface_contact`` instead (caption.gist.touch_frames)."""
+    far = cfg.tip_contact_m + cfg.contact_hysteresis_m + 0.01
+    return dataclasses.replace(f, inter_tip_NxTx5x5=np.where(gate["tips_NxTx5x5"], f.inter_tip_NxTx5x5,
+                                                              np.maximum(f.inter_tip_NxTx5x5, far)))
+
+
+def _split_runs(s, start, end, mask_KxT: np.ndarray, min_frames: int):
+    """Contact runs (series, start, end) cut to the frames of ``mask_KxT`` [series] that are True, keeping the
+    pieces at least ``min_frames`` long."""
+    out = []
+    for k, a, b in zip(np.asarray(s).tolist(), np.asarray(start).tolist(), np.asarray(end).tolist()):
+        m = np.concatenate([[False], mask_KxT[k, a:b], [False]])
+        edges = np.flatnonzero(np.diff(m.astype(np.int8)))
+        out += [(k, a + i, a + j) for i, j in zip(edges[::2], edges[1::2]) if j - i >= min_frames]
+    arr = np.array(out, np.int64).reshape(-1, 3)
+    return arr[:, 0], arr[:, 1], arr[:, 2]
 
 
 CURL_FINGERS = sk.FINGER_NAMES[1:]
@@ -337,8 +396,11 @@ def _stable() -> AnnotationConfig:
 # "gist": the stable reading plus each finger's whole-curl swings of ≥ 20°, which level 0 of the captions
 # says (corpus v3, issue 40). 20° sits in the gap of corpus v3's motion between the fingers an action moves
 # (curl ranges ≥ 35°) and those it leaves (≤ 15°): docs/results/validity/corpus-v3/.
-ANNOTATIONS: dict[str, AnnotationConfig] = {"reference": AnnotationConfig(), "stable": _stable(),
-                                            "gist": dataclasses.replace(_stable(), finger_curl_swing_deg=20.0)}
+# "surface": the gist reading with the hands' contacts read from the hand surface (corpus v5, issue 55): a touch
+# is the surfaces within 5 mm (the contact distance of BimArt's Con / Art, §4), the stated parts' capsules.
+_GIST = dataclasses.replace(_stable(), finger_curl_swing_deg=20.0)
+ANNOTATIONS: dict[str, AnnotationConfig] = {"reference": AnnotationConfig(), "stable": _stable(), "gist": _GIST,
+                                            "surface": dataclasses.replace(_GIST, surface_contact_m=0.005)}
 
 
 def annotation_config(name: str) -> AnnotationConfig:

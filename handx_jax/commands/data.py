@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from handx_jax.cliargs import deprecated_positional
+from handx_jax.infra.values import number_flag, whole_flag
 
 
 def _data_arg(s) -> None:
@@ -17,17 +18,22 @@ def _data_arg(s) -> None:
 
 
 def _build_args(s) -> None:
-    """The options every corpus build takes (``handx data synth``, ``handx data objects``)."""
-    s.add_argument("--clips", type=int, required=True, help="number of clips to keep")
-    s.add_argument("--seed", type=int, default=0)
+    """The corpus-build options of ``handx data synth`` and ``handx data objects``, each checked while the command
+    line is parsed (``infra.values``): nothing is built or written for a bad value."""
+    s.add_argument("--clips", type=whole_flag(1), required=True, help="number of clips to keep")
+    s.add_argument("--seed", type=whole_flag(0), default=0)
     s.add_argument("--out", required=True, help="dataset directory to create")
-    s.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
-    s.add_argument("--val-fraction", type=float, default=0.05)
-    s.add_argument("--test-fraction", type=float, default=0.05)
+    s.add_argument("--workers", type=whole_flag(0), default=0, help="processes (0 = one per core)")
+    s.add_argument("--val-fraction", type=number_flag(above=0, below=1), default=0.05,
+                   help="share of the sequences in the validation split, in (0, 1) (default 0.05)")
+    s.add_argument("--test-fraction", type=number_flag(above=0, below=1), default=0.05,
+                   help="share of the sequences in the test split, in (0, 1); with --val-fraction below 1 "
+                        "(default 0.05)")
 
 
 def add_parser(subparsers) -> None:
     from handx_jax.dataset.clips import defect_reasons_help
+    from handx_jax.standard.recipe import STANDARD_ANNOTATION, STANDARD_MOTION
     from handx_jax.synthesis.bimanual import MOTIONS
 
     p = subparsers.add_parser("data", help="datasets: synthesise, import/export HandX .npz, stats, render",
@@ -40,15 +46,23 @@ def add_parser(subparsers) -> None:
                                    "(paper A.3-A.4), annotate them (App. B) and write a dataset.",
                        epilog="Cut report: " + defect_reasons_help())
     _build_args(s)
-    s.add_argument("--annotation", default="reference", choices=("reference", "stable", "gist"),
-                   help="annotation reading: 'reference' (§6.1-6.2, no smoothing; the default, and every corpus "
-                        "built before issue 40), 'stable' (smoothed, hysteretic states, per-fact wording; "
-                        "docs/validity.md) or 'gist' (stable, plus each finger's curl swings, which level 0 "
-                        "says; corpus v3)")
-    s.add_argument("--motion", default="oscillate", choices=MOTIONS,
-                   help="what a segment's actions do: 'oscillate' (go back and forth; every corpus before v3), "
-                        "'transition' (go once from one pose to another, one segment per sequence, the clip filter at 7 deg/s; "
-                        "corpus v3) or 'chain' (the same, then up to twice more to other poses: A to B to C to D; corpus v4)")
+    # The defaults build the standard corpus's recipe (corpus v4, standard.Recipe; issue 51 item 3): with the
+    # default seed and fractions, the first --clips clips of the standard corpus, a prefix `handx standard
+    # check` accepts. The older readings and motions stay by name for the committed results that used them;
+    # 'surface' is corpus v5 (issue 55), which no packaged evaluator scores yet.
+    s.add_argument("--annotation", default=STANDARD_ANNOTATION, choices=("reference", "stable", "gist", "surface"),
+                   help=f"annotation reading (default {STANDARD_ANNOTATION!r}, the standard corpus's): 'gist' (stable, "
+                        "plus each finger's curl swings, which level 0 says; corpora v3-v4), 'surface' (gist, with the "
+                        "hands' contacts read from the hand surface; corpus v5), 'stable' (smoothed, "
+                        "hysteretic states, per-fact wording; corpus v2, docs/validity.md) or 'reference' "
+                        "(§6.1-6.2, no smoothing; corpus v1, and what imported official data is read with)")
+    s.add_argument("--motion", default=STANDARD_MOTION, choices=MOTIONS,
+                   help=f"what a segment's actions do (default {STANDARD_MOTION!r}, the standard corpus's): 'chain' "
+                        "(go once from one pose to another, then up to twice more: A to B to C to D; corpus v4), "
+                        "'surface' (chain, with the hands resolved against the hand surface: contacts surface to "
+                        "surface, no hand through the other; corpus v5), "
+                        "'transition' (once, one segment per sequence, the clip filter at 7 deg/s; corpus v3) or "
+                        "'oscillate' (go back and forth; corpora v1-v2)")
     s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_synth)
@@ -108,8 +122,9 @@ def add_parser(subparsers) -> None:
     _data_arg(s)
     s.add_argument("--out", required=True, help="dataset directory to create")
     s.add_argument("--split", choices=("train", "val", "test"), default="train", help="the split to reverse")
-    s.add_argument("--clips", type=int, default=None, help="at most this many clips, evenly spaced over the split")
-    s.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
+    s.add_argument("--clips", type=whole_flag(1), default=None,
+                   help="at most this many clips, evenly spaced over the split")
+    s.add_argument("--workers", type=whole_flag(0), default=0, help="processes (0 = one per core)")
     s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
     s.set_defaults(func=_reverse)
 
@@ -142,7 +157,14 @@ def _synth(a: argparse.Namespace) -> int:
     from handx_jax.dataset.build import BuildConfig, build_corpus, with_motion, with_reading
     from handx_jax.dataset.format import Dataset
     from handx_jax.dataset.stats import dataset_stats, format_stats
+    from handx_jax.commands import fail
+    from handx_jax.config import ConfigError
+    from handx_jax.infra.values import check_split_fractions
 
+    try:  # the two fractions together (each flag was checked as it was parsed)
+        check_split_fractions(a.val_fraction, a.test_fraction, names=("--val-fraction", "--test-fraction"))
+    except ConfigError as e:
+        return fail("handx data synth", e)
     cfg = with_reading(with_motion(BuildConfig(clips=a.clips, seed=a.seed, workers=a.workers,
                                                val_fraction=a.val_fraction, test_fraction=a.test_fraction),
                                    a.motion), a.annotation)
@@ -188,8 +210,6 @@ def _objects(a: argparse.Namespace) -> int:
 def _reverse(a: argparse.Namespace) -> int:
     from handx_jax.dataset.reverse import build_reversed
 
-    if a.clips is not None and a.clips < 1:
-        raise SystemExit(f"handx: error: --clips is {a.clips}; it must be a whole number >= 1")
     out = build_reversed(a.data, a.out, split=a.split, limit=a.clips, workers=a.workers, overwrite=a.force,
                          stats=dataset_norms())
     print(f"wrote {out}")

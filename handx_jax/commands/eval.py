@@ -93,8 +93,7 @@ def _run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from handx_jax.dataset.format import Dataset
-    from handx_jax.evaluation import (evaluate_generated, evaluate_ground_truth, format_table, load_evaluator,
-                                      write_eval_json)
+    from handx_jax.evaluation import evaluate_generated, evaluate_ground_truth, format_table, write_eval_json
     from handx_jax.metrics import MetricConfig
 
     if bool(args.generated) == bool(args.ground_truth):
@@ -118,18 +117,17 @@ def _run(args: argparse.Namespace) -> int:
                 check_motion_range(e.motion, clip=e.key)
         except DataError as e:
             raise DataError(str(e), path=args.generated) from None
-    from handx_jax import standard
+    from handx_jax.standard.naming import resolve_evaluator
 
-    if standard.is_standard(args.evaluator):  # the packaged standard evaluator (handx_jax/standard/)
-        if args.encoder:
-            raise SystemExit("handx: error: --encoder applies to --evaluator E; the standard evaluator carries its own")
-        assets = standard.assets_for(args.evaluator)
-        ev, cache = standard.load(assets), (standard.reference_cache_dir(assets) if cache else False)
-    else:
-        ev = load_evaluator(args.evaluator, encoder=args.encoder)
+    named = resolve_evaluator(args.evaluator)  # standard, standard-vN or a folder; refused here, in one line
+    if named.standard and args.encoder:
+        raise SystemExit("handx: error: --encoder applies to --evaluator E; the standard evaluator carries its own")
+    ev = named.load(encoder=args.encoder or None)  # checksums and weights: a damaged evaluator is named first
+    cache = named.reference_cache() if cache else False
+    ds = Dataset.open(args.data)
+    named.check_data(ds)  # the dataset–evaluator pair every command refuses alike, before scoring
     if args.level is not None:
         ev.policy = dataclasses.replace(ev.policy, eval_level=args.level)
-    ds = Dataset.open(args.data)
     if args.ground_truth:
         res, name = evaluate_ground_truth(ev, ds, cfg, split=args.split, cache=cache), "Ground Truth"
     else:
@@ -183,8 +181,11 @@ def _predict(args: argparse.Namespace) -> int:
     N, K = args.observed_frames, args.samples
     if bool(args.run) == bool(args.baseline):
         return fail(PREDICTION, f"give --run RUN or --baseline {'|'.join(PR_BASELINES)}, not both or neither")
-    if K < 1 or (args.limit is not None and args.limit < 1):
-        return fail(PREDICTION, f"--samples and --limit must be at least 1, got {K} and {args.limit}")
+    from handx_jax.generation import check_limit
+    from handx_jax.infra.values import check
+
+    check(K, "--samples", whole=True, minimum=1)
+    check_limit(args.limit)
     if N < 1:
         return fail(PREDICTION, f"--observed-frames must be at least 1, got {N}")
     if args.extra and not args.run:
@@ -194,12 +195,9 @@ def _predict(args: argparse.Namespace) -> int:
     fam = fp = None
     if args.run:  # the run's family parses its own flags (as handx generate does); nothing here names one
         from handx_jax.commands.generate import family_parser
-        from handx_jax.families import entry, family_of
+        from handx_jax.families import check_task, family_of
 
-        name = family_of(args.run)
-        if "prediction" not in entry(name).tasks:  # the registry says which families predict
-            return fail(PREDICTION, f"family {name} does not do --task prediction; it does "
-                                    f"{', '.join(entry(name).tasks) or 'no generation'}")
+        check_task(family_of(args.run), "prediction")  # the registry says which families predict
         fam, fp = family_parser(args.run)
         fp.prog = f"{PREDICTION} --run {args.run}"  # argparse's own errors (a bad family flag) name this command
     data = args.data or PR.run_data(args.run)
@@ -268,21 +266,16 @@ def _predict(args: argparse.Namespace) -> int:
 
 
 def _prediction_evaluator(name: str, encoder, ds):
-    """The evaluator that scores the completed clips: the packaged standard one (``standard``, the default)
-    or an evaluator folder; checked against the dataset it will read."""
-    from handx_jax import standard
-    from handx_jax.evaluation import load_evaluator
+    """The evaluator that scores the completed clips: the packaged standard one (``standard``, the default),
+    a version or an evaluator folder (``standard.naming``); checked against the dataset it will read."""
+    from handx_jax.standard.naming import resolve_evaluator
 
-    if standard.is_standard(name):
-        assets = standard.assets_for(name)
-        ev, cache = standard.load(assets), standard.reference_cache_dir(assets)
-    else:
-        ev, cache = load_evaluator(name, encoder=encoder), True
+    named = resolve_evaluator(name)
     try:
-        ev.check_dataset(ds)
+        named.check_data(ds)
     except ValueError as e:  # DataError: which dataset the evaluator reads, and the way around it here
         raise ValueError(f"{e}; or --evaluator none: no FID and top-3 of the completed clips") from None
-    return ev, cache
+    return named.load(encoder=None if named.standard else encoder), named.reference_cache()
 
 
 def add_parser(subparsers) -> None:

@@ -91,9 +91,21 @@ def _generate(args: argparse.Namespace) -> int:
         return 0
     if not args.out:
         return fail(CMD, "the following arguments are required: --out")
+    from handx_jax.generation import check_limit
+
+    check_limit(args.limit)
     from handx_jax.generation import load_source, write_generated
 
     fargs = fp.parse_args(args.extra, namespace=argparse.Namespace(**vars(args)))
+    try:
+        from handx_jax.families import check_task, family_of
+
+        check_task(family_of(args.run), args.task)  # before the run is read (families.check_task)
+    except ValueError as e:
+        return fail(CMD, e)
+    if args.task != "prediction" and any(a.split("=", 1)[0] == "--observed-frames" for a in args.extra):
+        return fail(CMD, f"--observed-frames is read by --task prediction only (the observed start of each clip); "
+                         f"--task {args.task} would ignore it")
     if args.task not in ("text2motion", "long") and not (args.source or args.data):
         return fail(CMD, f"--task {args.task} needs a constraint clip: --source (or --data)")
     try:
@@ -132,6 +144,9 @@ def _generate(args: argparse.Namespace) -> int:
         if not prompts:
             if src is None:
                 return fail(CMD, "give --left/--right/--interaction, a --source clip, or --data")
+            from handx_jax.generation import check_level
+
+            check_level(args.level, len(src.prompts), args.source)
             prompts = [src.prompts[args.level]]
         if args.task == "long":
             j = run.generate_long(prompts, opts, samples=G, source=None if src is None else src.joints)

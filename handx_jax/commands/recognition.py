@@ -37,27 +37,29 @@ def _run(args: argparse.Namespace) -> int:
 def _recognize(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from handx_jax import standard
     from handx_jax.dataset.format import Dataset
-    from handx_jax.evaluation import load_evaluator
-    from handx_jax.families import entry, family_of, load_run
-    from handx_jax.generation import split_prompts
+    from handx_jax.families import check_task, family_of, load_run
+    from handx_jax.generation import check_level, check_limit, split_prompts
     from handx_jax.infra.atomic import atomic_write_json
     from handx_jax.metrics import MetricConfig, replicate_embedding_metrics
+    from handx_jax.standard.naming import resolve_evaluator
 
     if args.block < 2 or args.replications < 1:
         raise ValueError(f"--block must be at least 2 and --replications at least 1, got {args.block}, {args.replications}")
+    check_limit(args.limit)
     name = family_of(args.run)
-    if "recognition" not in entry(name).tasks:
-        raise ValueError(f"family {name} does not do recognition; it does {', '.join(entry(name).tasks) or 'nothing'}")
-    ev = standard.load(standard.assets_for(args.evaluator)) if standard.is_standard(args.evaluator) else \
-        load_evaluator(args.evaluator)
-    level = ev.policy.eval_level if args.level is None else args.level
-    ev.policy = dataclasses.replace(ev.policy, eval_level=level)
+    check_task(name, "recognition")
     from handx_jax.evaluation.prediction import run_data
 
+    named = resolve_evaluator(args.evaluator)  # a bad name or folder: one line, before anything is read
     data = args.data or run_data(args.run)
     ds = Dataset.open(data)
+    named.check_data(ds)  # the pairs every command refuses (a corpus-v3 prefix under v7, ...)
+    if args.level is not None:  # before the evaluator is read (seconds): the dataset says which levels exist
+        check_level(args.level, int(ds.meta["levels"]), ds.root)
+    ev = named.load()
+    level = ev.policy.eval_level if args.level is None else args.level
+    ev.policy = dataclasses.replace(ev.policy, eval_level=level)
     clips, prompts, motions = split_prompts(ds, args.split, args.limit, level)
     if len(clips) < 2:
         raise ValueError(f"the {args.split} split of {data} holds {len(clips)} clip(s); retrieval needs at least 2")
@@ -105,7 +107,8 @@ def add_parser(subparsers) -> None:
     q.add_argument("--block", type=int, default=32, help="R-Precision block (default 32)")
     q.add_argument("--replications", type=int, default=20, help="re-blockings of the clips (default 20)")
     q.add_argument("--seed", type=int, default=0)
-    q.add_argument("--evaluator", default="standard", help="evaluator folder for the reference row (default: standard)")
+    q.add_argument("--evaluator", default="standard", help="evaluator of the reference row: 'standard' (default), a version "
+                                                          "such as standard-v7, or an evaluator folder")
     q.add_argument("--out", help=f"result JSON (default: RUN/{RESULT_FILE})")
     q.add_argument("--json", action="store_true", help="print the result as JSON")
     q.set_defaults(func=_run)

@@ -107,6 +107,9 @@ def _run(args: argparse.Namespace) -> int:
         return fail(cmd, e)
     except ValueError as e:  # config checks the family makes once it sees the data
         return fail(cmd, e)
+    except FloatingPointError as e:  # the loop's NaN/inf loss: a diverged run, its earlier checkpoints kept
+        return fail(cmd, f"{e}: the run diverged (try a lower train.optim.lr in a new --out; the folder keeps "
+                         "its checkpoints from before)")
     print(f"trained {fargs.out}: step {out['step']}")
     return 0
 

@@ -26,6 +26,7 @@ from handx_jax.dataset.format import DEFAULT_FRACTIONS, write_dataset
 from handx_jax.annotation.events import AnnotationConfig, annotate
 from handx_jax.dataset.parallel import map_ordered
 from handx_jax.infra.diskspace import check_free_space
+from handx_jax.infra.values import check, check_split_fractions
 from handx_jax.annotation.caption import TemplateCaptioner
 from handx_jax.synthesis.bimanual import GENERATOR_VERSION, MOTIONS, SynthConfig, synth_chunk
 
@@ -48,10 +49,19 @@ class BuildConfig:
     # for every corpus built before issue 40; "per_fact" words each fact independently of the others.
     wording: str = "shared"
 
+    def validate(self) -> None:
+        """Refuse a corpus that cannot be built as asked, before any work (``infra.values``; issue 54): no
+        clips, a negative seed (numpy's seeding fails inside a worker) or worker count, split fractions that
+        leave a split empty."""
+        check(self.clips, "clips", whole=True, minimum=1)
+        check(self.seed, "seed", whole=True, minimum=0)
+        check(self.workers, "workers", whole=True, minimum=0)
+        check_split_fractions(self.val_fraction, self.test_fraction)
+
 
 # The captioner wording that goes with each annotation reading (events.ANNOTATIONS): a corpus built
 # with the stable reading also words each fact independently (issue 40).
-WORDING = {"reference": "shared", "stable": "per_fact", "gist": "per_fact"}
+WORDING = {"reference": "shared", "stable": "per_fact", "gist": "per_fact", "surface": "per_fact"}
 
 
 def reading_of_options(options: dict) -> str | None:
@@ -70,10 +80,18 @@ def reading_of_options(options: dict) -> str | None:
 
 def reading_of(ds) -> tuple[str, str]:
     """(annotation reading, captioner wording) a dataset was built with, from its recipe: a synthetic
-    corpus records both; anything else (an imported release) is read with the reference reading."""
+    corpus records both; a derived one (``handx data reverse``) records what it was annotated with in its
+    ``source``; anything else (an imported release) is read with the reference reading."""
+    from handx_jax.annotation.events import ANNOTATIONS
+
     opts = ((ds.meta.get("recipe") or {}).get("options") or {})
-    reading = reading_of_options(opts) or "reference"
-    return reading, opts.get("wording", WORDING[reading])
+    reading = reading_of_options(opts)
+    if reading is not None:
+        return reading, opts.get("wording", WORDING[reading])
+    src = ds.meta.get("source") or {}
+    if src.get("annotation") in ANNOTATIONS:
+        return src["annotation"], src.get("wording", WORDING[src["annotation"]])
+    return "reference", opts.get("wording", WORDING["reference"])
 
 
 def corpus_seed(ds) -> int:
@@ -191,6 +209,7 @@ def build_corpus(out: str | os.PathLike, cfg: BuildConfig = BuildConfig(), *, ov
                  progress: bool = True, stats: bool | Sequence[NormPreset] = True) -> Path:
     """Synthesise and annotate ``cfg.clips`` clips and write them as a dataset at ``out``; ``stats``: the
     normalisation statistics it holds (:func:`~handx_jax.dataset.format.write_dataset`)."""
+    cfg.validate()
     out = Path(out)
     if out.exists() and not overwrite:  # refuse before spending minutes of work
         raise FileExistsError(f"{out} already exists; pass --force to replace it")
@@ -269,7 +288,8 @@ _NEUTRAL_OPTIONS = {"wording": "shared"}
 _NEUTRAL_SYNTH = {"motion": "oscillate"}
 _NEUTRAL_ANNOTATION = {"smooth_sigma_frames": 0.0, "contact_hysteresis_m": 0.0, "contact_gap_frames": 0,
                        "contact_min_frames": 1, "segmentation": "greedy",
-                       "merge_gap_frames": 10, "state_delta": True, "finger_curl_swing_deg": 0.0}
+                       "merge_gap_frames": 10, "state_delta": True, "finger_curl_swing_deg": 0.0,
+                       "surface_contact_m": 0.0}
 _NEUTRAL_SPEC = {"hysteresis": 0.0}
 _NEUTRAL_FEATURES = {"thumb_mcp": "reference", "dip_coupling": 0.0}
 

@@ -43,7 +43,7 @@ from handx_jax.infra.atomic import atomic_dir, atomic_write_json
 from handx_jax.infra.diskspace import check_free_space, disk_full_as_error
 from handx_jax.infra.errors import DataError
 from handx_jax.infra.npy_writer import NpyWriter
-from handx_jax.infra.readers import read_format_meta, read_jsonl
+from handx_jax.infra.readers import get_field, read_format_meta, read_json, read_jsonl, read_npy, read_npz, require_dir
 
 if TYPE_CHECKING:
     from handx_jax.representation import NormPreset
@@ -403,6 +403,20 @@ def _chunk_moments(motion_path: str, names: tuple[str, ...], modules: tuple[str,
     return {name: rep.preset_moments(name, rep.norm_preset(name).featurize(m)) for name in names}
 
 
+def _index_list(idx: Any, field: str, n: int, path: Path) -> np.ndarray:
+    if not isinstance(idx, list) or not all(type(i) is int and 0 <= i < n for i in idx):
+        raise DataError(f"must be a list of clip indices in [0, {n})", path=path, field=field)
+    return np.asarray(idx, np.int64)
+
+
+def read_splits(path: Path, n: int) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """splits.json's split and data-fraction index lists, each checked: whole clip indices below ``n``."""
+    sp = read_json(path, expect=dict)
+    splits = {k: _index_list(sp.get(k, []), k, n, path) for k in SPLITS}
+    fr = get_field(sp, "fractions", dict, path=path, default={})
+    return splits, {k: _index_list(v, f"fractions[{k!r}]", n, path) for k, v in fr.items()}
+
+
 @dataclass
 class Dataset:
     """A dataset directory opened for reading. ``motion`` is memory-mapped."""
@@ -416,28 +430,21 @@ class Dataset:
 
     @classmethod
     def open(cls, root: str | os.PathLike) -> "Dataset":
-        root = Path(root)
-        if not root.is_dir():
-            raise DataError("dataset directory does not exist", path=root)
+        root = require_dir(root, "dataset directory")
         meta = read_format_meta(root / "meta.json", FORMAT, FORMAT_VERSION,
                                 missing="missing meta.json: not a handx-jax dataset")
-        try:
-            motion = np.load(root / "motion.npy", mmap_mode="r")
-        except FileNotFoundError:
-            raise DataError("missing motion.npy", path=root) from None
-        except ValueError as e:
-            raise DataError(f"corrupt or truncated array ({e})", path=root / "motion.npy") from None
-        n = meta["num_clips"]
-        if motion.shape != (n, meta["clip_len"], 2, sk.NUM_JOINTS, 3):
+        mp = root / "meta.json"
+        n = get_field(meta, "num_clips", int, path=mp, check=lambda v: v >= 0, must="a count >= 0")
+        clip_len = get_field(meta, "clip_len", int, path=mp, check=lambda v: v >= 1, must="a frame count >= 1")
+        motion = read_npy(root / "motion.npy", kind="f", mmap=True)
+        if motion.shape != (n, clip_len, 2, sk.NUM_JOINTS, 3):
             raise DataError(f"shape {motion.shape} does not match meta.json (num_clips={n})",
                             path=root / "motion.npy")
         texts = read_jsonl(root / "texts.jsonl")
         if len(texts) != n:
             raise DataError(f"{len(texts)} text records for {n} clips", path=root / "texts.jsonl")
         validate_texts(texts, root / "texts.jsonl")
-        sp = json.loads((root / "splits.json").read_text())
-        splits = {k: np.asarray(sp.get(k, []), np.int64) for k in SPLITS}
-        fractions = {k: np.asarray(v, np.int64) for k, v in sp.get("fractions", {}).items()}
+        splits, fractions = read_splits(root / "splits.json", n)
         return cls(root=root, meta=meta, motion=motion, texts=texts, splits=splits, fractions=fractions)
 
     def __len__(self) -> int:
@@ -445,7 +452,7 @@ class Dataset:
 
     @property
     def fingerprint(self) -> str:
-        return self.meta["fingerprint"]
+        return get_field(self.meta, "fingerprint", str, path=self.root / "meta.json")
 
     @property
     def ids(self) -> list[str]:
@@ -481,13 +488,12 @@ class Dataset:
         p = self.root / "stats.npz"
         if not p.exists():
             raise DataError("missing stats.npz (dataset has no train split?)", path=self.root)
-        with np.load(p, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
+        return read_npz(p, kind="f")
 
     @cached_property
     def report(self) -> dict:
         p = self.root / "report.json"
-        return json.loads(p.read_text()) if p.exists() else {}
+        return read_json(p, expect=dict, default={})
 
     def captions(self, level: int = -1) -> list[tuple[str, str, str]]:
         """(left, right, interaction) per clip at one level (−1 = most detailed)."""

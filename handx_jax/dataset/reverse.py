@@ -28,6 +28,8 @@ from handx_jax.dataset.build import caption_seed, corpus_seed, reading_of
 from handx_jax.dataset.format import TEXT_FIELDS, Dataset, write_dataset
 from handx_jax.dataset.parallel import map_ordered
 from handx_jax.infra.errors import DataError
+from handx_jax.infra.outputs import check_out_apart, refuse_existing
+from handx_jax.infra.values import check
 
 SUFFIX = "~rev"
 CHUNK = 512  # clips per annotation task
@@ -60,7 +62,14 @@ def build_reversed(data: str | os.PathLike, out: str | os.PathLike, *, split: st
                    limit: int | None = None, workers: int = 0, overwrite: bool = False,
                    log=print, stats=True) -> Path:
     """Write the time-reversed, re-annotated copy of ``data``'s ``split`` (at most ``limit`` clips) to
-    ``out``; returns ``out``. ``stats``: its normalisation statistics (``write_dataset``'s)."""
+    ``out``; returns ``out``. ``stats``: its normalisation statistics (``write_dataset``'s). Refused before any
+    work: an ``out`` that exists (without ``overwrite``), is ``data``, lies inside it or contains it (the write
+    would replace the dataset read; issue 54), a ``limit`` or ``workers`` that is no count."""
+    if limit is not None:
+        check(limit, "--clips", whole=True, minimum=1)
+    check(workers, "--workers", whole=True, minimum=0)
+    check_out_apart(out, data)
+    refuse_existing(out, overwrite=overwrite, flag="--out")
     ds = Dataset.open(data)
     clips = pick_clips(ds, split, limit)
     if len(clips) == 0:

@@ -35,7 +35,7 @@ from handx_jax.infra.atomic import atomic_write_bytes, atomic_write_json
 from handx_jax.infra.checksums import sha256_file
 from handx_jax.infra.errors import DataError
 from handx_jax.infra.param_files import read_params_msgpack, write_params_msgpack
-from handx_jax.infra.readers import read_format_meta
+from handx_jax.infra.readers import read_format_meta, read_npz
 from handx_jax.models.evaluator import EvaluatorConfig
 
 FORMAT, FORMAT_VERSION = "handx-jax-evaluator", 1
@@ -75,13 +75,10 @@ def evaluator_id(root: str | os.PathLike) -> str:
         if not (root / name).is_file():
             raise DataError(f"evaluator folder has no {name}", path=root)
     h.update(sha256_file(root / PARAMS_FILE).encode())
-    try:
-        with np.load(root / STATS_FILE, allow_pickle=False) as z:
-            for k in sorted(z.files):
-                h.update(k.encode())
-                h.update(np.ascontiguousarray(z[k]).tobytes())
-    except (OSError, ValueError) as e:
-        raise DataError(f"unreadable {STATS_FILE}: {e}", path=root / STATS_FILE) from None
+    z = read_npz(root / STATS_FILE)  # garbage, truncated or object arrays: one line naming the file
+    for k in sorted(z):
+        h.update(k.encode())
+        h.update(np.ascontiguousarray(z[k]).tobytes())
     return h.hexdigest()[:16]
 
 
@@ -111,8 +108,7 @@ def load_evaluator(root: str | os.PathLike, *, encoder=None, batch_size: int = 2
     if enc.tokenizer.fingerprint != meta["encoder"]["tokenizer_fingerprint"]:
         raise DataError(f"tokenizer fingerprint mismatch: trained with {meta['encoder']['tokenizer_fingerprint']}, "
                         f"{enc_path} has {enc.tokenizer.fingerprint}", path=enc_path)
-    with np.load(root / STATS_FILE, allow_pickle=False) as z:
-        stats = rep.NormStats.from_npz_dict({k: z[k] for k in z.files}, "evaluator")
+    stats = rep.NormStats.read(root / STATS_FILE, "evaluator")
     template = param_shapes(cfg, policy.max_len)
     params = read_params_msgpack(root / PARAMS_FILE, template)  # checksum verified; bad files name themselves
     return TrainedEvaluator(cfg=cfg, params=params, stats=stats, encoder=enc, policy=policy, meta=meta, root=root,

@@ -52,7 +52,7 @@ def evaluator_stats(ds, kind: str = "positions", clips: np.ndarray | None = None
     evenly spaced ``clips`` (default the train split); constant features (e.g. the middle MCP's
     local y, z, zero by construction) get std 1. Stored with the evaluator, so evaluation reuses them."""
     if kind == "positions":
-        return rep.NormStats.from_npz_dict(ds.stats, "evaluator")
+        return rep.NormStats.from_npz_dict(ds.stats, "evaluator", path=ds.root / "stats.npz")
     clips = np.sort(np.asarray(ds.split("train") if clips is None else clips, np.int64))
     if len(clips) == 0:
         raise DataError("no clips to compute evaluator input statistics from", path=ds.root)

@@ -78,18 +78,8 @@ class TrainedEvaluator:
         return self.meta.get("dataset", {}).get("fingerprint")
 
     def check_dataset(self, ds) -> None:
-        """Refuse a reference dataset other than the one this evaluator was trained on; a rebuild of its
-        recipe that differs only by float rounding is accepted and reported (data.dataset.check_compatible)."""
-        import sys
-
-        from handx_jax.dataset.format import check_compatible
-
-        c = check_compatible(self.meta.get("dataset"), ds, what="this evaluator", made="trained on",
-                             fix=f"evaluate against the dataset the evaluator was trained on "
-                                 f"({self.meta.get('dataset', {}).get('path')}), or train a new evaluator with "
-                                 f"`handx train evaluator --data {ds.root}`")
-        if c.message:
-            print(c.message, file=sys.stderr)
+        """Refuse a reference dataset other than the one this evaluator was trained on (:func:`check_trained_dataset`)."""
+        check_trained_dataset(self.meta, ds)
 
     def embed_motion(self, joints_NxTx2x21x3: np.ndarray) -> np.ndarray:
         """(N, latent) μ-embeddings of joint sequences in metres."""
@@ -186,3 +176,19 @@ def param_shapes(cfg: EvaluatorConfig, text_len: int):
     template a saved evaluator is read into. Tracing costs ~0.3 CPU-s where compiling the init costs ~6
     in a fresh process, paid by every `handx eval run` and sweep evaluate stage."""
     return jax.eval_shape(lambda: _init_params(cfg, text_len))
+
+
+def check_trained_dataset(meta: dict, ds) -> None:
+    """Refuse a reference dataset other than the one the evaluator of ``meta`` (its ``evaluator.json``) was
+    trained on; a rebuild of its recipe that differs only by float rounding is accepted and reported
+    (data.dataset.check_compatible). From the JSON alone, so commands check it before loading any weights."""
+    import sys
+
+    from handx_jax.dataset.format import check_compatible
+
+    c = check_compatible(meta.get("dataset"), ds, what="this evaluator", made="trained on",
+                         fix=f"evaluate against the dataset the evaluator was trained on "
+                             f"({(meta.get('dataset') or {}).get('path')}), or train a new evaluator with "
+                             f"`handx train evaluator --data {ds.root}`")
+    if c.message:
+        print(c.message, file=sys.stderr)

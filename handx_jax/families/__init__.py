@@ -39,7 +39,6 @@ from __future__ import annotations
 import contextlib
 import difflib
 import importlib
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -207,6 +206,22 @@ def sweep_task(name: str) -> str:
     return fam.sweep_task
 
 
+def check_task(name: str, task: str) -> None:
+    """The one refusal of a task family ``name`` does not serve (``Family.tasks``), asked by every command
+    that runs one (``handx generate --task``, ``handx eval prediction``, ``handx eval recognition``) before it
+    opens the run: a ValueError in one line saying what the family does instead; a step family (no tasks)
+    says what it is for and which family to use."""
+    fam = entry(name)
+    if task in fam.tasks:
+        return
+    what = f"--task {task}" if task != "recognition" else "recognition"
+    if fam.tasks:
+        raise ValueError(f"family {name} does not do {what}; it does {', '.join(fam.tasks)}")
+    users = [f for f in names() if name in entry(f).needs]
+    use = f"; use the {' or '.join(users)} run trained on it" if users else ""
+    raise ValueError(f"family {name} does not do {what}: it is {fam.help}, which generates nothing{use}")
+
+
 def get_family(name: str) -> ModuleType:
     """The family module registered as ``name``; an unknown name is a ValueError with a hint."""
     return importlib.import_module(entry(name).module)
@@ -251,10 +266,9 @@ def family_of(run_dir: str | Path) -> str:
     p = Path(run_dir) / "config.json"
     if not p.exists():
         raise DataError("not a run folder (no config.json)", path=run_dir)
-    try:
-        fam = json.loads(p.read_text()).get("family")
-    except (json.JSONDecodeError, AttributeError) as e:
-        raise DataError(f"config.json is not a JSON object: {e}", path=p) from None
+    from handx_jax.infra.readers import read_json
+
+    fam = read_json(p, expect=dict).get("family")
     if not fam:
         raise DataError("config.json names no model family ('family' is missing)", path=p)
     return str(fam)
@@ -268,7 +282,9 @@ def run_config(run_dir: str | Path, family: str) -> dict:
         from handx_jax.infra.errors import DataError
 
         raise DataError(f"not a {family} run folder (config.json names family {found!r})", path=run_dir)
-    return json.loads((Path(run_dir) / "config.json").read_text())
+    from handx_jax.infra.readers import read_json
+
+    return read_json(Path(run_dir) / "config.json", expect=dict)
 
 
 def generation_config(cfg, overrides, allowed: tuple[str, ...] = ("sample.",)):
@@ -280,7 +296,7 @@ def generation_config(cfg, overrides, allowed: tuple[str, ...] = ("sample.",)):
     if bad:
         names = " and ".join(f"{a}*" for a in allowed)
         raise ValueError(f"generation can only override {names} keys, got {bad}")
-    cfg = apply_overrides(cfg, overrides)
+    cfg = apply_overrides(cfg, overrides, groups=False)  # the run's train.* values are history, not checked
     cfg.validate()
     return cfg
 

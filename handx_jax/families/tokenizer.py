@@ -162,7 +162,7 @@ def _ar_norm(ds):
     from handx_jax import representation as rep
 
     try:
-        return rep.NormStats.from_npz_dict(ds.stats, NORM)
+        return rep.NormStats.from_npz_dict(ds.stats, NORM, path=ds.root / "stats.npz")
     except KeyError as e:
         raise DataError(f"stats.npz has no AR statistics ({e}); rebuild the dataset", path=ds.root) from None
 
@@ -331,8 +331,7 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
     doc = run_config(run_dir, FAMILY)
     cfg = from_dict(TokenizerRunConfig, doc)
     params, step = load_params(run_dir, ema=ema)
-    with np.load(run_dir / NORM_FILE) as z:
-        norm = rep.NormStats.from_npz_dict(dict(z), NORM)
+    norm = rep.NormStats.read(run_dir / NORM_FILE, NORM)
     return TokenizerRun(run_dir, cfg, Q.FSQTokenizer(cfg.model), params, step, norm, doc)
 
 
@@ -401,13 +400,14 @@ def read_codes(path: Path, meta: dict) -> np.ndarray:
     itself), of the shape meta.json gives, integers, and inside the tokenizer's codebook [0, nb_code).
     A code outside it is a token the LM has no row for: training went on to a NaN loss at step 5 and
     left a run folder behind (issue 31)."""
+    from handx_jax.infra.readers import read_npy
+
     try:
-        codes = np.load(path, allow_pickle=False)
-    except FileNotFoundError:
-        raise DataError("missing codes.npy; rebuild the cache with `handx data tokens`", path=path.parent) from None
-    except (ValueError, OSError, EOFError) as e:  # numpy: "Failed to read all data for array ..." and kin
-        raise DataError(f"unreadable or truncated token cache ({str(e).splitlines()[0][:200]}); rebuild it with "
-                        f"`handx data tokens`", path=path) from None
+        codes = read_npy(path, missing="missing codes.npy; rebuild the cache with `handx data tokens`")
+    except DataError as e:
+        if "missing codes.npy" in str(e):
+            raise
+        raise DataError(f"{e}; rebuild it with `handx data tokens`") from None
     if codes.shape != (meta["num_clips"], meta["tokens_per_clip"]):
         raise DataError(f"codes shape {codes.shape} does not match meta.json's ({meta['num_clips']}, "
                         f"{meta['tokens_per_clip']}); rebuild it with `handx data tokens`", path=path)

@@ -1,5 +1,6 @@
-"""The project's error type for bad input: the message names the file and, where known, the clip or field
-(``handx_jax.cli`` prints it as one line and exits 2)."""
+"""The project's error types for bad input: ``DataError`` names the file and, where known, the clip or field
+(``handx_jax.cli`` prints it as one line and exits 2); ``ConfigError`` names the setting or flag (its home is
+here, below ``handx_jax.config``, so that ``infra.values`` can raise it)."""
 
 from __future__ import annotations
 
@@ -21,3 +22,7 @@ class DataError(ValueError):
             where.append(f"field {field!r}")
         super().__init__(f"{', '.join(where)}: {message}" if where else message)
         self.path, self.clip, self.field = path, clip, field
+
+
+class ConfigError(ValueError):
+    """A bad preset name, override, config file or numeric setting; the message says which key and why."""

@@ -1,5 +1,8 @@
 """Exclusive outputs: an output that exists is refused (``--force`` replaces it), a second writer of the same
-output is refused naming the first, and what killed writers left beside it is removed."""
+output is refused naming the first, and what killed writers left beside it is removed. And an output apart
+from what it is made of (:func:`check_out_apart`, issue 54): ``handx data reverse --data D --out D --force``
+replaced the 600-clip dataset D by its 536 reversed train clips, the writer's atomic rename putting the new
+folder where its input was."""
 
 from __future__ import annotations
 
@@ -10,6 +13,8 @@ import shutil
 import sys
 from pathlib import Path
 from typing import Iterator
+
+from handx_jax.infra.errors import DataError
 
 
 def refuse_existing(path: str | os.PathLike, *, overwrite: bool = False, flag: str | None = None) -> None:
@@ -69,3 +74,25 @@ def exclusive_output(path: str | os.PathLike, *, overwrite: bool = False, flag: 
         refuse_existing(path, overwrite=overwrite, flag=flag)  # written by another writer meanwhile
         remove_stale_temporaries(path)
         yield path
+
+
+def _real(p: str | os.PathLike) -> Path:
+    return Path(os.path.realpath(os.path.abspath(p)))  # through symlinks: a link to D is D
+
+
+def check_out_apart(out: str | os.PathLike, data: str | os.PathLike, *, replaces: bool = True,
+                    out_flag: str = "--out", data_flag: str = "--data") -> None:
+    """Refuse an ``out`` that is ``data`` or lies inside it; with ``replaces`` (the writer replaces ``out``
+    as a whole, e.g. ``infra.atomic.atomic_dir`` under ``--force``) also one that contains ``data``. A ``DataError``
+    in one line naming both."""
+    o, d = _real(out), _real(data)
+    if o == d:
+        why, then = "is", ""
+    elif d in o.parents:
+        why, then = "is inside", ""
+    elif replaces and o in d.parents:
+        why, then = "contains", f" (writing {out_flag} replaces that folder, and the dataset in it)"
+    else:
+        return
+    raise DataError(f"{out_flag} {out} {why} the dataset it reads, {data_flag} {data}{then}; choose another "
+                    f"{out_flag} outside it")

@@ -82,33 +82,20 @@ def norm_stats(mean: np.ndarray, std: np.ndarray, *, mean_path=None, std_path=No
                         "without an epsilon)", path=std_path)
 
 
-NPY_MAGIC, ZIP_MAGIC = b"\x93NUMPY", b"PK\x03\x04"
-
-
 def load_array_file(path, *, npz: bool = False):
     """A ``.npy`` array (or, with ``npz``, a ``.npz`` archive as a dict) read without pickles; a file of
-    another kind (a text file, a pickle) is refused by what it is, not with numpy's hint to load it with
-    ``allow_pickle``, which would run whatever the file names."""
+    another kind (a text file, a pickle, an array of Python objects) is refused by what it is
+    (``handx_jax.infra.readers``), not with numpy's hint to load it with ``allow_pickle``, which would run
+    whatever the file names."""
     from pathlib import Path
 
+    from handx_jax.infra.readers import NPY_MAGIC, ZIP_MAGICS, read_head, read_npy, read_npz
+
     p = Path(path)
-    try:
-        with open(p, "rb") as f:
-            head = f.read(6)
-    except IsADirectoryError:
-        raise DataError("is a directory, not an array file", path=p) from None
-    except OSError as e:
-        raise DataError(f"cannot read it ({e.strerror or e})", path=p) from None
-    kinds = [NPY_MAGIC] + ([ZIP_MAGIC] if npz else [])
-    if not any(head.startswith(k) for k in kinds):
-        want = "a .npy or .npz" if npz else "a .npy"
-        raise DataError(f"not {want} file (it starts with {head!r}; NumPy array files start with {NPY_MAGIC!r}"
-                        f"{' or an .npz zip' if npz else ''})", path=p)
-    try:
-        if head.startswith(ZIP_MAGIC):
-            with np.load(p, allow_pickle=False) as z:
-                return dict(z)
-        return np.load(p, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as e:
-        raise DataError(f"cannot read the array file ({type(e).__name__}: {str(e).splitlines()[0][:200]})",
-                        path=p) from None
+    head = read_head(p)
+    if npz and head[:4] in ZIP_MAGICS:
+        return read_npz(p)
+    if npz and not head.startswith(NPY_MAGIC):
+        raise DataError(f"not a .npy or .npz file (it starts with {head[:6]!r}; NumPy array files start with "
+                        f"{NPY_MAGIC!r} or an .npz zip)", path=p)
+    return read_npy(p)

@@ -22,6 +22,7 @@ from handx_jax.dataset.format import DEFAULT_FRACTIONS, Dataset, write_dataset
 from handx_jax.interop.handx_npz import HandXClip, read_handx_npz, write_handx_npz
 from handx_jax.infra.checksums import sha256_file
 from handx_jax.infra.errors import DataError
+from handx_jax.infra.outputs import check_out_apart, refuse_existing
 
 
 def split_from_filename(path: Path) -> str:
@@ -38,6 +39,9 @@ def import_handx(files: Sequence[str | os.PathLike], out: str | os.PathLike, *, 
                  overwrite: bool = False, stats=True) -> Path:
     """The clips of the official ``files`` as a dataset at ``out``; ``stats``: its normalisation statistics
     (``write_dataset``'s)."""
+    for f in files:  # --force replaces --out whole: never onto (or around) the files it reads
+        check_out_apart(out, f, data_flag="the input file")
+    refuse_existing(out, overwrite=overwrite, flag="--out")  # before reading every file, not after
     motions, texts, split_of = [], [], []
     dropped: dict[str, list[str]] = {}
     seen_ids: set[str] = set()
@@ -91,6 +95,7 @@ def import_handx(files: Sequence[str | os.PathLike], out: str | os.PathLike, *, 
 
 
 def export_handx(data_dir: str | os.PathLike, out: str | os.PathLike, *, split: str | None = None) -> Path:
+    check_out_apart(out, data_dir, replaces=False)  # --out D/motion.npy would replace the dataset's own file
     ds = Dataset.open(data_dir)
     idx = np.arange(len(ds)) if split in (None, "all") else ds.split(split)
     clips = []

@@ -278,7 +278,8 @@ def read_stats(*, data: str | os.PathLike | None = None, stats: str | os.PathLik
     if data is not None:
         from handx_jax.dataset.format import Dataset
 
-        return rep.NormStats.from_npz_dict(Dataset.open(data).stats, "diffusion")
+        ds = Dataset.open(data)
+        return rep.NormStats.from_npz_dict(ds.stats, "diffusion", path=ds.root / "stats.npz")
     from handx_jax.interop import checks
 
     p = Path(stats)
@@ -301,7 +302,7 @@ def read_stats(*, data: str | os.PathLike | None = None, stats: str | os.PathLik
                         path=p)
     checks.norm_stats(mean, std, mean_path=mean_path, std_path=std_path)
     if not p.is_dir() and "diffusion_mean" in d:  # a run's norm_stats.npz or a dataset's stats.npz: its eps too
-        return rep.NormStats.from_npz_dict(d, "diffusion")
+        return rep.NormStats.from_npz_dict(d, "diffusion", path=p)
     return rep.NormStats(mean=mean.reshape(42, 4), std=std.reshape(42, 4))
 
 
@@ -474,8 +475,7 @@ def export_run(run_dir: str | os.PathLike, out: str | os.PathLike, *, config: st
     if stats:
         from handx_jax import representation as rep
 
-        with np.load(Path(run_dir) / fam.NORM_FILE) as z:
-            norm = rep.NormStats.from_npz_dict(dict(z), "diffusion")
+        norm = rep.NormStats.read(Path(run_dir) / fam.NORM_FILE, "diffusion")
     written: list[Path] = []
     with contextlib.ExitStack() as held:
         for flag, p in targets:

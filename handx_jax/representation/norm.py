@@ -56,12 +56,17 @@ class NormStats:
         return {f"{name}_mean": self.mean, f"{name}_std": self.std, f"{name}_eps": np.asarray(self.eps)}
 
     @classmethod
-    def from_npz_dict(cls, d: Mapping[str, np.ndarray], name: str, *, eps: float | None = None) -> NormStats:
-        """Read back :meth:`to_npz_dict` output. ``eps`` precedence: argument, ``{name}_eps`` key, preset, 0."""
-        try:
-            mean, std = np.asarray(d[f"{name}_mean"]), np.asarray(d[f"{name}_std"])
-        except KeyError as e:
-            raise KeyError(f"normalisation stats {name!r}: missing key {e.args[0]!r}") from None
+    def from_npz_dict(cls, d: Mapping[str, np.ndarray], name: str, *, eps: float | None = None,
+                      path=None) -> NormStats:
+        """Read back :meth:`to_npz_dict` output. ``eps`` precedence: argument, ``{name}_eps`` key, preset, 0.
+        A missing key or unusable values are a ``DataError`` naming ``path`` (the file ``d`` came from)."""
+        from handx_jax.infra.errors import DataError
+
+        for key in (f"{name}_mean", f"{name}_std"):
+            if key not in d:
+                raise DataError(f"normalisation stats {name!r}: missing (the file holds {', '.join(sorted(d)) or 'nothing'})",
+                                path=path, field=key)
+        mean, std = np.asarray(d[f"{name}_mean"]), np.asarray(d[f"{name}_std"])
         if eps is None:
             if f"{name}_eps" in d:
                 eps = float(np.asarray(d[f"{name}_eps"]))
@@ -70,7 +75,18 @@ class NormStats:
                     eps = norm_preset(name).eps
                 except ValueError:  # statistics no registered family or trainable declares
                     eps = 0.0
-        return cls(mean=mean, std=std, eps=eps)
+        try:
+            return cls(mean=mean, std=std, eps=eps)
+        except ValueError as e:
+            raise DataError(f"normalisation stats {name!r}: {str(e).removeprefix('NormStats: ')}", path=path) from None
+
+    @classmethod
+    def read(cls, path, name: str) -> NormStats:
+        """The statistics ``name`` of a ``.npz`` file (a run's norm file, a dataset's stats.npz), through the
+        project's one reader (``infra.readers``: a garbage, truncated or object-array file is one line naming it)."""
+        from handx_jax.infra.readers import read_npz
+
+        return cls.from_npz_dict(read_npz(path, kind="f"), name, path=path)
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,8 @@ seed, the clip count and the build options of :data:`RECIPE` — not the bytes o
 recipe rebuilt with another numpy/jax build gives the same clip ids, splits and captions, and motion
 equal up to float rounding, and it is accepted.
 
-Packaged assets (``handx_jax/assets/standard/``, a few MB, see ``CARD.md``):
+Packaged assets (``handx_jax/assets/standard/``, a few MB, see ``CARD.md``; the earlier versions v4-v6 are kept
+out of the package, in a clone's ``evaluators/``, without the encoder they share with it):
 
     card.json, CARD.md   recipe, how the evaluator was trained (steps, batch, lr, wall time, machine),
                          its Ground Truth rows at R-Precision blocks 32 and 16, sha256 of every file
@@ -34,7 +35,9 @@ rows are on the full test split.
 
 One concern per module:
 
-    assets.py     version, folders (current and archived), the card, checksums, ``--evaluator`` names
+    assets.py     version, folders (packaged and archived), the card, checksums
+    naming.py     ``--evaluator`` values: ``resolve_evaluator`` (standard, standard-vN, a path) and the
+                  dataset–evaluator pair check every command makes before its work
     recipe.py     the corpus recipe, read back from a corpus, and the corpus build
     identity.py   the test manifest and the check that a corpus is the standard one or a prefix
     evaluator.py  loading the standard evaluator (``StandardEvaluator``, built lazily)
@@ -46,23 +49,24 @@ The names below are the package's public surface (``from handx_jax import standa
 """
 
 from handx_jax.dataset.format import MOTION_ATOL
-from handx_jax.standard.assets import (ASSETS, CARD_JSON, CARD_MD, CARD_SHA, ENCODER_DIR, EVALUATOR_DIR, MANIFEST, NAME,
-                                       VERSION, archived, asset_files, assets_folder, assets_for, encoder_dir,
-                                       evaluator_dir, evaluator_meta, is_standard, read_card, reference_cache_dir,
-                                       verify_assets, versions)
+from handx_jax.standard.assets import (ARCHIVE, ASSETS, CARD_JSON, CARD_MD, CARD_SHA, ENCODER_DIR, EVALUATOR_DIR,
+                                       MANIFEST, NAME, VERSION, archived, asset_files, assets_folder, encoder_dir,
+                                       evaluator_dir, read_card, reference_cache_dir, verify_assets, versions)
 from handx_jax.standard.card import card_markdown, validity_summary
 from handx_jax.standard.evaluator import load, standard_evaluator_class
 from handx_jax.standard.identity import check_reference, read_manifest, test_manifest
+from handx_jax.standard.naming import Evaluator, resolve_evaluator
 from handx_jax.standard.packaging import add_validity, package
-from handx_jax.standard.recipe import (STANDARD_ANNOTATION, STANDARD_MOTION, Recipe, build_options,
-                                       build_standard_corpus, code_recipe, generator_version, recipe_of)
+from handx_jax.standard.recipe import (CORPUS_VERSIONS, STANDARD_ANNOTATION, STANDARD_MOTION, Recipe, build_options,
+                                       build_standard_corpus, code_recipe, corpus_recipe, generator_version, recipe_of)
 
-__all__ = ["MOTION_ATOL", "ASSETS", "CARD_JSON", "CARD_MD", "CARD_SHA", "ENCODER_DIR", "EVALUATOR_DIR", "MANIFEST",
-           "NAME", "VERSION", "archived", "asset_files", "assets_folder", "assets_for", "encoder_dir", "evaluator_dir",
-           "evaluator_meta", "is_standard", "read_card", "reference_cache_dir", "verify_assets", "versions",
+__all__ = ["MOTION_ATOL", "ARCHIVE", "ASSETS", "CARD_JSON", "CARD_MD", "CARD_SHA", "ENCODER_DIR", "EVALUATOR_DIR",
+           "MANIFEST", "NAME", "VERSION", "archived", "asset_files", "assets_folder", "encoder_dir", "evaluator_dir",
+           "read_card", "reference_cache_dir", "verify_assets", "versions", "Evaluator", "resolve_evaluator",
            "card_markdown", "validity_summary", "load", "check_reference", "read_manifest", "test_manifest",
            "add_validity", "package", "STANDARD_ANNOTATION", "STANDARD_MOTION", "Recipe", "build_options",
-           "build_standard_corpus", "code_recipe", "generator_version", "recipe_of", "StandardEvaluator"]
+           "build_standard_corpus", "code_recipe", "corpus_recipe", "generator_version", "recipe_of", "StandardEvaluator",
+           "CORPUS_VERSIONS"]
 
 
 def __getattr__(name: str):  # StandardEvaluator is built on first use: importing the package must not import jax

@@ -1,15 +1,15 @@
-"""The packaged assets of the standard evaluator: their version and folders (the current one, the archived
-``standard-vN`` ones), the card, the checksums every load verifies, and which ``--evaluator`` values
-name one of them."""
+"""The assets of the standard evaluator: their version and folders (the packaged current one; the earlier
+``standard-vN`` ones, kept in a clone's ``evaluators/`` and not installed), the card, and the checksums every
+load verifies. Which ``--evaluator`` values name one of them: :mod:`handx_jax.standard.naming`."""
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
 from handx_jax.infra.checksums import sha256_file, verify_checksum
 from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import read_json
 
 VERSION = 7  # of the packaged assets; bumped whenever the recipe or any weight changes
 ASSETS = Path(__file__).resolve().parent.parent / "assets" / "standard"  # handx_jax/assets/standard
@@ -17,6 +17,9 @@ CARD_JSON, CARD_MD, MANIFEST = "card.json", "CARD.md", "test_manifest.npz"
 CARD_SHA = CARD_JSON + ".sha256"  # infra.checksums.write_checksum's sidecar: the card's own checksum
 ENCODER_DIR, EVALUATOR_DIR = "encoder", "evaluator"
 NAME = "standard"  # `handx eval run --evaluator standard` (the default)
+# The earlier standard evaluators (v4-v6), out of the package (issue 51 item 4): a clone's evaluators/ folder,
+# beside handx_jax/. From an installed wheel it does not exist, and their names say where to find them.
+ARCHIVE = Path(__file__).resolve().parents[2] / "evaluators"
 
 
 def assets_folder(assets: Path | None = None) -> Path:
@@ -29,7 +32,7 @@ def read_card(assets: Path | None = None) -> dict:
     if not p.exists():
         raise DataError(f"the standard evaluator's card is missing (is the package installed with its assets? "
                         f"see pyproject package-data)", path=p)
-    return json.loads(p.read_text())
+    return read_json(p, expect=dict)
 
 
 def asset_files(assets: Path) -> list[str]:
@@ -53,13 +56,22 @@ def verify_assets(assets: Path | None = None) -> dict:
                         "(reinstall the package)", path=assets / CARD_JSON) from None
     card = read_card(assets)
     for rel, want in card["sha256"].items():
-        p = Path(assets) / rel
+        p = asset_path(assets, rel)
         if not p.exists():
             raise DataError("standard evaluator file missing (reinstall the package)", path=p)
         if sha256_file(p) != want:
             raise DataError("standard evaluator file corrupt: sha256 differs from card.json (reinstall the "
                             "package)", path=p)
     return card
+
+
+def asset_path(assets: Path, rel: str) -> Path:
+    """Where the file ``rel`` of a card's checksums is: in ``assets``, except the text encoder of an archived
+    version, which is the packaged one (byte-identical since v4, so stored once; the card's sha256 of each
+    encoder file is still checked against it)."""
+    if rel.startswith(ENCODER_DIR + "/"):
+        return encoder_dir(assets) / rel[len(ENCODER_DIR) + 1:]
+    return Path(assets) / rel
 
 
 def reference_cache_dir(assets: Path | None = None) -> Path:
@@ -80,8 +92,8 @@ def evaluator_dir(assets: Path | None = None) -> Path:
 
 def archived(version: int) -> Path:
     """The assets folder of an earlier standard evaluator, kept so that old numbers can be re-scored and
-    compared: ``handx_jax/assets/standard-v{version}/`` (``--evaluator standard-v{version}``)."""
-    return ASSETS.with_name(f"{ASSETS.name}-v{int(version)}")
+    compared: ``evaluators/standard-v{version}/`` of a clone (``--evaluator standard-v{version}``)."""
+    return ARCHIVE / f"{NAME}-v{int(version)}"
 
 
 def version_folder(version: int) -> Path:
@@ -91,45 +103,14 @@ def version_folder(version: int) -> Path:
 
 
 def versions() -> list[int]:
-    """Every standard evaluator this package ships: the current one and the archived ones."""
-    old = [int(p.name.rsplit("-v", 1)[1]) for p in ASSETS.parent.glob(f"{ASSETS.name}-v*")
+    """Every standard evaluator at hand: the packaged one and the archived ones a clone holds."""
+    old = [int(p.name.rsplit("-v", 1)[1]) for p in ARCHIVE.glob(f"{NAME}-v*")
            if p.name.rsplit("-v", 1)[1].isdigit() and (p / CARD_JSON).exists()]
     return sorted(set(old) | {VERSION})
 
 
-def assets_for(evaluator: str | os.PathLike | None) -> Path | None:
-    """The assets folder an ``--evaluator`` value names, or None for any other evaluator: omitted,
-    ``standard`` or ``standard-v{VERSION}`` is the current one; ``standard-vN`` an archived one (an
-    unknown N is a one-line error listing the versions); an evaluator folder of either is itself."""
-    if evaluator is None or str(evaluator) in (NAME, f"{NAME}-v{VERSION}"):
-        return ASSETS
-    e = str(evaluator)
-    if e.startswith(f"{NAME}-v") and e[len(NAME) + 2:].isdigit():
-        folder = archived(int(e[len(NAME) + 2:]))
-        if not (folder / CARD_JSON).exists():
-            raise DataError(f"--evaluator {e}: no such standard evaluator; this package has "
-                            f"{', '.join(f'{NAME}-v{v}' for v in versions())}")
-        return folder
-    p = Path(evaluator).resolve()
-    for v in versions():
-        folder = version_folder(v)
-        if p == (folder / EVALUATOR_DIR).resolve():
-            return folder
-    return None
-
-
-def is_standard(evaluator: str | os.PathLike | None) -> bool:
-    """``--evaluator`` omitted, ``standard``, ``standard-vN``, or a packaged evaluator folder itself."""
-    return assets_for(evaluator) is not None
-
-
-def evaluator_meta(evaluator: str | os.PathLike | None) -> dict:
-    """``evaluator.json`` of an evaluator folder, or of a standard evaluator (see :func:`is_standard`)."""
-    assets = assets_for(evaluator)
-    folder = evaluator_dir(assets) if assets is not None else Path(evaluator)
-    return json.loads((folder / "evaluator.json").read_text())
-
-
 def encoder_dir(assets: Path | None = None) -> Path:
-    """The packaged T5 encoder folder (pass it as ``--encoder`` to train models on the standard corpus)."""
-    return assets_folder(assets) / ENCODER_DIR
+    """The packaged T5 encoder folder (pass it as ``--encoder`` to train models on the standard corpus); an
+    archived version without its own ``encoder/`` uses the packaged one (:func:`asset_path`)."""
+    own = assets_folder(assets) / ENCODER_DIR
+    return own if own.is_dir() or assets is None else ASSETS / ENCODER_DIR

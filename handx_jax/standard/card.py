@@ -55,7 +55,7 @@ def card_markdown(card: Mapping[str, Any]) -> str:
         "",
         f"- generator version **{rec['generator']}**, seed **{rec['seed']}**, **{rec['clips']:,}** clips, default "
         f"build options (`handx standard corpus --out DIR` = `handx data synth --clips {rec['clips']} "
-        f"{Recipe(**rec).synth_flags()}`)",
+        f"{Recipe.from_card(rec).synth_flags()}`)",
         f"- splits {c['split_sizes']}; content hash on the packaging machine `{c['fingerprint']}` (another "
         f"numpy/jax build may give other float bytes: the check compares ids, captions and motion within "
         f"{MOTION_ATOL:g} m instead)",

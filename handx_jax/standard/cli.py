@@ -9,9 +9,9 @@ import dataclasses
 import json
 import sys
 import time
-from pathlib import Path
 
 from handx_jax import standard
+from handx_jax.infra.values import whole_flag
 
 
 def _info(a: argparse.Namespace) -> int:
@@ -33,7 +33,9 @@ def _usage_error(e: Exception) -> int:
 def _corpus(a: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     try:
-        out = standard.build_standard_corpus(a.out, a.clips, workers=a.workers, overwrite=a.force, progress=not a.quiet)
+        recipe = None if a.corpus is None else standard.corpus_recipe(a.corpus)
+        out = standard.build_standard_corpus(a.out, a.clips, workers=a.workers, overwrite=a.force, progress=not a.quiet,
+                                             recipe=recipe)
     except ValueError as e:  # a --clips outside the recipe: one line, no traceback
         return _usage_error(e)
     print(f"wrote {out} ({time.perf_counter() - t0:.0f} s)")
@@ -69,10 +71,9 @@ def _package(a: argparse.Namespace) -> int:
         recipe = dataclasses.replace(standard.code_recipe(), clips=int(a.recipe_clips))
     validity = None
     if a.validity:
-        try:
-            validity = json.loads(Path(a.validity).read_text())
-        except (OSError, json.JSONDecodeError) as e:
-            return _usage_error(f"--validity {a.validity}: {e}")
+        from handx_jax.infra.readers import read_json
+
+        validity = read_json(a.validity, expect=dict)
     if a.validity_only:  # the figures of an already packaged evaluator (the suite needs it packaged)
         if validity is None:
             return _usage_error("--validity-only needs --validity FILE")
@@ -82,7 +83,8 @@ def _package(a: argparse.Namespace) -> int:
     missing = [f"--{k}" for k in ("data", "encoder", "evaluator") if not getattr(a, k)]
     if missing:
         return _usage_error(f"handx standard package needs {', '.join(missing)} (or --validity-only)")
-    out = standard.package(a.data, a.encoder, a.evaluator, a.out, training=training, replications=a.replications,
+    evaluator = standard.resolve_evaluator(a.evaluator).folder  # a folder that is not a finished evaluator: one line
+    out = standard.package(a.data, a.encoder, evaluator, a.out, training=training, replications=a.replications,
                   recipe=recipe, validity=validity)
     print(f"wrote {out}")
     return 0
@@ -98,8 +100,11 @@ def add_parser(subparsers) -> None:
     i.set_defaults(func=_info)
     c = sub.add_parser("corpus", help="build the standard corpus, or its first --clips M clips (a prefix)")
     c.add_argument("--out", required=True, help="dataset directory to create")
-    c.add_argument("--clips", type=int, help="build only the first M clips (default: the whole standard corpus)")
-    c.add_argument("--workers", type=int, default=0, help="processes (0 = one per core)")
+    c.add_argument("--clips", type=whole_flag(1), help="build only the first M clips (default: the whole standard corpus)")
+    c.add_argument("--workers", type=whole_flag(0), default=0, help="processes (0 = one per core)")
+    c.add_argument("--corpus", choices=standard.CORPUS_VERSIONS,
+                   help="a named corpus version instead of the standard one (v4): v5 = v4 with the hands resolved "
+                        "against the hand surface and contacts read from it (no evaluator trained on it yet)")
     c.add_argument("--force", action="store_true", help="replace an existing dataset directory")
     c.add_argument("--quiet", action="store_true", help="no progress bar")
     c.set_defaults(func=_corpus)

@@ -7,7 +7,7 @@ import dataclasses
 import functools
 from pathlib import Path
 
-from handx_jax.standard.assets import ENCODER_DIR, EVALUATOR_DIR, assets_folder, verify_assets
+from handx_jax.standard.assets import EVALUATOR_DIR, assets_folder, encoder_dir, verify_assets
 from handx_jax.standard.identity import check_reference
 
 
@@ -18,7 +18,7 @@ def load(assets: Path | None = None, *, batch_size: int = 256):
 
     assets = assets_folder(assets)
     card = verify_assets(assets)
-    ev = load_evaluator(assets / EVALUATOR_DIR, encoder=assets / ENCODER_DIR, batch_size=batch_size)
+    ev = load_evaluator(assets / EVALUATOR_DIR, encoder=encoder_dir(assets), batch_size=batch_size)
     fields = {f.name: getattr(ev, f.name) for f in dataclasses.fields(ev)}
     return standard_evaluator_class()(**fields, card=card, assets=assets)
 

@@ -15,6 +15,7 @@ import numpy as np
 # change to the generator moves them by millimetres.
 from handx_jax.dataset.format import MOTION_ATOL
 from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import read_npz
 from handx_jax.standard.assets import MANIFEST, NAME, assets_folder, read_card, version_folder, versions
 from handx_jax.standard.recipe import Recipe, recipe_of
 
@@ -43,8 +44,7 @@ def test_manifest(ds) -> dict[str, np.ndarray]:
 
 
 def read_manifest(assets: Path | None = None) -> dict[str, np.ndarray]:
-    with np.load(assets_folder(assets) / MANIFEST, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
+    return read_npz(assets_folder(assets) / MANIFEST)
 
 
 def _other_version(got: Recipe, opts: Mapping[str, Any], assets: Path) -> str:
@@ -71,7 +71,7 @@ def check_reference(ds, card: Mapping[str, Any] | None = None, assets: Path | No
     """
     assets = assets_folder(assets)
     card = card if card is not None else read_card(assets)
-    want = Recipe(**card["recipe"])
+    want = Recipe.from_card(card["recipe"])
     got, opts = recipe_of(ds)
     fix = (f"build it with `handx standard corpus --out DIR` (or `--clips M` for a prefix), or score with "
            f"your own evaluator (`--evaluator E`)")

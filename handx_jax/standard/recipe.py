@@ -29,22 +29,26 @@ class Recipe:
     clips: int = 120_000
     seed: int = 0
     generator: str = ""  # filled by :func:`code_recipe` from the data package
-    # The annotation reading (data.events.ANNOTATIONS, with its captioner wording, data.build.WORDING).
-    # v1-v4: "reference" (the default here, so their cards, which predate the field, read back unchanged);
-    # v5 (corpus v2): "stable", issue 40.
-    annotation: str = "reference"
-    # The generator's motion (data.build.with_motion). v1-v5: "oscillate" (the default here, so their cards
-    # read back unchanged); v6 (corpus v3): "transition", one pose change per action with the clip filter at
-    # build.TRANSITION_TAU, which the gist reading's level 0 needs (docs/results/validity/corpus-v3/); v7
-    # (corpus v4): "chain", the same with up to two more moves per hand (docs/results/validity/corpus-v4/).
-    motion: str = "oscillate"
+    # The annotation reading (data.events.ANNOTATIONS, with its captioner wording, data.build.WORDING) and the
+    # generator's motion (data.build.with_motion). The defaults are the standard corpus's (corpus v4, v7:
+    # "gist" on "chain" motion; issue 51 item 3). Earlier: v1-v4 "reference" on "oscillate", v5 (corpus v2)
+    # "stable" on "oscillate", v6 (corpus v3) "gist" on "transition" (docs/results/validity/corpus-v3/,
+    # corpus-v4/). A card written before a field existed is read with :meth:`from_card`, not these defaults.
+    annotation: str = STANDARD_ANNOTATION
+    motion: str = STANDARD_MOTION
+
+    @classmethod
+    def from_card(cls, recipe: dict) -> "Recipe":
+        """The recipe a card's ``recipe`` records. v4's card predates ``annotation`` and ``motion``, v5's
+        ``motion``: a missing field is the value every corpus had when the card was written ("reference",
+        "oscillate"), said here explicitly so that a change of the defaults never re-reads an old card."""
+        return cls(**{"annotation": "reference", "motion": "oscillate", **recipe})
 
     def synth_flags(self) -> str:
         """The ``handx data synth`` flags that build this recipe but for its clip count (``--clips``), in one
         place for the card's reproduction command and the maintainers' scripts (scripts/build_standard.sh,
-        scripts/gpu_lease.sh). A field at its old default is left out, as the recipe's options leave it out."""
-        return (f"--seed {self.seed} --annotation {self.annotation}"
-                + ("" if self.motion == "oscillate" else f" --motion {self.motion}"))
+        scripts/gpu_lease.sh). Every field is spelled out, whatever the defaults."""
+        return f"--seed {self.seed} --annotation {self.annotation} --motion {self.motion}"
 
     def build_config(self, clips: int | None = None, workers: int = 0):
         from handx_jax.dataset.build import BuildConfig, with_motion, with_reading
@@ -64,7 +68,23 @@ def code_recipe() -> Recipe:
     """The recipe this code builds as the standard corpus: corpus v4 since evaluator v7 (chain motion, gist
     reading; issue 40). v6 was corpus v3 (transition motion), v5 corpus v2 (stable reading), v1-v4 corpus v1
     (reference reading)."""
-    return Recipe(generator=generator_version(), annotation=STANDARD_ANNOTATION, motion=STANDARD_MOTION)
+    return Recipe(generator=generator_version())
+
+
+# Corpus versions a user can build by name (``handx standard corpus --corpus NAME``). The standard one is the
+# packaged evaluator's (``code_recipe``: corpus v4); v5 (issue 55) is corpus v4's recipe with its two hands
+# resolved against the hand surface and their contacts read from it (motion and annotation "surface",
+# docs/results/validity/corpus-v5/). No evaluator is trained on v5 yet, so it is not the standard recipe.
+CORPUS_VERSIONS = ("v4", "v5")
+
+
+def corpus_recipe(name: str) -> Recipe:
+    """The recipe of a named corpus version (``CORPUS_VERSIONS``), or a one-line error listing them."""
+    if name == "v4":
+        return dataclasses.replace(code_recipe(), annotation="gist", motion="chain")
+    if name == "v5":
+        return dataclasses.replace(code_recipe(), annotation="surface", motion="surface")
+    raise ValueError(f"unknown corpus version {name!r}; choose one of {', '.join(CORPUS_VERSIONS)}")
 
 
 def build_options(recipe: Recipe) -> dict:
@@ -98,7 +118,8 @@ def build_standard_corpus(out: str | os.PathLike, clips: int | None = None, *, w
     rec = recipe or code_recipe()
     assets = assets_folder(assets)
     card = read_card(assets) if (assets / CARD_JSON).exists() else None
-    if card is not None and Recipe(**card["recipe"]) != rec:
+    # A named corpus version other than the standard one (corpus v5) has no packaged evaluator to match.
+    if card is not None and Recipe.from_card(card["recipe"]) != rec and rec == code_recipe():
         raise DataError(f"this code's generator builds recipe {dataclasses.asdict(rec)}, but the packaged standard "
                         f"evaluator was trained on {card['recipe']}; its corpus cannot be rebuilt with this code "
                         f"(rebuild the assets: see {assets / CARD_MD})")

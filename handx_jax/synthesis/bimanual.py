@@ -29,12 +29,15 @@ import numpy as np
 from handx_jax import skeleton as sk
 from handx_jax.dataset import clips
 from handx_jax.synthesis import hand as H
+from handx_jax.synthesis.surface import resolve_translations
 from handx_jax.synthesis.programs import (ACTION_FNS, ACTIONS, CHAINED_ACTIONS, FREE_FINGERS, INTERACTION_SPECS,
                                           INTERACTIONS, NATURAL_ORIENTATION, ActionContext, Programs, sample_programs,
                                           CHAIN_MIDS_S, finger_ways, next_move, smoothstep)
 
-# What a segment's actions do (SynthConfig.motion): corpora v1-v2, v3 and v4.
-MOTIONS = ("oscillate", "transition", "chain")
+# What a segment's actions do (SynthConfig.motion): corpora v1-v2, v3, v4 and v5. "surface" (corpus v5) is
+# "chain" with the two hands resolved against the hand surface (synthesis/surface.py, issue 55).
+MOTIONS = ("oscillate", "transition", "chain", "surface")
+CHAIN_MOTIONS = ("chain", "surface")
 
 
 # Bumped whenever the same (seed, SynthConfig) would give different motion; part of a corpus's recipe
@@ -75,7 +78,8 @@ class SynthConfig:
     # "oscillate" (corpora v1–v2): a segment's two-pose actions go back and forth. "transition" (corpus v3,
     # issue 40): each goes once from one pose to the other, at full amplitude, and no intensity top-up moves
     # the fingers an action leaves free; see programs.ActionContext.profile. "chain" (corpus v4): the
-    # transition early in the clip, then two more moves to other poses (programs.next_move).
+    # transition early in the clip, then two more moves to other poses (programs.next_move). "surface"
+    # (corpus v5): "chain", then the wrists resolved against the hand surface (synthesis/surface.py).
     motion: str = "oscillate"
 
     def __post_init__(self):
@@ -152,7 +156,7 @@ def _segment_channels(rng: np.random.Generator, prog: Programs, cfg: SynthConfig
                 out = ACTION_FNS[name](ActionContext(state, tt + prog.offset_NxS[seq, s][:, None], cfg))
                 for arr, o in zip((pose, rot, pos), out):
                     arr[seq[sec], s, :, 0] = o[sec]
-        if cfg.motion == "chain":
+        if cfg.motion in CHAIN_MOTIONS:
             _chain(rng, prog, pose, s, t_L, cfg)
         _fill_idle(rng, prog, pose, s, cfg)
     # Pressed or clapping palms leave no room for curled fingers (they would meet first).
@@ -450,8 +454,10 @@ def _gap_schedule(rng: np.random.Generator, kind: str, k: int, cfg: SynthConfig)
 _TWIN_REST_21 = np.where(np.isin(np.arange(sk.NUM_JOINTS), sk.TIPS), 0.004, 0.012)
 
 
-def _align_contacts(rng, prog, J0, tr, scale, cfg) -> None:
-    """Translate the left wrist so that the interaction's contact points meet (plus the gap)."""
+def _align_contacts(rng, prog, J0, tr, scale, cfg) -> np.ndarray:
+    """Translate the left wrist so that the interaction's contact points meet (plus the gap). Returns the gap
+    schedule (N, S, L), m, NaN on segments without a contact program (corpus v5's contact stage reads it)."""
+    gaps = np.full(J0.shape[:3], np.nan)
     for i, name in enumerate(INTERACTIONS):
         spec = INTERACTION_SPECS[name]
         n_idx, s_idx = np.nonzero(prog.inter_NxS == i)
@@ -461,6 +467,7 @@ def _align_contacts(rng, prog, J0, tr, scale, cfg) -> None:
         Jl = J0[n_idx, s_idx, :, 0]
         cr, cl, d, rest = _contact_points(spec.contact, Jr, Jl, scale[n_idx])
         gap = _gap_schedule(rng, spec.gap, n_idx.size, cfg)
+        gaps[n_idx, s_idx] = gap
         diff = cr - cl                                                   # (k, L, P, 3)
         lateral = (diff - np.einsum("klpc,klc->klp", diff, d)[..., None] * d[..., None, :]).mean(2)
         lead = np.einsum("klpc,klc->klp", diff, d) + rest[:, None]
@@ -472,6 +479,7 @@ def _align_contacts(rng, prog, J0, tr, scale, cfg) -> None:
         # The closest pair touches: the left moves along d until its smallest lead equals the gap.
         move = (gap + lead.max(-1))[..., None] * d
         tr[n_idx, s_idx, :, 0] = lateral + move
+    return gaps
 
 
 def _separate_hands(prog, J0, tr, cfg) -> None:
@@ -537,7 +545,10 @@ def synth_chunk(seed: int, chunk_index: int, cfg: SynthConfig = SynthConfig()) -
     tr = pos * np.array([[-1.0, 1.0, 1.0], [1.0, 1.0, 1.0]])          # symmetric frame → world
     J0 = J0.reshape(N, S, L, 2, sk.NUM_JOINTS, 3)
     _separate_hands(prog, J0, tr, cfg)
-    _align_contacts(rng, prog, J0, tr, scale, cfg)
+    gaps = _align_contacts(rng, prog, J0, tr, scale, cfg)
+    if cfg.motion == "surface":  # corpus v5: contacts surface to surface, no hand through the other
+        tr = resolve_translations(J0.reshape(N * S, L, 2, sk.NUM_JOINTS, 3), tr.reshape(N * S, L, 2, 3),
+                                  gaps.reshape(N * S, L))[0].reshape(tr.shape)
     tr = _blend_boundaries(tr.reshape(N, S, L, -1), prog.idle_NxS, cfg.transition_frames).reshape(tr.shape)
     joints = (J0 + tr[..., None, :]).reshape(N, T, 2, sk.NUM_JOINTS, 3)
 

@@ -49,7 +49,7 @@ class ActionContext:
         """Corpus v3's motion (``SynthConfig.motion == "transition"``): a segment goes ONCE from one pose to
         another and holds, instead of oscillating between them (see ``profile``). Corpus v4's ``"chain"`` moves
         the same way, then twice more (``next_move``)."""
-        return self.cfg.motion in ("transition", "chain")
+        return self.cfg.motion in ("transition", "chain", "surface")
 
     def amp(self) -> np.ndarray:
         if self.transition:  # a transition reaches its target pose: no partial swings near a threshold
@@ -68,7 +68,7 @@ class ActionContext:
         """
         if not self.transition:
             return _plateau(self.t, self.freq(*fr), self.phase(), sharp)
-        if self.cfg.motion == "chain":  # corpus v4: the first of three moves (CHAIN_MIDS_S)
+        if self.cfg.motion in ("chain", "surface"):  # corpus v4 (and v5): the first of three moves (CHAIN_MIDS_S)
             dur = (self.u(*CHAIN_DURATION_S) / self.u(*self.cfg.speed_range))[:, None]
             mid = self.u(*CHAIN_MIDS_S[0])[:, None]
             dur = np.minimum(dur, 2.0 * (mid - CHAIN_EDGE_S))

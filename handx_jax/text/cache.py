@@ -259,9 +259,11 @@ class TextCache:
             if want is not None and have != want:
                 raise DataError(f"text cache fingerprint mismatch: built for {what} {have}, but the {what} in use is "
                                 f"{want}; rebuild it with `handx text cache`", path=root)
-        hidden = np.load(root / "hidden.npy", mmap_mode="r")
-        mask = np.load(root / "mask.npy", mmap_mode="r")
-        index = json.loads((root / "index.json").read_text())
+        from handx_jax.infra.readers import read_json, read_npy
+
+        hidden = read_npy(root / "hidden.npy", mmap=True)
+        mask = read_npy(root / "mask.npy", mmap=True)
+        index = read_json(root / "index.json", expect=dict)
         rows = np.asarray(index["rows"], np.int32).reshape(meta["num_clips"], len(index["fields"]), index["levels"])
         if hidden.shape != (meta["num_rows"], meta["Lmax"], meta["d_model"]) or mask.shape != hidden.shape[:2]:
             raise DataError(f"arrays {hidden.shape}/{mask.shape} do not match meta.json", path=root)

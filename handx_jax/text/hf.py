@@ -23,7 +23,7 @@ import numpy as np
 from handx_jax.infra.atomic import atomic_dir, atomic_write_json
 from handx_jax.infra.checksums import verify_checksum, write_checksum
 from handx_jax.infra.errors import DataError
-from handx_jax.infra.readers import read_json
+from handx_jax.infra.readers import get_field, read_json
 from handx_jax.text.t5 import FrozenEncoder, Params, T5Config, T5EncoderModel
 from handx_jax.text.tokenizer import MODEL_FILENAME, Tokenizer
 
@@ -141,10 +141,7 @@ def _open_weights(folder: Path) -> dict[str, _SafetensorsFile]:
         f = _SafetensorsFile(single)
         return {n: f for n in f.names()}
     if index.is_file():
-        try:
-            weight_map = json.loads(index.read_text())["weight_map"]
-        except (json.JSONDecodeError, KeyError) as e:
-            raise DataError(f"corrupt sharded-weights index ({e})", path=index) from None
+        weight_map = get_field(read_json(index, expect=dict), "weight_map", dict, path=index)
         files: dict[str, _SafetensorsFile] = {}
         out = {}
         for name, shard in weight_map.items():

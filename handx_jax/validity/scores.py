@@ -11,6 +11,7 @@ FID is 0 by construction (it is its own reference set), so there is no ratio to 
 
 from __future__ import annotations
 
+import os
 from typing import Sequence
 
 import numpy as np
@@ -38,9 +39,10 @@ class Scorer:
         return {k: float(res[k]) for k in ("rprec_top1", "rprec_top3", "rprec_top3_ci", "fid") if k in res}
 
 
-def tokenizer_reconstruction(tok_dir: str, gt_NxTx2x21x3: np.ndarray) -> np.ndarray:
-    """Ground truth through an FSQ tokenizer run and back (encode → codes → decode), as global joints
-    placed at each clip's first right-wrist position (the AR family's features integrate the root)."""
+def tokenizer_reconstruction(tok_dir, gt_NxTx2x21x3: np.ndarray) -> np.ndarray:
+    """Ground truth through an FSQ tokenizer run (a folder, or one ``tokenizer.load`` opened) and back
+    (encode → codes → decode), as global joints placed at each clip's first right-wrist position (the AR
+    family's features integrate the root)."""
     import jax.numpy as jnp
 
     from handx_jax import representation as rep
@@ -48,7 +50,7 @@ def tokenizer_reconstruction(tok_dir: str, gt_NxTx2x21x3: np.ndarray) -> np.ndar
     from handx_jax.models import fsq as Q
 
     gt = np.asarray(gt_NxTx2x21x3, np.float32)
-    tok = T.load(tok_dir)
+    tok = T.load(tok_dir) if isinstance(tok_dir, (str, os.PathLike)) else tok_dir
     gt_u = rep.to_ar(gt.astype(np.float64)).astype(np.float32)
     out = []
     for s in range(0, len(gt_u), 256):  # bounded memory on long test splits

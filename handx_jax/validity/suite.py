@@ -18,30 +18,80 @@ and level-0 captions unchanged against the millimetres moved, one curve per kind
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
+from handx_jax.config import ConfigError
 from handx_jax.infra.atomic import atomic_write_text
+from handx_jax.infra.outputs import check_out_apart, remove_stale_temporaries
+from handx_jax.infra.values import check
 from handx_jax.validity import perturb as P
 from handx_jax.validity import stability as S
 from handx_jax.dataset.build import corpus_seed, reading_of
 from handx_jax.validity.scores import Scorer, caption_reader_top3, order_test
 
 SCHEMA = 1
+REPORT_FILES = ("validity.json", "validity.md", "validity.png")  # validity.json first: it marks a whole report
+# Top-3 R-Precision ranks each clip's caption among ``block`` candidates: with 3 or fewer it is 1 for any
+# motion at all (``block`` 1 scored 1.000 at every amplitude), so a block must hold more than 3.
+MIN_BLOCK = 4
+BLOCK_WHY = "top-3 R-Precision among 3 or fewer candidates is 1 for any motion"
+
+
+def check_args(*, block: int, seed: int, limit: int | None, kinds: Sequence[str] | None) -> None:
+    """The suite's settings, refused (``ConfigError``, a ValueError naming the flag) before any work."""
+    check(block, "--block", whole=True, minimum=MIN_BLOCK, why=BLOCK_WHY)
+    check(seed, "--seed", whole=True, minimum=0)
+    if limit is not None:
+        check(limit, "--limit", whole=True, minimum=2, why="another clip's motion needs two clips")
+    if kinds is not None:
+        if not kinds:
+            raise ConfigError(f"--kinds names no perturbation kind; choose from {', '.join(P.KINDS)} (or leave "
+                              "--kinds out for all of them)")
+        bad = [k for k in kinds if k not in P.KINDS]
+        if bad:
+            raise ConfigError(f"--kinds {','.join(bad)}: unknown; choose from {', '.join(P.KINDS)}")
 
 
 def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: Sequence[str] = (),
         annotation: str | None = None, limit: int | None = None, block: int = 32, seed: int = 0,
         kinds: Sequence[str] | None = None, log=print) -> dict:
+    """Run the suite on ``data``'s test split and write the report into the folder ``out`` (see the module
+    doc). Everything it is given is checked first (settings, ``out`` apart from ``data``, each tokenizer
+    run loaded); ``out``'s lock is held from then on, so a second suite writing the same folder is refused."""
+    from handx_jax.infra.runlock import RunLock
+
+    check_args(block=block, seed=seed, limit=limit, kinds=kinds)
+    check_out_apart(out, data, replaces=False)
+    with RunLock.for_output(out):
+        remove_stale_temporaries(Path(out))
+        _remove_partial_report(Path(out))
+        return _run(data, out, evaluator=evaluator, tokenizers=tokenizers, annotation=annotation, limit=limit,
+                    block=block, seed=seed, kinds=kinds, log=log)
+
+
+def _run(data, out, *, evaluator, tokenizers, annotation, limit, block, seed, kinds, log) -> dict:
     from handx_jax.annotation.caption import TemplateCaptioner
     from handx_jax.dataset.format import Dataset
     from handx_jax.annotation.events import annotation_config
+    from handx_jax.families import tokenizer as T
     from handx_jax.generation import split_prompts
 
+    loaded = [(str(t), T.load(t)) for t in tokenizers]  # a bad run is refused now, not after the scoring
     ds = Dataset.open(data)
+    named = None
+    if evaluator:  # a bad --evaluator, or one that does not score this dataset: refused before any work
+        from handx_jax.standard.naming import resolve_evaluator
+
+        named = resolve_evaluator(evaluator)
+        named.check_data(ds)
     clips, prompts, motion = split_prompts(ds, "test", limit, 0)
     if len(clips) < 2:
         raise ValueError(f"{data}: the test split has {len(clips)} clip(s); the suite needs at least 2")
@@ -67,17 +117,9 @@ def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: 
     log(f"{len(clips)} test clips; annotation {reading!r}, wording {wording!r}; the clean re-annotation "
         f"reproduces {reproduces:.0%} of the stored level-0 captions")
     scorer = None
-    if evaluator:
-        from handx_jax import standard
-        from handx_jax.evaluation import load_evaluator
-
-        assets = standard.assets_for(evaluator)
-        if assets is not None:
-            ev, cache = standard.load(assets), standard.reference_cache_dir(assets)
-            report["evaluator"] = {"name": f"standard-v{ev.card['version']}", "id": str(evaluator)}
-        else:
-            ev, cache = load_evaluator(evaluator), False
-            report["evaluator"] = {"name": str(evaluator)}
+    if named is not None:
+        ev, cache = named.load(), named.reference_cache(default=False)
+        report["evaluator"] = {"name": named.name, "id": str(evaluator)} if named.standard else {"name": str(evaluator)}
         scorer = Scorer(ev, ds, clips, prompts, block=block, cache=cache)
         report["ground_truth"] = scorer.score(gt)
         clean0 = [c[0] for c in ann.clean_captions]
@@ -102,10 +144,10 @@ def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: 
             report["cases"].append(case)
             log(_line(case))
     report["tokenizers"] = []
-    for tok in tokenizers:
+    for tok, tok_run in loaded:
         from handx_jax.validity.scores import finger_error_mm, hybrids, tokenizer_reconstruction, wrist_path_error_mm
 
-        y = tokenizer_reconstruction(tok, gt)
+        y = tokenizer_reconstruction(tok_run, gt)
         recs, caps = ann.records_and_captions(y)
         case = {"tokenizer": str(tok), "mean_shift_mm": P.mean_shift_mm(gt, y), "finger_error_mm": finger_error_mm(gt, y),
                 "wrist_path_error_mm": wrist_path_error_mm(gt, y),
@@ -121,12 +163,39 @@ def run(data: str, out: str, *, evaluator: str | None = "standard", tokenizers: 
         report["tokenizers"].append(case)
         log(f"tokenizer {tok}: {_line(case)}")
     report["seconds"] = round(time.perf_counter() - t0, 1)
-    outp = Path(out)
-    outp.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(outp / "validity.json", json.dumps(report, indent=1) + "\n")
-    atomic_write_text(outp / "validity.md", markdown(report))
-    figure(report, outp / "validity.png")
+    write_report(Path(out), report)
     return report
+
+
+def write_report(out: Path, report: dict) -> None:
+    """``validity.json``, ``.md`` and ``.png`` as one unit. All three are rendered into a temporary sibling
+    of ``out`` first (a kill there leaves ``out`` as it was; the next run removes the temporary); then the
+    old report's files go, ``validity.json`` first, and the new ones move in with ``validity.json`` last.
+    ``validity.json`` therefore marks a whole report: the md and png beside it are of the same run. Other
+    files in ``out`` (a results folder's README) are left alone."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    try:
+        atomic_write_text(tmp / REPORT_FILES[0], json.dumps(report, indent=1) + "\n")
+        atomic_write_text(tmp / REPORT_FILES[1], markdown(report))
+        figure(report, tmp / REPORT_FILES[2])
+        out.mkdir(exist_ok=True)
+        for name in REPORT_FILES:  # the marker first: never an old json beside a new md
+            (out / name).unlink(missing_ok=True)
+        for name in reversed(REPORT_FILES):  # the marker last
+            os.replace(tmp / name, out / name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _remove_partial_report(out: Path) -> None:
+    """A report without its ``validity.json`` (a writer killed while moving the files in): removed, with a line."""
+    left = [n for n in REPORT_FILES[1:] if (out / n).is_file()]
+    if left and not (out / REPORT_FILES[0]).is_file():
+        for name in left:
+            (out / name).unlink(missing_ok=True)
+        print(f"handx: removed {', '.join(left)} in {out}: a report without its validity.json, left by a suite "
+              "that was killed", file=sys.stderr)
 
 
 def _reader_row(ev, clean_text_NxD, caps, gt: dict, block: int) -> dict:

@@ -17,6 +17,8 @@ palms that come together and stay count from the frame they meet, not only palms
 
 from __future__ import annotations
 
+import numpy as np
+
 from handx_jax.annotation.caption.inter import contact_periods
 from handx_jax.annotation.caption.words import FOUR, capitalise, finger_group, join_words
 
@@ -62,19 +64,44 @@ def hand_gist(hand_events: dict) -> str:
     return join_words(parts)
 
 
+def palm_touch_frames(relations: dict, T: int) -> np.ndarray:
+    """(T,) bool: the frames of palm-to-palm contact, as :func:`touch_frames` counts them."""
+    m = np.zeros(T, bool)
+    for lst in relations.get("palm_palm_distance", {}).values():
+        for s, e in contact_periods(lst, T):
+            m[s:e] = True
+    surface = relations.get("surface_contact")
+    if surface is not None:
+        touching = np.zeros(T, bool)
+        for e in surface["left_palm, right_palm"]:
+            touching[e["start"]:e["end"]] = True
+        m &= touching
+    return m
+
+
 def touch_frames(relations: dict, T: int) -> tuple[int, int]:
     """(palm-to-palm contact frames, inter-hand fingertip contact frames) of a record's relations over its T
     frames. The palm distance is a state series: its contact frames are those held between the transitions
-    into and out of "contact" (``inter.contact_periods``); the fingertip contacts are runs."""
-    palms = sum(e - s for lst in relations.get("palm_palm_distance", {}).values() for s, e in contact_periods(lst, T))
+    into and out of "contact" (``inter.contact_periods``); the fingertip contacts are runs. A record read with
+    the surface reading counts the palms' contact frames only where the palms' surfaces touch
+    (``surface_contact``, corpus v5)."""
+    palm_frames = palm_touch_frames(relations, T)
+    palms = int(palm_frames.sum())
     tips = sum(e["end"] - e["start"] for lst in relations.get("finger_tip_contact", {}).values() for e in lst)
     return palms, tips
 
 
 def interaction(relations: dict, T: int) -> str:
+    """The palms or the fingertips touch (each for TOUCH_FRAMES frames or more), else the hands stay apart. A
+    record read with the surface reading (``surface_contact``, corpus v5) says "the hands touch" where other
+    parts touch, or touch for fewer frames: there "the hands stay apart" means no surface contact at all."""
     palms, tips = touch_frames(relations, T)
-    return "the palms touch" if palms >= TOUCH_FRAMES else "the fingertips touch" if tips >= TOUCH_FRAMES else \
-        "the hands stay apart"
+    if palms >= TOUCH_FRAMES:
+        return "the palms touch"
+    if tips >= TOUCH_FRAMES:
+        return "the fingertips touch"
+    surface = relations.get("surface_contact")
+    return "the hands touch" if surface and surface["left_hand, right_hand"] else "the hands stay apart"
 
 
 def level0(record: dict) -> dict:

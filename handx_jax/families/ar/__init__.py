@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,6 +42,7 @@ from handx_jax.config import ConfigError, apply_overrides, from_dict, get_preset
 from handx_jax.families import tokenizer as T
 from handx_jax.families import entry, generation_config, run_config
 from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import read_json
 from handx_jax.models import prefix_lm as P
 from handx_jax.optim import OptimConfig
 from handx_jax.train import TrainConfig
@@ -147,7 +147,7 @@ def _tokenizer_record(tokenizer_dir) -> dict:
     p = Path(tokenizer_dir) / "config.json"
     if not p.exists():
         raise DataError("not a tokenizer run folder (no config.json)", path=tokenizer_dir)
-    doc = json.loads(p.read_text())
+    doc = read_json(p, expect=dict)
     if doc.get("family") != T.FAMILY:
         raise DataError(f"run folder is a {doc.get('family')!r} run, not a tokenizer", path=tokenizer_dir)
     return doc

@@ -197,7 +197,7 @@ def load_train_data(cfg: DiffusionRunConfig) -> TrainData:
     clips = np.asarray(ds.split("train", 1.0 if pairs else cfg.data.fraction))
     if not len(clips):
         raise DataError("the train split is empty", path=cfg.data.path)
-    norm = rep.NormStats.from_npz_dict(ds.stats, NORM)
+    norm = rep.NormStats.from_npz_dict(ds.stats, NORM, path=ds.root / "stats.npz")
     xs = [norm.normalize(rep.to_diffusion(np.asarray(ds.motion[clips[s:s + 1024]], np.float64)))
           for s in range(0, len(clips), 1024)]
     x = np.concatenate(xs).astype(np.float32)
@@ -391,8 +391,7 @@ def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, override
         raise DataError(f"encoder fingerprint {enc.fingerprint} differs from the one the run was trained with "
                         f"({want})", path=enc.path or cfg.data.encoder)
     params, step = load_params(run_dir, ema=ema)
-    with np.load(run_dir / NORM_FILE) as z:
-        norm = rep.NormStats.from_npz_dict(dict(z), NORM)
+    norm = rep.NormStats.read(run_dir / NORM_FILE, NORM)
     used_ema = bool(ema and cfg.train.ema_decay > 0)
     return DiffusionRun(run_dir, cfg, make_model(cfg.model), params, step, norm, enc, used_ema)
 

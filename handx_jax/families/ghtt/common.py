@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from handx_jax.infra.errors import DataError
+from handx_jax.infra.readers import read_npz
 from handx_jax.models import ghtt as G
 from handx_jax.models import ghtt_motion as HM
 
@@ -39,8 +40,13 @@ class Norm:
         p = Path(run_dir) / NORM_FILE
         if not p.exists():
             raise DataError(f"no {NORM_FILE} (the frame statistics the P run was trained with)", path=run_dir)
-        with np.load(p) as z:
-            return cls(np.asarray(z["mean"], np.float32), np.asarray(z["std"], np.float32))
+        z = read_npz(p, keys=("mean", "std"), kind="f", finite=True)
+        for k in ("mean", "std"):
+            if z[k].shape != (HM.FRAME_DIM,):
+                raise DataError(f"shape {z[k].shape}; a G-HTT frame has {HM.FRAME_DIM} values", path=p, field=k)
+        if (z["std"] <= 0).any():
+            raise DataError("holds values <= 0: the frames are divided by it", path=p, field="std")
+        return cls(np.asarray(z["mean"], np.float32), np.asarray(z["std"], np.float32))
 
 
 _frames_jit = jax.jit(jax.vmap(lambda j: HM.to_frames(j)[0]))

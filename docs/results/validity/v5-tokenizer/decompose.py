@@ -40,7 +40,7 @@ def main(data: str, out: str, toks: list[str]) -> None:
     ds = Dataset.open(data)
     clips, prompts, motion = split_prompts(ds, "test", None, 0)
     gt = np.stack(motion).astype(np.float32)
-    assets = standard.assets_for("standard")
+    assets = standard.ASSETS  # the packaged (current) standard evaluator
     ev = standard.load(assets)
     scorer = Scorer(ev, ds, clips, prompts, block=32, cache=standard.reference_cache_dir(assets))
     base = scorer.score(gt)["rprec_top3"]

@@ -1,0 +1,120 @@
+"""The README's first hour is a test (issue 51 item 2): the block between ``<!-- first-hour:begin -->`` and
+``<!-- first-hour:end -->`` runs as written, in a temporary folder, with only its size and step variables set
+tiny (the README says so). It is plain shell: ``NAME=${NAME:-default}`` and ``NAME=value`` assignments,
+comments, ``\\`` continuations and ``handx …`` commands; anything else fails the test, so what runs here is
+what a user pastes, read as bash reads it. Each command runs in this process (``handx_jax.cli.main``, the
+``handx`` entry point), so the suite pays for Python's and JAX's imports once; the sweep's stages are the
+launcher's own subprocesses.
+
+This one test covers: ``handx data synth`` with no recipe flags builds a prefix of the standard corpus
+(``handx standard check`` says so; issue 51 item 3); one model of each family trains, samples and is scored
+by the packaged evaluator; and ``handx sweep run --evaluator standard`` runs a real tiny sweep (item 5).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shlex
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+BEGIN, END = "<!-- first-hour:begin -->", "<!-- first-hour:end -->"
+# The only values the test changes: sizes and step counts (the README's first line of the block).
+TINY = {"CLIPS": "130", "STEPS": "2", "SWEEP_STEPS": "2", "PROMPTS": "8", "DDIM": "2"}
+_ASSIGN = re.compile(r"^([A-Z_][A-Z0-9_]*)=(.*)$")
+_VAR = re.compile(r"\$\{([A-Z_][A-Z0-9_]*)(?::-([^}]*))?\}|\$([A-Z_][A-Z0-9_]*)")
+
+
+def first_hour_lines(readme: Path = REPO / "README.md") -> list[str]:
+    """The block's logical lines (continuations joined), without the code fence."""
+    text = readme.read_text()
+    assert text.count(BEGIN) == 1 and text.count(END) == 1, "the README marks one first-hour block"
+    body = text.split(BEGIN, 1)[1].split(END, 1)[0].strip()
+    assert body.startswith("```bash\n") and body.endswith("\n```"), "the block is one ```bash fence"
+    return body[len("```bash\n"):-len("\n```")].replace("\\\n", " ").splitlines()
+
+
+def expand(word: str, env: dict) -> str:
+    """``$X``, ``${X}`` and ``${X:-default}`` as the shell expands them (unset or empty: the default)."""
+    def sub(m):
+        name = m.group(1) or m.group(3)
+        if name not in env and m.group(2) is None:
+            raise AssertionError(f"the first hour uses ${name} before setting it")
+        return env.get(name) or (m.group(2) or "")
+    return _VAR.sub(sub, word)
+
+
+def parse(lines: list[str], overrides: dict) -> list[list[str]]:
+    """The block's ``handx`` commands as argv lists, its assignments applied in order (``overrides`` play the
+    environment a user sets before pasting)."""
+    env, commands = dict(overrides), []
+    for line in lines:
+        words = shlex.split(line, comments=True)
+        if not words:
+            continue
+        if all(_ASSIGN.match(w) for w in words):
+            for w in words:
+                name, value = _ASSIGN.match(w).groups()
+                env[name] = expand(value, env)
+            continue
+        assert words[0] == "handx", f"the first hour runs only handx commands and assignments: {line!r}"
+        commands.append([expand(w, env) for w in words[1:]])
+    return commands
+
+
+def test_the_first_hour_parses_and_its_first_line_holds_every_size():
+    lines = first_hour_lines()
+    first = shlex.split(lines[0], comments=True)
+    assert {_ASSIGN.match(w).group(1) for w in first} == set(TINY)  # the variables this test sets, and no other
+    assert all(re.fullmatch(r"\$\{(\w+):-\d+\}", _ASSIGN.match(w).group(2)) for w in first)  # each a number
+    commands = parse(lines, {})
+    verbs = [" ".join(c[:2]) for c in commands]
+    for need in ("data synth", "standard check", "train diffusion", "train tokenizer", "train ar", "train ghtt-pose",
+                 "train ghtt", "eval run", "eval prediction", "eval recognition", "sweep run", "analyze fit"):
+        assert need in verbs, need
+    synth = commands[verbs.index("data synth")]
+    assert not {"--annotation", "--motion", "--seed"} & set(synth)  # the defaults are the standard recipe
+    sweep = commands[verbs.index("sweep run")]
+    assert sweep[sweep.index("--evaluator") + 1] == "standard"
+    # a shell reads the block the same way: the tiny sizes reach every command that takes one
+    tiny = parse(lines, TINY)
+    assert tiny[0][tiny[0].index("--clips") + 1] == "130" and all("1500" not in c for c in tiny)
+
+
+@pytest.mark.slow
+def test_the_first_hour_runs_as_written(tmp_path, monkeypatch, capsys):
+    from handx_jax import standard
+    from handx_jax.cli import main
+    from handx_jax.evaluation import evaluator_id
+
+    # The block's relative paths are the clone's: the package's encoder and the sweep files.
+    for name in ("handx_jax", "sweeps"):
+        (tmp_path / name).symlink_to(REPO / name)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("HANDX_CACHE_DIR", str(tmp_path / "cache"))
+    for argv in parse(first_hour_lines(), TINY):
+        rc = main(argv)
+        out, err = capsys.readouterr()
+        assert rc == 0, f"handx {' '.join(argv)} exited {rc}: {err[-2000:]}"
+        if argv[:2] == ["standard", "check"]:  # `handx data synth` without recipe flags: a standard prefix
+            assert "a prefix of the standard corpus, 130 clips" in out
+    R, v7 = tmp_path / "runs/first-hour", evaluator_id(standard.evaluator_dir())
+    for run in ("diffusion", "ar"):  # sampled and scored by the packaged evaluator, 4 samples of every prompt
+        e = json.loads((R / run / "eval.json").read_text())
+        assert (e["_meta"]["evaluator_id"], e["_meta"]["evaluator_name"]) == (v7, f"standard-v{standard.VERSION}")
+        assert e["_meta"]["groups"] == 4 and 0 <= e["rprec_top1"] <= e["rprec_top3"] <= 1
+    pred = json.loads((R / "ghtt/eval_prediction.json").read_text())
+    assert pred["_meta"]["observed_frames"] == 16 and pred["observed"]["max_joint_error_mm"] < 1.0
+    rec = json.loads((R / "ghtt/eval_recognition.json").read_text())
+    assert 0 <= rec["run"]["rprec_top3"]["mean"] <= 1
+    rows = [json.loads(x) for x in (R / "sweep/results.jsonl").read_text().splitlines()]
+    assert len(rows) == 3 and {r["evaluator_id"] for r in rows} == {v7}  # `--evaluator standard`: the packaged one
+    assert all(0 <= r["rprec_top1"] <= r["rprec_top3"] <= 1 for r in rows)
+    # Scored at the block its prompts allow: 8 tiny prompts give block 8, which the launcher does not count as
+    # the sweep's block 32 (status pending: issue 54 item 5); the README's 256 prompts on 4,000 clips give 32.
+    assert {(r["rprec_block"], r["status"]) for r in rows} == {(8, "pending")}
+    assert (R / "sweep/fit.png").stat().st_size > 0 and os.path.exists(R / "sweep/results.csv")
