@@ -13,7 +13,7 @@ import sys
 
 import numpy as np
 
-from handx_jax.data.dataset import Dataset
+from handx_jax.dataset.format import Dataset
 from handx_jax.metrics import objects as M
 from handx_jax.objects import surface_samples
 from handx_jax.synthesis import object_physics as phys

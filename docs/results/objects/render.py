@@ -10,7 +10,7 @@ from pathlib import Path
 
 from PIL import Image
 
-from handx_jax.data.dataset import Dataset
+from handx_jax.dataset.format import Dataset
 from handx_jax.synthesis.object_build import open_object_annotations
 from handx_jax.synthesis.object_render import render_object_clip
 
