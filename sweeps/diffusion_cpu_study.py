@@ -2,7 +2,7 @@
 (``make sweep-cpu``; the short ``demo`` preset is ``make demo``'s mini sweep).
 
     handx sweep run sweeps/diffusion_cpu_study.py --preset matched --data D --encoder E --evaluator standard \\
-        --eval-limit 0 --eval-samples 4 --set sample.steps=25 --max-parallel 2 --out runs/sweep-cpu
+        --eval-limit 10000 --eval-samples 4 --set sample.steps=25 --max-parallel 2 --out runs/sweep-cpu
     handx analyze fit runs/sweep-cpu/results.csv --x compute --y rprec_top3 --plot fit.png
 
 Why it looks like this (issue 13 item 7). The earlier CPU grids trained every model for 60-300 steps

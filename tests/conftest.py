@@ -51,7 +51,7 @@ def pytest_unconfigure(config):
 # (--loadscope-reorder, its default); pytest_configure turns that off for every invocation of this suite. test_slurm.py leads: on a fresh machine it first apt-installs slurm,
 # munge and mariadb (~30 s, mostly waiting on the network and the disk), and its jobs run outside the
 # worker, so its waiting overlaps the other worker's compute.
-HEAVY_FIRST = ("test_slurm.py", "test_ghtt.py", "test_ar_sweep.py", "test_validity.py", "test_evaluation.py",
+HEAVY_FIRST = ("test_first_hour.py", "test_slurm.py", "test_ghtt.py", "test_object_corpus.py", "test_ar_sweep.py", "test_validity.py", "test_evaluation.py",
                "test_generate.py", "test_notebooks.py", "test_prediction.py", "test_reverse.py",
                "test_ar_family.py", "test_sweeps.py", "test_diffusion_train.py", "test_dit.py",
                "test_dataset_build.py", "test_text_cache.py", "test_prefix_lm.py", "test_standard.py", "test_fsq.py",

@@ -53,7 +53,7 @@ def test_a_truncated_cache_names_its_file(tmp_path):
     root = _cache(tmp_path, _codes())
     data = (root / "codes.npy").read_bytes()
     (root / "codes.npy").write_bytes(data[:len(data) // 2])
-    with pytest.raises(DataError, match=r"^file .*/cache/codes\.npy: unreadable or truncated token cache \(.*\); "
+    with pytest.raises(DataError, match=r"^file .*/cache/codes\.npy: corrupt or truncated array \(.*\); "
                                         r"rebuild it with `handx data tokens`$"):
         TokenCache.open(root)
 

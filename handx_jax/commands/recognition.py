@@ -54,9 +54,9 @@ def _recognize(args: argparse.Namespace) -> int:
     named = resolve_evaluator(args.evaluator)  # a bad name or folder: one line, before anything is read
     data = args.data or run_data(args.run)
     ds = Dataset.open(data)
-    named.check_data(ds)  # the pairs every command refuses (a corpus-v3 prefix under v7, ...)
-    if args.level is not None:  # before the evaluator is read (seconds): the dataset says which levels exist
+    if args.level is not None:  # the flag first, as eval prediction does; the dataset says which levels exist
         check_level(args.level, int(ds.meta["levels"]), ds.root)
+    named.check_data(ds)  # the pairs every command refuses (a corpus-v3 prefix under v7, ...)
     ev = named.load()
     level = ev.policy.eval_level if args.level is None else args.level
     ev.policy = dataclasses.replace(ev.policy, eval_level=level)
