@@ -35,19 +35,15 @@ if TYPE_CHECKING:
 
 
 @dataclass(frozen=True)
-class BuildConfig:
+class CorpusSize:
+    """What every corpus build shares (the hand corpus here, the hand-object corpus in synthesis.object_build):
+    how many clips, the seed, the split fractions and the worker count."""
     clips: int = 2000
     seed: int = 0
     val_fraction: float = 0.05
     test_fraction: float = 0.05
     fractions: tuple[float, ...] = DEFAULT_FRACTIONS
     workers: int = 0  # 0 → one per CPU core
-    synth: SynthConfig = field(default_factory=SynthConfig)
-    clip: ClipConfig = field(default_factory=ClipConfig)
-    annotation: AnnotationConfig = field(default_factory=AnnotationConfig)
-    # Where the template captioner's word choices come from (data.caption.TemplateCaptioner): "shared"
-    # for every corpus built before issue 40; "per_fact" words each fact independently of the others.
-    wording: str = "shared"
 
     def validate(self) -> None:
         """Refuse a corpus that cannot be built as asked, before any work (``infra.values``; issue 54): no
@@ -57,6 +53,16 @@ class BuildConfig:
         check(self.seed, "seed", whole=True, minimum=0)
         check(self.workers, "workers", whole=True, minimum=0)
         check_split_fractions(self.val_fraction, self.test_fraction)
+
+
+@dataclass(frozen=True)
+class BuildConfig(CorpusSize):
+    synth: SynthConfig = field(default_factory=SynthConfig)
+    clip: ClipConfig = field(default_factory=ClipConfig)
+    annotation: AnnotationConfig = field(default_factory=AnnotationConfig)
+    # Where the template captioner's word choices come from (data.caption.TemplateCaptioner): "shared"
+    # for every corpus built before issue 40; "per_fact" words each fact independently of the others.
+    wording: str = "shared"
 
 
 # The captioner wording that goes with each annotation reading (events.ANNOTATIONS): a corpus built

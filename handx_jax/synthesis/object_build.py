@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from handx_jax import skeleton as sk
-from handx_jax.dataset.build import _jsonable, caption_seed, sequence_split
-from handx_jax.dataset.format import DEFAULT_FRACTIONS, write_dataset
+from handx_jax.dataset.build import CorpusSize, _jsonable, caption_seed, sequence_split
+from handx_jax.dataset.format import write_dataset
 from handx_jax.dataset.parallel import map_ordered
 from handx_jax.infra.diskspace import check_free_space
 from handx_jax.infra.errors import DataError
@@ -51,13 +51,7 @@ MIN_PAD_FINGERS = 2   # a holding hand touches its part with at least this many 
 
 
 @dataclass(frozen=True)
-class ObjectBuildConfig:
-    clips: int = 2000
-    seed: int = 0
-    val_fraction: float = 0.05
-    test_fraction: float = 0.05
-    fractions: tuple[float, ...] = DEFAULT_FRACTIONS
-    workers: int = 0                      # 0 → one per CPU core
+class ObjectBuildConfig(CorpusSize):
     bps_k: int = 64                       # basis points per part (the contact map's width per part)
     synth: ObjectSynthConfig = field(default_factory=ObjectSynthConfig)
 
@@ -151,6 +145,7 @@ def _chunks(cfg: ObjectBuildConfig, workers: int):
 def build_object_corpus(out: str | os.PathLike, cfg: ObjectBuildConfig = ObjectBuildConfig(), *,
                         overwrite: bool = False, progress: bool = True) -> Path:
     """Synthesise ``cfg.clips`` hand–object clips and write them as a dataset at ``out``."""
+    cfg.validate()  # before anything is written
     out = Path(out)
     if out.exists() and not overwrite:
         raise FileExistsError(f"{out} already exists; pass --force to replace it")
