@@ -114,7 +114,7 @@ class Parser(argparse.ArgumentParser):
     def error(self, message):
         # One line, exit 2, like every other refusal of the project (issue 54): argparse's own error() prints
         # the whole usage block first, which buries the line that says what is wrong; --help still has it.
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+        self.exit(2, f"{self.prog}: error: {message}\n")
 
     def format_help(self):
         return self._as_required(super().format_help)
