@@ -29,6 +29,8 @@ def _build_args(s) -> None:
     s.add_argument("--test-fraction", type=number_flag(above=0, below=1), default=0.05,
                    help="share of the sequences in the test split, in (0, 1); with --val-fraction below 1 "
                         "(default 0.05)")
+    s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
+    s.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def add_parser(subparsers) -> None:
@@ -63,8 +65,6 @@ def add_parser(subparsers) -> None:
                         "surface, no hand through the other; corpus v5), "
                         "'transition' (once, one segment per sequence, the clip filter at 7 deg/s; corpus v3) or "
                         "'oscillate' (go back and forth; corpora v1-v2)")
-    s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
-    s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_synth)
 
     s = sub.add_parser("objects", help="build the procedural hand-object corpus (BimArt, issue 52)",
@@ -75,8 +75,6 @@ def add_parser(subparsers) -> None:
     _build_args(s)
     s.add_argument("--categories", default=None,
                    help="comma-separated object categories (default: all of objects.CATEGORIES)")
-    s.add_argument("--force", action="store_true", help="replace an existing dataset directory")
-    s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_objects)
 
     s = sub.add_parser("stats", help="corpus statistics (Table 1(b) quantities, caption uniqueness)")
