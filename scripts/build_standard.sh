@@ -11,8 +11,12 @@
 # true; v4 was STEPS=4500 with all four off), VALIDITY_CLIPS (4000: the prefix the validity suite runs on),
 # ENCODER (a T5 encoder folder to reuse instead of training a tokenizer and a tiny T5; v4 reuses v3's, the
 # packaged one: ENCODER=handx_jax/assets/standard/encoder), T5_STEPS (0 = the tiny preset's 2000), NICE (0),
-# PY (python3). The recipe itself (clip count, seed, generator version) is handx_jax.standard.Recipe: change it
-# there and bump standard.VERSION, then run this. On a GPU, scripts/gpu_lease.sh does the same in one lease.
+# PY (python3), HARD_NEGATIVES (validity.perturb edits taken as negatives of a clip's own caption, comma-separated;
+# v8 swap_hands,swap_fingers, empty before), CORPUS and STANDARD_VERSION (a named corpus version, standard.CORPUS_VERSIONS,
+# and the version the card says, for the next evaluator before the code names it the standard one; default the
+# code's recipe and standard.VERSION). scripts/build_standard_v8.sh is this with v8's knobs. The recipe itself
+# (clip count, seed, generator version) is handx_jax.standard.Recipe: change it there and bump standard.VERSION,
+# then run this. On a GPU, scripts/gpu_lease.sh does the same in one lease.
 # Every stage resumes/skips when its output exists, so a killed run continues where it stopped.
 set -euo pipefail
 WORK=${1:-/tmp/handx-standard}
@@ -30,12 +34,16 @@ WARMUP=${WARMUP:-300}
 DROPOUT=${DROPOUT:-0.0}
 PRESET=${PRESET:-small}
 T5_STEPS=${T5_STEPS:-0}
+HARD_NEGATIVES=${HARD_NEGATIVES:-}
+CORPUS=${CORPUS:-}
 H=(nice -n "${NICE:-0}" "$PY" -m handx_jax)
 mkdir -p "$WORK"
 DATA=$WORK/data
 t0=$(date +%s)
-# The code's recipe, built with `data synth` (`standard corpus` refuses while the packaged card is the old recipe's)
-read -r CLIPS FLAGS < <("$PY" -c "from handx_jax.standard import code_recipe as r; print(r().clips, r().synth_flags())")
+# The code's recipe (or CORPUS's), built with `data synth` (`standard corpus` refuses while the packaged card is the
+# old recipe's)
+read -r CLIPS FLAGS < <("$PY" -c "import sys; from handx_jax import standard as s
+r = s.corpus_recipe(sys.argv[1]) if sys.argv[1] else s.code_recipe(); print(r.clips, r.synth_flags())" "$CORPUS")
 # shellcheck disable=SC2086  # FLAGS is a list of flags
 [ -f "$DATA/meta.json" ] || "${H[@]}" data synth --clips "$CLIPS" $FLAGS --out "$DATA" --quiet
 t1=$(date +%s)
@@ -54,26 +62,29 @@ t2=$(date +%s)
     --set train.optim.weight_decay=0.01 --set model.dropout="$DROPOUT" --set text.max_len=256 \
     --set data.text_bucket=256 --set train.log_every=100 --set train.ckpt_every=500 --set train.wandb=disabled \
     --set data.augment_white_mm="$AUG_WHITE" --set data.augment_lowfreq_mm="$AUG_LOWFREQ" \
-    --set model.mask_same_text="$MASK_SAME_TEXT" --set model.reverse_negative="$REVERSE_NEGATIVE"
+    --set model.mask_same_text="$MASK_SAME_TEXT" --set model.reverse_negative="$REVERSE_NEGATIVE" \
+    ${HARD_NEGATIVES:+--set model.hard_negatives="$HARD_NEGATIVES"}
 t3=$(date +%s)
 # Keep the packaged evaluator being replaced loadable by its name (--evaluator standard-vN) from a clone: it moves
 # to evaluators/standard-vN/ (not installed; evaluators/README.md is the index: add its line).
 OLD=$("$PY" -c "import json; from handx_jax import standard as s; print(json.loads((s.ASSETS / s.CARD_JSON).read_text())['version'])" 2>/dev/null || echo "")
-NEW=$("$PY" -c "from handx_jax import standard as s; print(s.VERSION)")
+NEW=${STANDARD_VERSION:-$("$PY" -c "from handx_jax import standard as s; print(s.VERSION)")}
 ASSETS=$("$PY" -c "from handx_jax import standard as s; print(s.ASSETS)")
 ARCHIVED=$("$PY" -c "from handx_jax import standard as s; print(s.ARCHIVE)")/standard-v$OLD
 if [ -n "$OLD" ] && [ "$OLD" != "$NEW" ] && [ ! -d "$ARCHIVED" ]; then cp -r "$ASSETS" "$ARCHIVED"; fi
 "${H[@]}" standard package --data "$DATA" --encoder "$WORK/t5/encoder" --evaluator "$WORK/evaluator" \
-  --note "corpus build=$((t1 - t0)) s" --note "tokenizer + tiny T5=$((t2 - t1)) s" \
-  --note "text cache + evaluator training=$((t3 - t2)) s" \
-  --note "command=STEPS=$STEPS BATCH=$BATCH LR=$LR WARMUP=$WARMUP DROPOUT=$DROPOUT PRESET=$PRESET AUG_WHITE=$AUG_WHITE AUG_LOWFREQ=$AUG_LOWFREQ MASK_SAME_TEXT=$MASK_SAME_TEXT REVERSE_NEGATIVE=$REVERSE_NEGATIVE${ENCODER:+ ENCODER=$ENCODER} scripts/build_standard.sh"
+  --version "$NEW" ${CORPUS:+--corpus "$CORPUS"} \
+  --note "corpus build=$((t1 - t0)) s wall on $(nproc) cores (handx data synth --clips $CLIPS $FLAGS)" \
+  --note "evaluator training=$STEPS steps x $BATCH in $((t3 - t2)) s wall on $(nproc) cores, text cache included (scripts/build_standard.sh knobs: STEPS=$STEPS BATCH=$BATCH LR=$LR WARMUP=$WARMUP DROPOUT=$DROPOUT PRESET=$PRESET AUG_WHITE=$AUG_WHITE AUG_LOWFREQ=$AUG_LOWFREQ MASK_SAME_TEXT=$MASK_SAME_TEXT REVERSE_NEGATIVE=$REVERSE_NEGATIVE${HARD_NEGATIVES:+ HARD_NEGATIVES=$HARD_NEGATIVES}${CORPUS:+ CORPUS=$CORPUS STANDARD_VERSION=$NEW})" \
+  --note "text encoder=${ENCODER:+reused from $ENCODER (its fingerprints above)}${ENCODER:-SentencePiece tokenizer and tiny T5 trained on this corpus in $((t2 - t1)) s}"
 # The archived version keeps no copy of an encoder byte-identical to the new one (standard.asset_path reads the
 # packaged one, still checked against the archived card's sha256).
 if [ -d "$ARCHIVED/encoder" ] && diff -rq "$ARCHIVED/encoder" "$ASSETS/encoder" > /dev/null; then rm -r "$ARCHIVED/encoder"; fi
 # The validity suite on a prefix with the packaged evaluator (a plain evaluator folder refuses a prefix of its
 # corpus; the standard one accepts it), then its figures on the card.
 PREFIX=$WORK/prefix$VALIDITY_CLIPS
-[ -f "$PREFIX/meta.json" ] || "${H[@]}" standard corpus --clips "$VALIDITY_CLIPS" --out "$PREFIX" --quiet
+[ -f "$PREFIX/meta.json" ] || "${H[@]}" standard corpus --clips "$VALIDITY_CLIPS" ${CORPUS:+--corpus "$CORPUS"} \
+  --out "$PREFIX" --quiet
 "${H[@]}" standard validity --data "$PREFIX" --out "$WORK/validity"
 "${H[@]}" standard package --validity-only --validity "$WORK/validity/validity.json"
 echo "done: $(( $(date +%s) - t0 )) s"

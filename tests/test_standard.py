@@ -194,6 +194,11 @@ def test_package_recipe_clips_is_a_dry_run_of_a_prefix(std, monkeypatch, tmp_pat
     base = ["standard", "package", "--data", str(full.root), "--encoder", str(ENCODER), "--evaluator", str(root / "E")]
     assert main([*base, "--recipe-clips", "70", "--out", str(tmp_path / "dry")]) == 0
     assert seen["recipe"] == dataclasses.replace(RECIPE, clips=70) and seen["args"][3] == str(tmp_path / "dry")
+    assert seen["version"] is None  # the card says this code's VERSION
+    seen.clear()
+    # The next evaluator before the code names it the standard one (scripts/build_standard_v8.sh): v8 on corpus v5.
+    assert main([*base, "--corpus", "v5", "--version", "8", "--recipe-clips", "70", "--out", str(tmp_path / "dry")]) == 0
+    assert seen["recipe"] == dataclasses.replace(standard.corpus_recipe("v5"), clips=70) and seen["version"] == 8
     seen.clear()
     assert main(base + ["--recipe-clips", "70"]) == 2 and not seen
     assert "give --out" in capsys.readouterr().err

@@ -109,8 +109,10 @@ class TrainingData:
     def __init__(self, ds, cache, stats: rep.NormStats, clips: np.ndarray, levels: Sequence[int], seed: int,
                  text_bucket: int = 16, motion_input: str = "positions", *, augment_white_m: float = 0.0,
                  augment_lowfreq_m: float = 0.0, reversed_copy: bool = False, text_ids: bool = False,
-                 companion: tuple | None = None, companion_share: float = 0.0, companion_pairs: bool = False):
+                 companion: tuple | None = None, companion_share: float = 0.0, companion_pairs: bool = False,
+                 hard_negatives: Sequence[str] = ()):
         self.ds, self.cache, self.stats = ds, cache, stats
+        self.hard_negatives = tuple(hard_negatives)
         self.augment_white_m, self.augment_lowfreq_m = float(augment_white_m), float(augment_lowfreq_m)
         self.reversed_copy, self.text_ids = bool(reversed_copy), bool(text_ids)
         self.companion = companion if companion_share > 0 else None
@@ -167,9 +169,28 @@ class TrainingData:
             out["motion_rev"] = motion_features(np.ascontiguousarray(joints[:, ::-1]), self.stats, self.motion_input)
             if from_comp is not None and ids is not None:
                 out["rev_same_text"] = self._reversal_reads_the_same(clips, levels, ids, from_comp)
+        if self.hard_negatives:
+            out["motion_hard"], out["hard_same_text"] = self._hard(joints, idx, clips, levels, from_comp)
         if ids is not None:
             out["text_id"] = ids
         return out
+
+    def _hard(self, joints, idx, clips, levels, from_comp):
+        """Each item's edits (``hard_negatives``, validity.perturb kinds) as motion features ``(B, K, T, F)``,
+        from a stream that is a pure function of (seed, the batch's indices): exact resume; and ``(B, K)``: the
+        edits known to read as the item's own caption (``perturb.reads_the_same``), left out of its negatives."""
+        from handx_jax.validity import perturb as P
+
+        feats, same = [], np.zeros((len(clips), len(self.hard_negatives)), bool)
+        for k, kind in enumerate(self.hard_negatives):
+            rng = np.random.default_rng([self.seed, 0x4A2D, k, *np.asarray(idx, np.int64).tolist()])
+            feats.append(motion_features(P.KINDS[kind].fn(joints, 0.0, rng), self.stats, self.motion_input))
+        for i, (c, lv) in enumerate(zip(np.asarray(clips).tolist(), np.asarray(levels).tolist())):
+            comp = from_comp is not None and from_comp[i] >= 0
+            t = self.companion[0].texts[int(from_comp[i])] if comp else self.ds.texts[c]
+            for k, kind in enumerate(self.hard_negatives):
+                same[i, k] = P.reads_the_same(kind, t["left"][lv], t["right"][lv], t["interaction"][lv], lv)
+        return np.stack(feats, axis=1), same
 
     def _mix(self, idx, clips, levels):
         """The batch with a ``companion_share`` of its items taken from the companion (same levels): random

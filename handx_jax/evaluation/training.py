@@ -87,6 +87,13 @@ class EvaluatorRunConfig:
         if self.data.reversed_pairs and self.data.reversed_share > 0.5:
             raise ConfigError(f"data.reversed_pairs pairs the first items of a batch with reversals in its last ones: "
                               f"data.reversed_share must be <= 0.5, got {self.data.reversed_share}")
+        from handx_jax.validity.perturb import HARD_NEGATIVE_KINDS
+
+        bad = [k for k in m.hard_negatives if k not in HARD_NEGATIVE_KINDS]
+        if bad or len(set(m.hard_negatives)) != len(m.hard_negatives):
+            raise ConfigError(f"model.hard_negatives {','.join(m.hard_negatives)}: "
+                              f"{'unknown ' + ','.join(bad) if bad else 'a kind named twice'}; choose from "
+                              f"{', '.join(HARD_NEGATIVE_KINDS)} (validity.perturb's edits of a clip's own motion)")
         if (self.data.reversed_share > 0) != bool(self.data.reversed_path):
             raise ConfigError("data.reversed_path and data.reversed_share > 0 go together (a `handx data reverse` "
                               "dataset and the share of each batch drawn from it)")
@@ -163,7 +170,7 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
                          augment_white_m=cfg.data.augment_white_mm / 1000, augment_lowfreq_m=cfg.data.augment_lowfreq_mm / 1000,
                          reversed_copy=mcfg.reverse_negative, text_ids=mcfg.mask_same_text,
                          companion=companion, companion_share=cfg.data.reversed_share,
-                         companion_pairs=cfg.data.reversed_pairs)
+                         companion_pairs=cfg.data.reversed_pairs, hard_negatives=mcfg.hard_negatives)
     model = Evaluator(mcfg)
     Lmax = int(cache.meta["Lmax"])
     if start is not None:

@@ -70,6 +70,12 @@ class EvaluatorConfig:
     # the motion encoder to read it.
     mask_same_text: bool = False
     reverse_negative: bool = False
+    # Issue 55 (the v8 recipe; empty reproduces v7): edits of *which* hand or finger does what
+    # (``validity.perturb``'s meaning-changing kinds, e.g. "swap_hands", "swap_fingers"), each applied to
+    # every training clip and taken as one more negative of the clip's own caption, as its reversal is.
+    # A clip of a corpus is also a valid clip once its hands are swapped, but it says another thing: what
+    # no random negative of a batch asks the motion encoder to tell apart.
+    hard_negatives: tuple[str, ...] = ()
 
     def __post_init__(self):
         from handx_jax.representation import EVALUATOR_INPUTS
@@ -79,6 +85,8 @@ class EvaluatorConfig:
                              f"choose from {sorted(EVALUATOR_INPUTS)}")
         if self.motion_patch < 1 or self.frames % self.motion_patch:
             raise ValueError(f"motion_patch {self.motion_patch} must be ≥ 1 and divide frames ({self.frames})")
+        # a JSON list (evaluator.json) or a tuple: one form, so configs compare and hash alike
+        object.__setattr__(self, "hard_negatives", tuple(str(k) for k in self.hard_negatives))
 
     @property
     def motion_dim(self) -> int:
@@ -178,12 +186,15 @@ def _unit(x):
     return x / (jnp.linalg.norm(x, axis=-1, keepdims=True) + 1e-8)
 
 
-def infonce(mu_m, mu_t, temperature: float, *, same_text_BxB=None, mu_m_rev=None, rev_same_B=None):
+def infonce(mu_m, mu_t, temperature: float, *, same_text_BxB=None, mu_m_rev=None, rev_same_B=None,
+            mu_m_hard_BxKxD=None, hard_same_BxK=None):
     """Symmetric InfoNCE on L2-normalised embeddings with cosine logits / τ (reference §5.2).
 
     ``same_text_BxB``: pairs (i, j ≠ i) with identical captions are dropped from each other's negatives.
     ``mu_m_rev``: each clip played backwards, one extra negative column for its own text (text → motion);
-    ``rev_same_B``: items whose reversal reads the same as the clip (no negative of its text: left out)."""
+    ``rev_same_B``: items whose reversal reads the same as the clip (no negative of its text: left out).
+    ``mu_m_hard_BxKxD``: K edits of each clip (``hard_negatives``), K more negative columns for its own text;
+    ``hard_same_BxK``: the edits that read the same as the clip (left out, as ``rev_same_B``)."""
     m, t = _unit(mu_m), _unit(mu_t)
     logits = m @ t.T / temperature
     B = m.shape[0]
@@ -196,6 +207,11 @@ def infonce(mu_m, mu_t, temperature: float, *, same_text_BxB=None, mu_m_rev=None
         if rev_same_B is not None:
             rev = jnp.where(rev_same_B, -1e9, rev)
         t2m = jnp.concatenate([t2m, rev[:, None]], axis=1)
+    if mu_m_hard_BxKxD is not None:
+        hard = jnp.einsum("bd,bkd->bk", t, _unit(mu_m_hard_BxKxD)) / temperature
+        if hard_same_BxK is not None:
+            hard = jnp.where(hard_same_BxK, -1e9, hard)
+        t2m = jnp.concatenate([t2m, hard], axis=1)
     return 0.5 * (optax.softmax_cross_entropy_with_integer_labels(logits, labels).mean()
                   + optax.softmax_cross_entropy_with_integer_labels(t2m, labels).mean())
 
@@ -217,8 +233,16 @@ def evaluator_loss(model: Evaluator, params, batch, rng, train: bool):
     if c.reverse_negative and "motion_rev" in batch:
         mu_rev, _ = model.apply(params, batch["motion_rev"], deterministic=not train, method=Evaluator.encode_motion,
                                 rngs={"dropout": jax.random.fold_in(r_drop, 4)})
+    mu_hard = None
+    if c.hard_negatives and "motion_hard" in batch:  # (B, K, T, F): the K edits of each clip, one pass
+        B, K = batch["motion_hard"].shape[:2]
+        flat, _ = model.apply(params, batch["motion_hard"].reshape((B * K,) + batch["motion_hard"].shape[2:]),
+                              deterministic=not train, method=Evaluator.encode_motion,
+                              rngs={"dropout": jax.random.fold_in(r_drop, 5)})
+        mu_hard = flat.reshape(B, K, -1)
     l_nce = infonce(mu_m, mu_t, c.temperature, same_text_BxB=same, mu_m_rev=mu_rev,
-                    rev_same_B=batch.get("rev_same_text") if mu_rev is not None else None)
+                    rev_same_B=batch.get("rev_same_text") if mu_rev is not None else None,
+                    mu_m_hard_BxKxD=mu_hard, hard_same_BxK=batch.get("hard_same_text") if mu_hard is not None else None)
     l_kl = _kl(mu_t, lv_t, mu_m, lv_m) + _kl(mu_m, lv_m, mu_t, lv_t)
     l_lat = optax.huber_loss(z_t, z_m, delta=1.0).mean()
     total = c.w_infonce * l_nce + c.w_kl * l_kl + c.w_latent * l_lat

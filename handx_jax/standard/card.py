@@ -36,6 +36,7 @@ def validity_summary(report: Mapping[str, Any]) -> dict:
         rows.append({"case": name, "mean_shift_mm": round(c["mean_shift_mm"], 2),
                      "top3_ratio": round(c["top3_ratio"], 3) if "top3_ratio" in c else None,
                      "fid": round(c["eval_fid"], 3) if "eval_fid" in c else None,
+                     **({"caption_reader_ratio": round(c["caption_reader_ratio"], 3)} if "caption_reader_ratio" in c else {}),
                      "level0_unchanged": round(c["captions_unchanged"][0], 3),
                      "events_unchanged": round(c["events_unchanged"], 3)})
     gt = report.get("ground_truth") or {}
@@ -72,6 +73,9 @@ def card_markdown(card: Mapping[str, Any]) -> str:
         f"{t['schedule']} decay, weight decay {t['weight_decay']:g}, caption level(s) "
         f"{e['text'].get('train_levels')}, scored at level {e['text'].get('eval_level')}",
     ]
+    if e["config"].get("hard_negatives"):  # v8 on (issue 55); absent from the earlier cards
+        lines.append(f"- hard negatives: each clip's {', '.join(e['config']['hard_negatives'])} edit (validity.perturb) "
+                     f"is one more negative of its own caption, left out where it reads the same")
     for k, v in tr.items():
         lines.append(f"- {k}: {v}")
     lines += [
@@ -91,14 +95,21 @@ def card_markdown(card: Mapping[str, Any]) -> str:
               f"[--block 16]` on the standard corpus.", ""]
     v = card.get("validity")
     if v:
+        # The caption reader's column (issue 55's target: the evaluator loses what the captions lose) is on the cards
+        # packaged since v8; earlier cards render as they were.
+        reader = any("caption_reader_ratio" in r for r in v["rows"])
         lines += ["## Validity (`handx standard validity`, docs/validity.md)", "",
                   f"{v['test_clips']} test clips of a prefix, block {v['block']}, annotation `{v['annotation']}`; ground "
                   f"truth top-3 {v['ground_truth_top3']:.3f}.", "",
-                  "| ground truth, perturbed | mean shift (mm) | top-3 × GT | FID | level-0 captions unchanged |",
-                  "| --- | ---: | ---: | ---: | ---: |"]
+                  "| ground truth, perturbed | mean shift (mm) | top-3 × GT | FID | level-0 captions unchanged |"
+                  + (" caption reader × |" if reader else ""),
+                  "| --- | ---: | ---: | ---: | ---: |" + (" ---: |" if reader else "")]
         for r in v["rows"]:
             ratio = "–" if r["top3_ratio"] is None else f"{r['top3_ratio']:.2f}"
             fid = "–" if r["fid"] is None else f"{r['fid']:.2f}"
-            lines.append(f"| {r['case']} | {r['mean_shift_mm']:.1f} | {ratio} | {fid} | {r['level0_unchanged']:.2f} |")
+            cells = f"| {r['case']} | {r['mean_shift_mm']:.1f} | {ratio} | {fid} | {r['level0_unchanged']:.2f} |"
+            if reader:
+                cells += " – |" if r.get("caption_reader_ratio") is None else f" {r['caption_reader_ratio']:.2f} |"
+            lines.append(cells)
         lines.append("")
     return "\n".join(lines)

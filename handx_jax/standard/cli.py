@@ -61,14 +61,14 @@ def _check(a: argparse.Namespace) -> int:
 
 def _package(a: argparse.Namespace) -> int:
     training = dict(kv.split("=", 1) for kv in a.note)
-    recipe = None
+    recipe = None if a.corpus is None else standard.corpus_recipe(a.corpus)
     if a.recipe_clips is not None:
         if a.out is None:
             return _usage_error("--recipe-clips packages a dry run: give --out (the package's own assets are "
                                 "the standard recipe's)")
         if a.recipe_clips < 1:
             return _usage_error(f"--recipe-clips must be 1 or more, got {a.recipe_clips}")
-        recipe = dataclasses.replace(standard.code_recipe(), clips=int(a.recipe_clips))
+        recipe = dataclasses.replace(recipe or standard.code_recipe(), clips=int(a.recipe_clips))
     validity = None
     if a.validity:
         from handx_jax.infra.readers import read_json
@@ -85,7 +85,7 @@ def _package(a: argparse.Namespace) -> int:
         return _usage_error(f"handx standard package needs {', '.join(missing)} (or --validity-only)")
     evaluator = standard.resolve_evaluator(a.evaluator).folder  # a folder that is not a finished evaluator: one line
     out = standard.package(a.data, a.encoder, evaluator, a.out, training=training, replications=a.replications,
-                  recipe=recipe, validity=validity)
+                  recipe=recipe, validity=validity, version=a.version)
     print(f"wrote {out}")
     return 0
 
@@ -125,6 +125,11 @@ def add_parser(subparsers) -> None:
     g.add_argument("--recipe-clips", type=int, metavar="N",
                    help="(dry runs of the pipeline) package against the first N clips of the recipe instead of the "
                         "whole standard corpus; needs --out")
+    g.add_argument("--corpus", choices=standard.CORPUS_VERSIONS,
+                   help="the named corpus version the evaluator was trained on, where it is not yet the code's "
+                        "standard one (v8 on v5: scripts/build_standard_v8.sh)")
+    g.add_argument("--version", type=whole_flag(1), help=f"the version the card says (default {standard.VERSION}, "
+                                                          "this code's)")
     g.add_argument("--validity", metavar="FILE", help="a validity.json of this evaluator (handx standard validity): "
                                                       "its figures go on the card")
     g.add_argument("--validity-only", action="store_true",

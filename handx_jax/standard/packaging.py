@@ -36,9 +36,13 @@ def _copy_folder(src: Path, dst: Path, names: Sequence[str]) -> None:
 def package(data: str | os.PathLike, encoder: str | os.PathLike, evaluator: str | os.PathLike,
             out: str | os.PathLike | None = None, *, training: Mapping[str, Any] | None = None,
             replications: int = 20, blocks: Sequence[int] = (32, 16), recipe: Recipe | None = None,
-            validity: Mapping[str, Any] | None = None, log=print) -> Path:
+            validity: Mapping[str, Any] | None = None, version: int | None = None, log=print) -> Path:
     """Copy the encoder and evaluator trained on the standard corpus ``data`` into ``out``, score the
-    Ground Truth rows (blocks 32 and 16) on the full test split, and write the manifest and the card."""
+    Ground Truth rows (blocks 32 and 16) on the full test split, and write the manifest and the card.
+
+    ``recipe`` and ``version`` (default: this code's, ``code_recipe()`` and ``VERSION``) package the next
+    standard evaluator before the code names it the standard one: evaluator v8 on corpus v5
+    (``scripts/build_standard_v8.sh``), whose card then says version 8 and recipe v5."""
     from handx_jax.dataset.format import Dataset
     from handx_jax.evaluation import EVAL_FILE, META_FILE, PARAMS_FILE, STATS_FILE, evaluate_ground_truth, \
         read_meta
@@ -63,14 +67,15 @@ def package(data: str | os.PathLike, encoder: str | os.PathLike, evaluator: str 
     _copy_folder(Path(evaluator), tmp / EVALUATOR_DIR, [PARAMS_FILE, STATS_FILE])
     # evaluator.json: paths made relative to the package (they pointed into the maintainer's machine).
     meta = dict(meta)
-    meta["dataset"] = {**meta["dataset"], "path": f"standard corpus v{VERSION} (handx standard corpus)"}
+    version = VERSION if version is None else int(version)
+    meta["dataset"] = {**meta["dataset"], "path": f"standard corpus v{version} (handx standard corpus)"}
     meta["encoder"] = {**meta["encoder"], "path": ENCODER_DIR}
     atomic_write_json(tmp / EVALUATOR_DIR / META_FILE, meta)
     man = test_manifest(ds)
     np.savez_compressed(tmp / MANIFEST, **man)
     from handx_jax.dataset.format import dataset_record
 
-    card = {"version": VERSION, "recipe": dataclasses.asdict(rec), "recipe_options": opts,
+    card = {"version": version, "recipe": dataclasses.asdict(rec), "recipe_options": opts,
             "corpus": {"record": dataset_record(ds), "fingerprint": ds.fingerprint, "clips": len(ds), "split_sizes": ds.meta["split_sizes"],
                        "build_seconds": ds.report.get("seconds"), "test_clips": len(man["ids"])},
             "evaluator": {"preset": meta["preset"], "params": meta["params"], "config": meta["evaluator_config"],

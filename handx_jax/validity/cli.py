@@ -43,8 +43,9 @@ def add_parser(subparsers) -> None:
                    help="an FSQ tokenizer run: also score the ground truth through it (repeatable)")
     v.add_argument("--annotation", help="annotation reading to re-annotate with (default: the one the dataset "
                                         "was built with; 'reference' for imported data)")
-    v.add_argument("--kinds", help="comma-separated perturbation kinds (default: all: "
-                                   "white, lowfreq, offset, shift, reverse, other)")
+    from handx_jax.validity.perturb import KINDS
+
+    v.add_argument("--kinds", help=f"comma-separated perturbation kinds (default: all: {', '.join(KINDS)})")
     from handx_jax.infra.values import whole_flag
     from handx_jax.validity.suite import BLOCK_WHY, MIN_BLOCK
 

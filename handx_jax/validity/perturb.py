@@ -3,8 +3,15 @@
 Each perturbation is a pure function ``(joints_NxTx2x21x3, amplitude_m, rng) -> joints`` and is
 either CAPTION-PRESERVING (what a caption says should survive it: sensor-scale noise, a small offset
 of the whole clip) or MEANING-CHANGING (what a caption says should not survive it: the clip played
-backwards, another clip's motion). The suite measures what the annotation and the evaluator do under
-both kinds, against the millimetres each one moves the joints (:func:`mean_shift_mm`).
+backwards, another clip's motion, and the edits of *which* hand or finger does what, issue 55: the two
+hands swapped, two pairs of fingers swapped, one hand's fingers held still). The suite measures what the
+annotation and the evaluator do under both kinds, against the millimetres each one moves the joints
+(:func:`mean_shift_mm`).
+
+The which/who edits keep the clip a physically valid pair of hands: every bone keeps its length, a left
+hand stays a left hand and a right hand a right one (``swap_hands`` mirrors, it does not relabel), and the
+swaps are involutions (applied twice they give the clip back). The evaluator's training takes them as hard
+negatives of a clip's own caption (``models.evaluator.EvaluatorConfig.hard_negatives``).
 
 Amplitudes are per coordinate, in metres: ``white`` 1 mm means N(0, 1 mm) on each x, y and z of each
 frame (a mean joint shift of about 1.6 mm). Noise is never put on the wrists (joint 0): a wrist
@@ -83,6 +90,96 @@ def other_clip(x_NxTx2x21x3: np.ndarray, amp_m: float, rng: np.random.Generator)
     return np.ascontiguousarray(x[perm])
 
 
+def swap_hands(x_NxTx2x21x3: np.ndarray, amp_m: float, rng: np.random.Generator) -> np.ndarray:
+    """The left hand's motion played by the right hand and the right's by the left, each mirrored through the
+    clip's sagittal plane: the plane bisecting the two wrists in frame 0 (normal along left wrist → right
+    wrist, through their midpoint). In the corpus's canonical frame (``skeleton.canonicalize``: +x from the
+    left wrist to the right one, right wrist at the origin in frame 0) this is ``x → x_L − x`` with ``x_L``
+    the frame-0 left wrist's x, and the result is canonical again (the new right wrist starts at the origin).
+
+    A reflection is an isometry that reverses handedness, so the mirrored left hand is a right hand (the
+    corpus's left hand is its right hand mirrored, ``synthesis/hand.py``), every bone length and every
+    distance between the two hands is kept (contacts and penetration unchanged), and applying it twice gives
+    the clip back (the two frame-0 wrists exchange places, so the plane is the same)."""
+    y = np.asarray(x_NxTx2x21x3, np.float64)
+    lw, rw = y[:, 0, sk.LEFT, 0], y[:, 0, sk.RIGHT, 0]
+    n = rw - lw
+    norm = np.linalg.norm(n, axis=-1, keepdims=True)
+    if np.any(norm < 1e-9):
+        raise ValueError("swap_hands: the two wrists coincide in frame 0 (no sagittal plane)")
+    n /= norm
+    mid = 0.5 * (lw + rw)
+    d = np.einsum("ntkjc,nc->ntkj", y - mid[:, None, None, None], n)
+    y = y - 2.0 * d[..., None] * n[:, None, None, None, :]
+    return np.ascontiguousarray(y[:, :, ::-1]).astype(np.float32)
+
+
+# The finger pairs ``swap_fingers`` exchanges: index <-> middle and ring <-> pinky (the four fingers the
+# captions name one by one; the thumb, which the corpus's captions rarely name, is left alone). Disjoint
+# pairs, so the edit is an involution.
+FINGER_SWAPS = (("index", "middle"), ("ring", "pinky"))
+
+
+def _min_rotation(u_Xx3: np.ndarray, v_Xx3: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking unit ``u`` onto unit ``v`` (Rodrigues about u × v), (..., 3, 3). Its inverse
+    is the one taking ``v`` onto ``u``. Metacarpals of neighbouring fingers are some 10-20 degrees apart, far
+    from the antiparallel case where the axis is undefined."""
+    w = np.cross(u_Xx3, v_Xx3)
+    c = np.sum(u_Xx3 * v_Xx3, -1)
+    K = np.zeros(w.shape[:-1] + (3, 3))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
+    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = w[..., 2], -w[..., 1], w[..., 0]
+    return np.eye(3) + K + (K @ K) / (1.0 + c)[..., None, None]
+
+
+def swap_fingers(x_NxTx2x21x3: np.ndarray, amp_m: float, rng: np.random.Generator) -> np.ndarray:
+    """Index and middle, and ring and pinky, exchange their motion relative to the palm, on both hands.
+
+    Finger a's three bones (MCP → PIP → DIP → tip) take finger b's bone directions, turned by the smallest
+    rotation that takes b's metacarpal (wrist → b's MCP) onto a's, and keep a's own lengths, from a's own
+    MCP. Preserved exactly: the palm (wrist, thumb and the four MCPs do not move), every bone length, and the
+    shape of each finger relative to its own metacarpal, now worn by the other finger (the flexion angles at
+    its MCP, PIP and DIP are the other finger's, and so is its splay about the metacarpal). What changes is
+    which finger curls: what the captions say finger by finger. Applied twice, it gives the clip back."""
+    y = np.array(x_NxTx2x21x3, dtype=np.float64, copy=True)
+    x = np.asarray(x_NxTx2x21x3, np.float64)
+    w = x[..., :1, :]
+    for fa, fb in FINGER_SWAPS:
+        ca, cb = list(sk.CHAINS[fa][1:]), list(sk.CHAINS[fb][1:])  # MCP, PIP, DIP, tip
+        ja, jb = x[..., ca, :], x[..., cb, :]
+        ua = ja[..., 0, :] - w[..., 0, :]
+        ub = jb[..., 0, :] - w[..., 0, :]
+        ua /= np.linalg.norm(ua, axis=-1, keepdims=True)
+        ub /= np.linalg.norm(ub, axis=-1, keepdims=True)
+        r_ba = _min_rotation(ub, ua)  # b's metacarpal onto a's; its transpose the other way
+        for dst, j_dst, j_src, r in ((ca, ja, jb, r_ba), (cb, jb, ja, np.swapaxes(r_ba, -1, -2))):
+            bone_dst = np.diff(j_dst, axis=-2)
+            bone_src = np.diff(j_src, axis=-2)
+            length = np.linalg.norm(bone_dst, axis=-1, keepdims=True)
+            unit = bone_src / np.linalg.norm(bone_src, axis=-1, keepdims=True)
+            turned = np.einsum("...ij,...kj->...ki", r, unit)
+            y[..., dst[1:], :] = j_dst[..., :1, :] + np.cumsum(turned * length, axis=-2)
+    return y.astype(np.float32)
+
+
+def still_fingers(x_NxTx2x21x3: np.ndarray, amp_m: float, rng: np.random.Generator) -> np.ndarray:
+    """One hand per clip (left or right, drawn from ``rng``) keeps its frame-0 shape all clip long: the hand
+    moves as one rigid body with its wrist frame (``representation.geometry.wrist_frames``), so its wrist path
+    and turning stay and only its fingers stop. Who moves the fingers changes; bone lengths are the frame-0
+    ones at every frame, the other hand is untouched, and applying it again (same draw) changes nothing."""
+    from handx_jax.representation.geometry import local_positions, wrist_frames
+
+    y = np.array(x_NxTx2x21x3, dtype=np.float32, copy=True)
+    x = np.asarray(x_NxTx2x21x3, np.float64)
+    hand = rng.integers(0, 2, x.shape[0])
+    R = wrist_frames(x)  # (N, T, 2, 3, 3), columns the local axes
+    local0 = local_positions(x[:, :1])  # (N, 1, 2, 21, 3)
+    rigid = np.einsum("nthij,nhkj->nthki", R, local0[:, 0]) + x[..., :1, :]
+    pick = np.arange(x.shape[0])
+    y[pick, :, hand] = rigid[pick, :, hand].astype(np.float32)
+    return y
+
+
 @dataclass(frozen=True)
 class Kind:
     """A perturbation kind: its function, whether it should keep the captions, and its amplitudes
@@ -96,7 +193,8 @@ class Kind:
 
 
 # The suite's default grid: sensor-scale noise from 0.3 to 10 mm (issue 40: "at least 0.3–10 mm"),
-# small per-clip offsets, a global shift, and the two meaning-changing kinds.
+# small per-clip offsets, a global shift, and the meaning-changing kinds: order (reversal), everything
+# (another clip), and which hand or finger does what (issue 55).
 KINDS: dict[str, Kind] = {k.name: k for k in (
     Kind("white", white, True, (0.0003, 0.001, 0.003, 0.01), "white noise on the fingers"),
     Kind("lowfreq", lowfreq, True, (0.0003, 0.001, 0.003, 0.01), "low-frequency noise (σ 4 frames)"),
@@ -104,7 +202,25 @@ KINDS: dict[str, Kind] = {k.name: k for k in (
     Kind("shift", shift, True, (0.05,), "whole clip shifted"),
     Kind("reverse", reverse, False, (0.0,), "time reversed"),
     Kind("other", other_clip, False, (0.0,), "another clip's motion"),
+    Kind("swap_hands", swap_hands, False, (0.0,), "left and right hands swapped (mirrored)"),
+    Kind("swap_fingers", swap_fingers, False, (0.0,), "index<->middle and ring<->pinky swapped"),
+    Kind("still_fingers", still_fingers, False, (0.0,), "one hand's fingers held still"),
 )}
+
+
+# The meaning-changing kinds that edit a clip into another valid clip of the same scene (not another clip, not
+# the reversal, which ``reverse_negative`` already takes): the evaluator's hard negatives (issue 55).
+HARD_NEGATIVE_KINDS = ("swap_hands", "swap_fingers", "still_fingers")
+
+
+def reads_the_same(kind: str, left: str, right: str, interaction: str, level: int) -> bool:
+    """Does ``kind``'s edit of a clip whose captions at ``level`` are (left, right, interaction) read as the clip
+    itself, known from the captions alone? Only where the annotation gives a rule: it is mirror-symmetric, so
+    a clip with its hands swapped reads (right, left, interaction) at level 0 (tests/test_validity_which.py
+    holds it on every clip of a build), the same exactly when both hands' texts are equal. Elsewhere
+    (other kinds, other levels, whose texts name the sides) False: taken as reading differently, the
+    assumption the reversal negative makes."""
+    return kind == "swap_hands" and level == 0 and left == right
 
 
 def apply(kind: str, x_NxTx2x21x3: np.ndarray, amp_m: float, seed: int) -> np.ndarray:

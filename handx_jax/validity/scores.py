@@ -135,7 +135,8 @@ def order_test(ev, gt_NxTx2x21x3, reversed_NxTx2x21x3, clean_captions, reversed_
     """Does the evaluator read the order of events? On the clips whose reversal reads differently at level 0,
     a two-way choice between the clip's caption and its reversal's caption: the share of forward clips
     nearer their own caption, and of reversed clips nearer the reversed caption (chance 0.5 each; a
-    yardstick blind to order scores 0.5)."""
+    yardstick blind to order scores 0.5). Any other edit of a clip's own motion takes the reversal's place
+    (``reversed_*``: the edited clips and their captions): the suite's which test of swapped hands and fingers."""
     differs = np.array([a != b for a, b in zip(clean_captions, reversed_captions)])
     if not differs.any():
         return {"clips": 0}

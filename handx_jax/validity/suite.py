@@ -1,8 +1,9 @@
 """The validity suite (issue 40): does the yardstick read what the captions say?
 
 ``handx standard validity --data D --out DIR`` perturbs the ground-truth test clips of D
-(``perturb.KINDS``: caption-preserving noise, offsets and shifts across amplitudes; time reversal and
-another clip's motion, which change the meaning) and reports, per perturbation and amplitude:
+(``perturb.KINDS``: caption-preserving noise, offsets and shifts across amplitudes; time reversal, another
+clip's motion and the edits of which hand or finger does what, which change the meaning) and reports, per
+perturbation and amplitude:
 
 - caption stability (``stability``): the share of descriptor event lists (their labels: states,
   speeds, directions; and with their frames) and of captions per level left unchanged when the
@@ -141,6 +142,10 @@ def _run(data, out, *, evaluator, tokenizers, annotation, limit, block, seed, ki
                 if name == "reverse":
                     report["order"] = order_test(scorer.ev, gt, y, clean0, [c[0] for c in caps], clean_text)
                     log(_order_line(report["order"]))
+                elif name in P.HARD_NEGATIVE_KINDS:  # the same two-way choice for the which/who edits (issue 55)
+                    report.setdefault("which", {})[name] = order_test(scorer.ev, gt, y, clean0, [c[0] for c in caps],
+                                                                      clean_text)
+                    log(_order_line(report["which"][name], kind.label))
             report["cases"].append(case)
             log(_line(case))
     report["tokenizers"] = []
@@ -203,11 +208,16 @@ def _reader_row(ev, clean_text_NxD, caps, gt: dict, block: int) -> dict:
     return {"caption_reader_top3": top3, "caption_reader_ratio": top3 / gt["caption_reader_top3"]}
 
 
-def _order_line(o: dict) -> str:
+def _order_line(o: dict, edit: str | None = None) -> str:
+    """The order test's line, or with ``edit`` (a kind's label) the same two-way choice for that edit."""
+    if edit is None:
+        test, what, done = "order test", "reversal", "reversed"
+    else:
+        test, what, done = f"which test, {edit}", "edit", "edited"
     if not o.get("clips"):
-        return "order test: no clip's reversal reads differently"
-    return (f"order test on {o['clips']} clips whose reversal reads differently (chance 0.5): forward clip nearer "
-            f"its caption {o['forward_picks_own']:.3f}, reversed clip nearer the reversed caption "
+        return f"{test}: no clip's {what} reads differently"
+    return (f"{test} on {o['clips']} clips whose {what} reads differently (chance 0.5): {'forward ' if edit is None else ''}"
+            f"clip nearer its caption {o['forward_picks_own']:.3f}, {done} clip nearer the {done} caption "
             f"{o['reversed_picks_reversed']:.3f}")
 
 
@@ -267,6 +277,9 @@ def markdown(r: dict) -> str:
                       f"{c['wrist_path_only_top3_ratio']:.2f}×."]
     if r.get("order"):
         lines += ["", f"Order: {_order_line(r['order'])}."]
+    for name, o in r.get("which", {}).items():
+        label = P.KINDS[name].label if name in P.KINDS else name
+        lines += ["", f"Which: {_order_line(o, label)}."]
     if ev:
         lines += ["", "Caption reader ×: the top-3 a reader of the perturbed clips' own captions would get (their "
                   "level-0 captions through the evaluator's text side, ranked against the clean ones), over the "
