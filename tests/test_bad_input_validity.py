@@ -48,7 +48,7 @@ TOP3 = "(top-3 R-Precision among 3 or fewer candidates is 1 for any motion)"
     (["--seed", "-1"], "argument --seed: must be a whole number >= 0, got '-1'"),
     (["--limit", "1"], "argument --limit: must be a whole number >= 2, got '1' (another clip's motion needs two clips)"),
     (["--kinds", ""], "handx: error: --kinds names no perturbation kind; choose from white, lowfreq, offset, shift, "
-                      "reverse, other (or leave --kinds out for all of them)"),
+                      "reverse, other, swap_hands, swap_fingers, still_fingers (or leave --kinds out for all of them)"),
     (["--kinds", " , "], "--kinds names no perturbation kind"),
     (["--kinds", "white,wobble"], "handx: error: --kinds wobble: unknown; choose from white"),
 ])
