@@ -269,3 +269,18 @@ def test_the_card_shows_the_caption_reader_beside_the_evaluator_where_the_report
     assert "caption reader" not in old and "| left and right hands swapped (mirrored) | 86.6 | 0.61 | 10.30 | 0.33 |" in old
     new = card_markdown({**card, "validity": validity_summary({**report, "cases": [{**case, "caption_reader_ratio": 0.77}]})})
     assert "| caption reader × |" in new and "| 86.6 | 0.61 | 10.30 | 0.33 | 0.77 |" in new
+
+
+def test_the_v8_build_script_names_a_corpus_version_and_hard_negatives_the_code_knows():
+    import re
+    from pathlib import Path
+
+    from handx_jax import standard
+
+    text = (Path(__file__).resolve().parents[1] / "scripts" / "build_standard_v8.sh").read_text()
+    corpus = re.search(r"CORPUS=(\S+)", text).group(1)
+    kinds = re.search(r"HARD_NEGATIVES=\$\{HARD_NEGATIVES:-([^}]+)\}", text).group(1).split(",")
+    assert corpus in standard.CORPUS_VERSIONS and standard.corpus_recipe(corpus).annotation == "surface"
+    assert kinds and all(k in P.HARD_NEGATIVE_KINDS for k in kinds)
+    # the next version while v7 is packaged, this code's own once the lead names v8 the standard one
+    assert int(re.search(r"STANDARD_VERSION=(\d+)", text).group(1)) in (standard.VERSION + 1, standard.VERSION)

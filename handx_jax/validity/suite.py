@@ -279,7 +279,8 @@ def markdown(r: dict) -> str:
         lines += ["", f"Order: {_order_line(r['order'])}."]
     for name, o in r.get("which", {}).items():
         label = P.KINDS[name].label if name in P.KINDS else name
-        lines += ["", f"Which: {_order_line(o, label)}."]
+        line = _order_line(o, label)
+        lines += ["", f"{line[0].upper()}{line[1:]}."]
     if ev:
         lines += ["", "Caption reader ×: the top-3 a reader of the perturbed clips' own captions would get (their "
                   "level-0 captions through the evaluator's text side, ranked against the clean ones), over the "

@@ -3,7 +3,7 @@
 # Two `small` evaluators, identical but for model.hard_negatives, then the validity suite's meaning-changing kinds
 # on both and on the packaged v7 (trained on corpus v4; on v5's clips it is out of its corpus, see README.md).
 #
-#   docs/results/validity/hard-negatives-small/run.sh [WORK]     (WORK default /tmp/hn-small; ~12 CPU-min on 2 cores)
+#   docs/results/validity/hard-negatives-small/run.sh [WORK]     (WORK default /tmp/hn-small; ~13 CPU-min on 2 cores)
 set -euo pipefail
 WORK=${1:-/tmp/hn-small}
 HERE=$(cd "$(dirname "$0")" && pwd)
