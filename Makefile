@@ -11,7 +11,7 @@ STANDARD_WORK ?= runs/standard-build
 CONSTRAINTS ?= constraints.txt
 UV_VERSION ?= 0.13.9
 
-.PHONY: venv demo sweep-cpu sweep-ar-cpu test lock bench standard-assets clean
+.PHONY: venv demo sweep-cpu sweep-ar-cpu test lock bench standard-assets standard-assets-v8 clean
 
 # uv (a pinned installer, pip's drop-in) resolves, downloads and byte-compiles in parallel: 21 s here from
 # a cold cache, where pip + compileall took 47 s, for the same versions (constraints.txt). It is only the
@@ -109,6 +109,10 @@ test: $(STAMP)
 # Rebuild the packaged standard evaluator (corpus -> tokenizer -> tiny T5 -> evaluator -> card); see CARD.md.
 standard-assets: $(STAMP)
 	PY=$(BIN)/python scripts/build_standard.sh $(STANDARD_WORK)
+
+# Standard evaluator v8 (issue 55): v7's recipe on corpus v5 with hard negatives (scripts/build_standard_v8.sh).
+standard-assets-v8: $(STAMP)
+	PY=$(BIN)/python scripts/build_standard_v8.sh $(STANDARD_WORK)-v8
 
 bench: $(STAMP)
 	JAX_PLATFORMS=cpu $(BIN)/python benchmarks/synth_annotate.py

@@ -56,6 +56,8 @@ else
     "${H[@]}" train t5 --data "$DATA" --preset tiny --out "$WORK/t5" --steps "$T5_STEPS" --log-every 200
 fi
 t2=$(date +%s)
+if [ -n "${ENCODER:-}" ]; then ENCODER_NOTE="reused, copied from $ENCODER (its fingerprints above)"
+else ENCODER_NOTE="SentencePiece tokenizer and tiny T5 trained on this corpus in $((t2 - t1)) s"; fi
 [ -f "$WORK/evaluator/evaluator.json" ] || \
   "${H[@]}" train evaluator --data "$DATA" --encoder "$WORK/t5/encoder" --out "$WORK/evaluator" \
     --preset "$PRESET" --steps "$STEPS" --batch-size "$BATCH" --lr "$LR" --warmup "$WARMUP" --no-final-eval \
@@ -76,7 +78,7 @@ if [ -n "$OLD" ] && [ "$OLD" != "$NEW" ] && [ ! -d "$ARCHIVED" ]; then cp -r "$A
   --version "$NEW" ${CORPUS:+--corpus "$CORPUS"} \
   --note "corpus build=$((t1 - t0)) s wall on $(nproc) cores (handx data synth --clips $CLIPS $FLAGS)" \
   --note "evaluator training=$STEPS steps x $BATCH in $((t3 - t2)) s wall on $(nproc) cores, text cache included (scripts/build_standard.sh knobs: STEPS=$STEPS BATCH=$BATCH LR=$LR WARMUP=$WARMUP DROPOUT=$DROPOUT PRESET=$PRESET AUG_WHITE=$AUG_WHITE AUG_LOWFREQ=$AUG_LOWFREQ MASK_SAME_TEXT=$MASK_SAME_TEXT REVERSE_NEGATIVE=$REVERSE_NEGATIVE${HARD_NEGATIVES:+ HARD_NEGATIVES=$HARD_NEGATIVES}${CORPUS:+ CORPUS=$CORPUS STANDARD_VERSION=$NEW})" \
-  --note "text encoder=${ENCODER:+reused from $ENCODER (its fingerprints above)}${ENCODER:-SentencePiece tokenizer and tiny T5 trained on this corpus in $((t2 - t1)) s}"
+  --note "text encoder=$ENCODER_NOTE"
 # The archived version keeps no copy of an encoder byte-identical to the new one (standard.asset_path reads the
 # packaged one, still checked against the archived card's sha256).
 if [ -d "$ARCHIVED/encoder" ] && diff -rq "$ARCHIVED/encoder" "$ASSETS/encoder" > /dev/null; then rm -r "$ARCHIVED/encoder"; fi

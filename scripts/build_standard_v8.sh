@@ -7,7 +7,7 @@
 # evaluators/standard-v7/), scores its Ground Truth rows, runs the validity suite on the 4,000-clip v5 prefix and
 # puts its figures on the card.
 #
-#   scripts/build_standard_v8.sh [WORK]      (WORK default /tmp/handx-standard-v8)
+#   scripts/build_standard_v8.sh [WORK]      (WORK default /tmp/handx-standard-v8; make standard-assets-v8)
 #
 # Every knob of build_standard.sh still applies (NICE, PY, STEPS ...). Then, to make v8 the code's standard
 # evaluator, commit the assets with standard.VERSION = 8 and the standard recipe = corpus v5

@@ -193,7 +193,8 @@ def train_evaluator(out: str | os.PathLike, cfg: EvaluatorRunConfig, *, encoder=
               "encoder": {"path": enc_path, "fingerprint": enc.fingerprint}}
     log(f"evaluator {cfg.preset}: {n_params:,} params, {len(clips)} train clips × levels {list(train_levels)}, "
         f"text Lmax {Lmax} ({100 * truncated:.1f}% of training captions truncated at {policy.max_len} tokens), "
-        f"{tcfg.steps} steps × batch {tcfg.batch_size}")
+        f"{tcfg.steps} steps × batch {tcfg.batch_size}"
+        + (f"; hard negatives {', '.join(mcfg.hard_negatives)}" if mcfg.hard_negatives else ""))
 
     def loss(params, batch, rng, is_train):
         return evaluator_loss(model, params, batch, rng, is_train)
