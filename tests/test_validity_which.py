@@ -156,6 +156,30 @@ def test_still_fingers_holds_one_hand_rigid_and_leaves_the_other(clips):
     assert np.allclose(P.apply("still_fingers", s, 0.0, 0), s, atol=1e-6)  # holding still again changes nothing
 
 
+def test_still_fingers_known_answer_on_a_turning_hand():
+    """Both hands turn about z by a known angle and slide while their middle fingers curl: held still, a hand is
+    its frame-0 shape turned by that angle and placed on its wrist path."""
+    T = 5
+    theta = np.radians(np.linspace(0, 40, T))
+    x = np.zeros((6, T, 2, 21, 3))
+    for t in range(T):
+        right, _, _ = _planar_hand({"middle": 20.0 * t})
+        c, s_ = np.cos(theta[t]), np.sin(theta[t])
+        rz = np.array([[c, -s_, 0], [s_, c, 0], [0, 0, 1]])
+        for h, hand in enumerate((right * np.array([-1.0, 1, 1]), right)):
+            x[:, t, h] = hand @ rz.T + (0.01 * t, 0.3 * h, 0.0)
+    y = P.apply("still_fingers", x, 0.0, 0).astype(np.float64)
+    moved = [[not np.allclose(y[n, :, h], x[n, :, h], atol=1e-6) for h in range(2)] for n in range(6)]
+    assert all(sum(m) == 1 for m in moved) and {m.index(True) for m in moved} == {0, 1}
+    for n in range(6):
+        h = moved[n].index(True)
+        for t in range(T):
+            c, s_ = np.cos(theta[t]), np.sin(theta[t])
+            rz = np.array([[c, -s_, 0], [s_, c, 0], [0, 0, 1]])
+            want = (x[n, 0, h] - x[n, 0, h, 0]) @ rz.T + x[n, t, h, 0]
+            assert np.allclose(y[n, t, h], want, atol=1e-6)
+
+
 def test_the_captions_of_a_tiny_v5_build_change_under_each_edit(tmp_path):
     from handx_jax import standard
     from handx_jax.annotation.caption import TemplateCaptioner
