@@ -128,8 +128,9 @@ def test_the_first_hour_runs_as_written(tmp_path):
     for name in ("handx_jax", "sweeps"):
         (tmp_path / name).symlink_to(REPO / name)
     log = tmp_path / "commands.jsonl"
-    env = {**os.environ, "HANDX_CACHE_DIR": str(tmp_path / "cache"),
-           "XLA_FLAGS": _level0(os.environ.get("XLA_FLAGS", ""))}
+    # As a user pastes it: no compilation cache named (the sweep's stages then share OUT/jax_cache).
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env.update(HANDX_CACHE_DIR=str(tmp_path / "cache"), XLA_FLAGS=_level0(os.environ.get("XLA_FLAGS", "")))
     p = subprocess.run([sys.executable, __file__, str(tmp_path), str(log)], env=env, capture_output=True, text=True)
     done = [json.loads(x) for x in log.read_text().splitlines()] if log.exists() else []
     failed = [d for d in done if d["rc"] != 0]
@@ -151,6 +152,14 @@ def test_the_first_hour_runs_as_written(tmp_path):
     rows = [json.loads(x) for x in (R / "sweep/results.jsonl").read_text().splitlines()]
     assert len(rows) == 3 and {r["evaluator_id"] for r in rows} == {v7}  # `--evaluator standard`: the packaged one
     assert all(0 <= r["rprec_top1"] <= r["rprec_top3"] <= 1 for r in rows)
+    # Each row reads its run's config.json and model: sizes, the whole train split drawn as clips (the
+    # default sampling), parameters, and both FLOPs conventions (the paper's counts the text encoder too).
+    assert sorted((r["layers"], r["dim"]) for r in rows) == [(1, 32), (2, 64), (2, 128)]
+    assert all(r["data_fraction"] == 1.0 and r["data_sampling"] == "clips" for r in rows)
+    assert all(r["params"] > 0 and r["flops_per_sample_paper"] > r["flops_per_sample"] > 0 for r in rows)
+    by_dim = sorted(rows, key=lambda r: r["dim"])
+    assert [r["params"] for r in by_dim] == sorted({r["params"] for r in rows})  # wider: more parameters
+    assert any((R / "sweep/jax_cache").iterdir())  # no cache named: the runs share OUT/jax_cache
     # Scored at the block its prompts allow: 8 tiny prompts give block 8, which the launcher records as the block
     # chosen, so the runs are done and a relaunch would not rescore them (issue 54 item 5); the README's 256
     # prompts on 4,000 clips give 32.

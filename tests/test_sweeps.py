@@ -572,38 +572,23 @@ def test_scores_at_another_block_are_redone_from_the_same_samples(tmp_path, monk
 
 
 @pytest.mark.slow
-def test_a_real_diffusion_run_and_its_row(tmp_path, monkeypatch):
-    """One real diffusion run through the launcher (its stages: ``handx train diffusion --encoder``). Killing
-    and relaunching a sweep of real stages (a finished run left as it is, the debug executor's path) is
-    tests/test_ar_sweep.py's."""
+def test_pairs_sampling_draws_the_references_items(tmp_path):
+    """``data.sampling=pairs`` draws (clip, level) items as the reference does. A real diffusion sweep through
+    the launcher, its rows (sizes, parameters, both FLOPs conventions, data fraction and sampling read from each
+    run's config.json) and OUT/jax_cache are tests/test_first_hour.py's (the README's sweep); killing and
+    relaunching a sweep of real stages is tests/test_ar_sweep.py's."""
     from diffusion_fixtures import ENCODER, make_dataset
 
-    from handx_jax.families.diffusion import make_config
+    from handx_jax.families.diffusion import load_train_data, make_config
 
-    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)  # a user who names no cache: OUT/jax_cache
     data = make_dataset(tmp_path)
-    specs = [RunSpec("b", "diffusion", overrides=TINY + ("data.fraction=0.5", "data.sampling=pairs"),
-                     axes={"layers": 1})]
-    cfg = SweepConfig(data=str(data), encoder=str(ENCODER), out=str(tmp_path / "sweep"))
-    res = launch(specs, cfg)
-    assert not res.failed
-    rows = rows_of(res.results)
-    assert [r["run_id"] for r in rows] == ["b"]
-    assert rows[0]["data_fraction"] == 0.5 and rows[0]["data_sampling"] == "pairs"
-    assert rows[0]["params"] > 0 and rows[0]["layers"] == 1
-    # A run that sets no sampling draws whole clips (the row reads its config.json like this one's "pairs").
+    # A run that sets no sampling draws whole clips ("clips" keeps every level of each clip).
     assert make_config("tiny", TINY, data="", encoder="").data.sampling == "clips"
-    # Both FLOPs conventions on the row.
-    assert rows[0]["flops_per_sample"] > 0 and rows[0]["flops_per_sample_paper"] > rows[0]["flops_per_sample"] / 2
-    assert [s["status"] for s in status(tmp_path / "sweep")] == ["done"]
-    assert any((tmp_path / "sweep/jax_cache").iterdir())  # the runs' shared persistent compilation cache
-    # data.sampling=pairs draws (clip, level) items as the reference does: RandomState(42).choice without
-    # replacement over all train items, nested across fractions; "clips" keeps every level of each clip.
+    # pairs: RandomState(42).choice without replacement over all train items, nested across fractions.
     import numpy as np
 
-    from handx_jax.families.diffusion import config_from_dict, load_train_data
-
-    td = load_train_data(config_from_dict(json.loads((tmp_path / "sweep/runs/b/config.json").read_text())))
+    cfg = make_config("tiny", TINY + ("data.fraction=0.5", "data.sampling=pairs"), data=str(data), encoder=str(ENCODER))
+    td = load_train_data(cfg)
     n = len(td.clips) * td.levels
     k = round(0.5 * n)
     assert np.array_equal(td.items, np.sort(np.random.RandomState(42).choice(n, k, replace=False)))
