@@ -135,18 +135,17 @@ def _span_joints(params, cfg: G.GHTTConfig, mean, std, x_NxTx2x21x3):
     """E^P's refined first span and D^P's predicted next one (m = μ^P) as joints, placed from the GT palm frames
     before each span: one program (op by op, a tiny P's evaluation compiled ~100 one-op programs)."""
     t = cfg.span
-    H = jax.vmap(lambda j: HM.to_frames(j)[0])(x_NxTx2x21x3)
+    H, (R, o), scale = jax.vmap(HM.to_frames)(x_NxTx2x21x3)
     mu, _, refined = G.pose_encode(params, cfg, (H[:, :t] - mean) / std)
     pred = G.pose_decode(params, cfg, mu)
     out = jnp.concatenate([refined, pred], 1) * std + mean
 
-    def place(Hs, j):
-        Hj, (R, o), s = HM.to_frames(j)
+    def place(Hs, R, o, s):
         rec = HM.from_frames(Hs[:t], R[0], o[0], s)
         nxt = HM.from_frames(Hs[t:], R[t - 1], o[t - 1], s, first_is_anchor=False)
         return jnp.concatenate([rec, nxt])
 
-    return jax.vmap(place)(out, x_NxTx2x21x3)
+    return jax.vmap(place)(out, R, o, scale)
 
 
 def span_errors_mm(params, cfg: G.GHTTConfig, norm: C.Norm, joints_NxFx2x21x3) -> dict:
