@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -99,9 +100,12 @@ def offset_latents(pose_params, cfg: G.GHTTConfig, Hn_NxFx153: np.ndarray, chunk
         return mu.reshape(t, B, S, -1).transpose(1, 0, 2, 3), valid.reshape(t, B, S)[:, 0]
 
     outs, valid = [], None
+    # The last chunk padded to a whole one: one compiled shape for the train and the validation clips (each
+    # size compiled its own; a clip's latents are the same either way, bit for bit, measured).
     for s in range(0, len(Hn_NxFx153), chunk):
-        m, valid = one(jnp.asarray(Hn_NxFx153[s:s + chunk]))
-        outs.append(np.asarray(m))
+        part = Hn_NxFx153[s:s + chunk]
+        m, valid = one(jnp.asarray(C.pad_rows(part, chunk)))
+        outs.append(np.asarray(m)[:len(part)])
     return np.concatenate(outs), np.asarray(valid)
 
 
@@ -153,15 +157,23 @@ class TrainData:
         return {"M": self.M[c], "text": self.text[c, lv]}
 
 
+@functools.partial(jax.jit, static_argnames=("cfg",))
+def _recognition_embeddings(params, cfg: G.GHTTConfig, M_first_NxSxD, text_NxD):
+    """FC1 of the captions and μ^A of the whole clips, unit-normalised: one program (op by op, every
+    validation compiled a few dozen one-op programs)."""
+    N, S = M_first_NxSxD.shape[:2]
+    mu, _, _ = G.action_encode(params, cfg, M_first_NxSxD, jnp.ones((N, S), bool))
+    a = G.text_embed(params, text_NxD)
+    unit = lambda x: x / jnp.linalg.norm(x, axis=-1, keepdims=True).clip(1e-6)  # noqa: E731
+    return unit(a), unit(mu)
+
+
 def recognition_scores(params, cfg: G.GHTTConfig, M_first_NxSxD, text_NxD, block: int = 32) -> dict:
     """Top-1/3 caption retrieval (R-Precision, the standard evaluator's code) of μ^A of whole clips."""
     from handx_jax.metrics import r_precision
 
-    S = M_first_NxSxD.shape[1]
-    mu, _, _ = G.action_encode(params, cfg, jnp.asarray(M_first_NxSxD), jnp.ones((len(M_first_NxSxD), S), bool))
-    a = G.text_embed(params, jnp.asarray(text_NxD))
-    unit = lambda x: x / jnp.linalg.norm(x, axis=-1, keepdims=True).clip(1e-6)  # noqa: E731
-    hits, _ = r_precision(unit(a), unit(mu), block=min(block, len(mu)), top_k=3)
+    a, mu = _recognition_embeddings(params, cfg, jnp.asarray(M_first_NxSxD), jnp.asarray(text_NxD))
+    hits, _ = r_precision(a, mu, block=min(block, len(mu)), top_k=3)
     return {"top1": float(hits[0]), "top3": float(hits[2])}
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -129,24 +130,31 @@ def make_loss(cfg: PoseRunConfig, norm: C.Norm):
 # Joint errors of P on whole clips (its evaluation hook, and the fitting test)
 
 
+@functools.partial(jax.jit, static_argnames=("cfg",))
+def _span_joints(params, cfg: G.GHTTConfig, mean, std, x_NxTx2x21x3):
+    """E^P's refined first span and D^P's predicted next one (m = μ^P) as joints, placed from the GT palm frames
+    before each span: one program (op by op, a tiny P's evaluation compiled ~100 one-op programs)."""
+    t = cfg.span
+    H, (R, o), scale = jax.vmap(HM.to_frames)(x_NxTx2x21x3)
+    mu, _, refined = G.pose_encode(params, cfg, (H[:, :t] - mean) / std)
+    pred = G.pose_decode(params, cfg, mu)
+    out = jnp.concatenate([refined, pred], 1) * std + mean
+
+    def place(Hs, R, o, s):
+        rec = HM.from_frames(Hs[:t], R[0], o[0], s)
+        nxt = HM.from_frames(Hs[t:], R[t - 1], o[t - 1], s, first_is_anchor=False)
+        return jnp.concatenate([rec, nxt])
+
+    return jax.vmap(place)(out, R, o, scale)
+
+
 def span_errors_mm(params, cfg: G.GHTTConfig, norm: C.Norm, joints_NxFx2x21x3) -> dict:
     """For each clip's first two spans: the joints of E^P's refined span and of D^P's predicted next span
     (m = μ^P, deterministic), placed from the GT palm frames before each span, against GT; MPJPE-RA (each
     hand relative to its wrist) in mm, beside the train-independent reference of the clip's mean pose."""
     t = cfg.span
     x = np.asarray(joints_NxFx2x21x3, np.float32)[:, :2 * t]
-    H = C.clip_frames(x)
-    mu, _, refined = G.pose_encode(params, cfg, jnp.asarray(norm.normalize(H[:, :t])))
-    pred = G.pose_decode(params, cfg, mu)
-    out = norm.denormalize(np.asarray(jnp.concatenate([refined, pred], 1)))
-
-    def place(Hs, j):
-        Hj, (R, o), s = HM.to_frames(j)
-        rec = HM.from_frames(Hs[:t], R[0], o[0], s)
-        nxt = HM.from_frames(Hs[t:], R[t - 1], o[t - 1], s, first_is_anchor=False)
-        return jnp.concatenate([rec, nxt])
-
-    got = np.asarray(jax.jit(jax.vmap(place))(jnp.asarray(out), jnp.asarray(x)))
+    got = np.asarray(_span_joints(params, cfg, jnp.asarray(norm.mean), jnp.asarray(norm.std), jnp.asarray(x)))
     ra = lambda a: a - a[..., :1, :]  # noqa: E731
     err = 1000 * np.linalg.norm(ra(got) - ra(x), axis=-1).mean((0, 2, 3))  # per frame
     mean_pose = ra(x).mean((0, 1), keepdims=True)

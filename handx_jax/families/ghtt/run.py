@@ -96,6 +96,17 @@ def _place(H_Tx153, R0, o0, scale):
 
 
 _place_rows = jax.jit(jax.vmap(_place))
+# The observed clips' palm frames at their last frame and their hand sizes, and the whole clips' μ^A: one
+# program each (op by op, each compiled a few dozen one-op programs per run of the command).
+_palm_frames = jax.jit(HM.palm_frames)
+_hand_scales = jax.jit(jax.vmap(HM.hand_scale))
+_text_embed = jax.jit(G.text_embed)
+
+
+@functools.partial(jax.jit, static_argnames=("cfg",))
+def _clip_embeddings(pose_params, params, cfg: G.GHTTConfig, Hn_BxSxTx153):
+    m = C.span_latents(pose_params, cfg, Hn_BxSxTx153)
+    return G.action_encode(params, cfg, m, jnp.ones(m.shape[:2], bool))[0]
 
 
 @dataclass
@@ -139,8 +150,8 @@ class GHTTRun:
         obs = src[:, :N]
         H = np.asarray(C._frames_jit(jnp.asarray(obs)))[:, N - n * t:]  # the last n spans, ending at frame N
         Hn = self.norm.normalize(H).reshape(len(src), n, t, HM.FRAME_DIM)
-        R, o = HM.palm_frames(jnp.asarray(obs[:, N - 1]))
-        scale = jax.vmap(HM.hand_scale)(jnp.asarray(obs))
+        R, o = (np.asarray(a) for a in _palm_frames(jnp.asarray(obs[:, N - 1])))  # host arrays: rows picked below
+        scale = np.asarray(_hand_scales(jnp.asarray(obs)))
         K = samples
         rows = np.repeat(np.arange(len(src)), K)
         out = np.zeros((len(rows), F - N, 2, 21, 3), np.float32)
@@ -148,7 +159,13 @@ class GHTTRun:
         bs = opts.batch_size
         for s in range(0, len(rows), bs):
             r = rows[s:s + bs]
-            pad = bs - len(r) if len(rows) > bs else 0  # one compiled shape for every chunk
+            # Every call at this batch size runs one program, also with fewer rows: `handx generate` (K = 1) and
+            # `handx eval prediction` (K = 20) then share it (a sweep's generate stage compiles it, its
+            # prediction stage loads it), where compiling another shape costs more than the padded rows of
+            # the CPU sizes. The rows are independent and their draws prefix-stable (JAX's default
+            # partitionable threefry); XLA's code for the larger batch may round differently in the last
+            # bit (measured: 4e-7 m at most in the joints).
+            pad = bs - len(r)
             rr = np.concatenate([r, np.full(pad, r[-1])])
             Hf = predict_frames(self.pose_params, self.params, self.cfg.model, jnp.asarray(Hn[rr]),
                                 jax.random.fold_in(key, s), jnp.float32(opts.sigma_scale), n_future=n_future,
@@ -176,9 +193,8 @@ class GHTTRun:
         Hn = self.norm.normalize(C.clip_frames(x))[:, :S * t].reshape(len(x), S, t, HM.FRAME_DIM)
         out = []
         for s in range(0, len(x), 256):
-            m = C.span_latents(self.pose_params, self.cfg.model, jnp.asarray(Hn[s:s + 256]))
-            mu, _, _ = G.action_encode(self.params, self.cfg.model, m, jnp.ones(m.shape[:2], bool))
-            out.append(np.asarray(mu))
+            out.append(np.asarray(_clip_embeddings(self.pose_params, self.params, self.cfg.model,
+                                                   jnp.asarray(Hn[s:s + 256]))))
         e = np.concatenate(out)
         return e / np.maximum(np.linalg.norm(e, axis=-1, keepdims=True), 1e-6)
 
@@ -198,7 +214,7 @@ class GHTTRun:
             m = e.mask_BxL.astype(np.float32)[..., None]
             h = h.astype(self.cfg.data.cache_dtype).astype(np.float32)
             out.append((h * m).sum(1) / np.maximum(m.sum(1), 1.0))
-        a = np.asarray(G.text_embed(self.params, jnp.asarray(np.concatenate(out))))
+        a = np.asarray(_text_embed(self.params, jnp.asarray(np.concatenate(out))))
         return a / np.maximum(np.linalg.norm(a, axis=-1, keepdims=True), 1e-6)
 
 
