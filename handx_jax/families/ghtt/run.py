@@ -159,13 +159,7 @@ class GHTTRun:
         bs = opts.batch_size
         for s in range(0, len(rows), bs):
             r = rows[s:s + bs]
-            # Every call at this batch size runs one program, also with fewer rows: `handx generate` (K = 1) and
-            # `handx eval prediction` (K = 20) then share it (a sweep's generate stage compiles it, its
-            # prediction stage loads it), where compiling another shape costs more than the padded rows of
-            # the CPU sizes. The rows are independent and their draws prefix-stable (JAX's default
-            # partitionable threefry); XLA's code for the larger batch may round differently in the last
-            # bit (measured: 4e-7 m at most in the joints).
-            pad = bs - len(r)
+            pad = bs - len(r) if len(rows) > bs else 0  # one compiled shape for every chunk
             rr = np.concatenate([r, np.full(pad, r[-1])])
             Hf = predict_frames(self.pose_params, self.params, self.cfg.model, jnp.asarray(Hn[rr]),
                                 jax.random.fold_in(key, s), jnp.float32(opts.sigma_scale), n_future=n_future,
