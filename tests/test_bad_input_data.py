@@ -10,6 +10,7 @@ fractions that leave a split empty, an ``--out`` that is (inside, or holds) the 
 
 import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -39,21 +40,28 @@ def test_import_refuses_uneven_caption_levels(tmp_path, capsys):
     assert not (tmp_path / "ds").exists()
 
 
-def test_show_level_out_of_range(tmp_path):
+def test_show_level_out_of_range(tmp_path, capsys):
     t = [{"id": f"c{i}", "left": ["a", "b"], "right": ["c", "d"], "interaction": ["e", "f"]} for i in range(2)]
     write_dataset(tmp_path / "ds", np.zeros((2, 60, 2, 21, 3), np.float32) + 0.01 * np.arange(21)[:, None], t,
                   stats=False)
     for level in (9, 2, -3):
-        with pytest.raises(SystemExit, match=rf"--level {level} out of range: .* has 2 caption levels \(0\.\.1, or -2\.\.-1"):
-            handx(["data", "show", "--data", str(tmp_path / "ds"), "--clip", "0", "--out", str(tmp_path / "x.gif"),
-                   "--level", str(level)])
+        assert handx(["data", "show", "--data", str(tmp_path / "ds"), "--clip", "0", "--out", str(tmp_path / "x.gif"),
+                      "--level", str(level)]) == 2
+        assert re.fullmatch(rf"handx: error: --level {level} out of range: .* has 2 caption levels \(0\.\.1, or "
+                            rf"-2\.\.-1 from the most detailed\)", capsys.readouterr().err.strip())
+    for clip, why in (("7", "clip index 7 out of range (dataset has 2 clips)"), ("nope", "no clip with id 'nope' in")):
+        assert handx(["data", "show", "--data", str(tmp_path / "ds"), "--clip", clip, "--out",
+                      str(tmp_path / "x.gif")]) == 2
+        assert capsys.readouterr().err.startswith("handx: error: " + why)
     assert not (tmp_path / "x.gif").exists()
 
 
-def test_eval_run_replications_must_be_positive(tmp_path):
-    with pytest.raises(SystemExit, match="--replications must be at least 1, got 0"):
-        handx(["eval", "run", "--evaluator", str(tmp_path / "E"), "--data", str(tmp_path / "D"),
-               "--ground-truth", "--replications", "0"])
+def test_eval_run_replications_must_be_positive(tmp_path, capsys):
+    for flags, why in ((["--ground-truth", "--replications", "0"], "--replications must be at least 1, got 0"),
+                       (["--ground-truth", "--samples", "1"], "--samples (APD's K) must be at least 2, got 1"),
+                       ([], "give exactly one of --generated G.npz or --ground-truth")):
+        assert handx(["eval", "run", "--evaluator", str(tmp_path / "E"), "--data", str(tmp_path / "D"), *flags]) == 2
+        assert capsys.readouterr().err.strip() == "handx: error: " + why  # one line, exit 2
 
 
 def test_empty_text_is_refused_everywhere(tmp_path, capsys):

@@ -291,6 +291,11 @@ def test_a_caption_level_the_dataset_lacks_is_one_line(corpus, tmp_path, capsys,
     assert main(["eval", "recognition", "--run", str(run), "--data", str(corpus), "--level", level]) == 2
     assert capsys.readouterr().err.strip() == "handx eval recognition: error: " + LEVEL.format(d=corpus, v=level)
     assert sorted(p.name for p in run.iterdir()) == ["config.json"]
+    # eval run too, before anything is scored
+    out = tmp_path / "scores"
+    assert main(["eval", "run", "--ground-truth", "--data", str(corpus), "--level", level, "--out", str(out)]) == 2
+    assert capsys.readouterr().err.strip() == "handx: error: " + LEVEL.format(d=corpus, v=level)
+    assert not out.exists()
 
 
 @pytest.mark.parametrize("limit", ["0", "-1"])

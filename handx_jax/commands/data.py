@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from handx_jax.cliargs import deprecated_positional
+from handx_jax.infra.errors import DataError
 from handx_jax.infra.values import number_flag, whole_flag
 
 
@@ -135,12 +136,12 @@ def _clip_index(ds, clip: str) -> int:
     if clip.lstrip("-").isdigit():
         i = int(clip)
         if not -len(ds) <= i < len(ds):
-            raise SystemExit(f"handx: error: clip index {i} out of range (dataset has {len(ds)} clips)")
+            raise DataError(f"clip index {i} out of range (dataset has {len(ds)} clips)")
         return i % len(ds)
     try:
         return ds.ids.index(clip)
     except ValueError:
-        raise SystemExit(f"handx: error: no clip with id {clip!r} in {ds.root}") from None
+        raise DataError(f"no clip with id {clip!r} in {ds.root}") from None
 
 
 def dataset_norms() -> tuple:
@@ -235,8 +236,8 @@ def _show(a: argparse.Namespace) -> int:
     lv = a.level
     levels = len(t["left"])
     if not -levels <= lv < levels:
-        raise SystemExit(f"handx: error: --level {lv} out of range: {ds.root} has {levels} caption levels "
-                         f"(0..{levels - 1}, or -{levels}..-1 from the most detailed)")
+        raise DataError(f"--level {lv} out of range: {ds.root} has {levels} caption levels "
+                        f"(0..{levels - 1}, or -{levels}..-1 from the most detailed)")
     texts = (t["left"][lv], t["right"][lv], t["interaction"][lv])
     if (ds.root / "objects.jsonl").exists():  # a hand-object corpus: the object beside the hands
         from handx_jax.synthesis.object_render import render_object_clip

@@ -96,16 +96,18 @@ def _run(args: argparse.Namespace) -> int:
     from handx_jax.evaluation import evaluate_generated, evaluate_ground_truth, format_table, write_eval_json
     from handx_jax.metrics import MetricConfig
 
+    from handx_jax.infra.errors import DataError
+
+    # A bad flag is one line and exit 2 (cli.main prints a DataError so), as every other refusal.
     if bool(args.generated) == bool(args.ground_truth):
-        raise SystemExit("handx: error: give exactly one of --generated G.npz or --ground-truth")
+        raise DataError("give exactly one of --generated G.npz or --ground-truth")
     if args.replications < 1:
-        raise SystemExit(f"handx: error: --replications must be at least 1, got {args.replications}")
+        raise DataError(f"--replications must be at least 1, got {args.replications}")
     if args.samples is not None and args.samples < 2:
-        raise SystemExit(f"handx: error: --samples (APD's K) must be at least 2, got {args.samples}")
+        raise DataError(f"--samples (APD's K) must be at least 2, got {args.samples}")
     cfg = MetricConfig(rprec_block=args.block, replications=args.replications, seed=args.seed,
                        mpjpe_root=args.mpjpe_root, apd_samples=args.samples or 0)
     cache = not args.no_reference_cache
-    from handx_jax.infra.errors import DataError
 
     if args.generated:  # read and range-checked before any model is loaded: bad motion fails in a second
         from handx_jax.interop.handx_npz import read_handx_npz
@@ -121,10 +123,17 @@ def _run(args: argparse.Namespace) -> int:
 
     named = resolve_evaluator(args.evaluator)  # standard, standard-vN or a folder; refused here, in one line
     if named.standard and args.encoder:
-        raise SystemExit("handx: error: --encoder applies to --evaluator E; the standard evaluator carries its own")
+        raise DataError("--encoder applies to --evaluator E; the standard evaluator carries its own")
     ev = named.load(encoder=args.encoder or None)  # checksums and weights: a damaged evaluator is named first
     cache = named.reference_cache() if cache else False
     ds = Dataset.open(args.data)
+    if args.level is not None:  # as eval prediction and recognition check it, before scoring: the dataset's levels
+        from handx_jax.generation import check_level
+
+        try:
+            check_level(args.level, int(ds.meta["levels"]), ds.root)
+        except ValueError as e:
+            raise DataError(str(e)) from None
     named.check_data(ds)  # the dataset–evaluator pair every command refuses alike, before scoring
     if args.level is not None:
         ev.policy = dataclasses.replace(ev.policy, eval_level=args.level)
