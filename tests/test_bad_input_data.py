@@ -164,6 +164,21 @@ def test_data_reverse_never_writes_over_the_dataset_it_reads(tiny, tmp_path, cap
     assert {p.name: p.read_bytes() for p in tiny.iterdir()} == before
 
 
+@pytest.mark.parametrize("family", ["tokenizer", "ghtt-pose", "evaluator"])
+def test_train_never_writes_its_run_into_the_dataset_it_reads(tiny, capsys, family):
+    """A run folder on or inside --data would add its files to the dataset's (and `data verify` then calls it
+    damaged): refused in one line before anything is written, by the family commands and the trainables alike."""
+    before = sorted(p.relative_to(tiny) for p in tiny.rglob("*"))
+    from handx_jax import standard
+
+    enc = ["--encoder", str(standard.encoder_dir())] if family == "evaluator" else []
+    for out, why in ((tiny / "runs" / "R", "is inside"), (tiny, "is")):
+        err = _refused(["train", family, "--data", tiny, *enc, "--preset", "tiny", "--out", out], capsys)
+        assert err == (f"handx train {family}: error: --out {out} {why} the dataset it reads, --data {tiny}; "
+                       "choose another --out outside it")
+    assert sorted(p.relative_to(tiny) for p in tiny.rglob("*")) == before
+
+
 @pytest.mark.parametrize("clips", ["0", "-2"])
 def test_data_reverse_refuses_no_clips_with_exit_2(tiny, tmp_path, capsys, clips):
     err = _refused(["data", "reverse", "--data", tiny, "--out", tmp_path / "R", "--clips", clips], capsys)

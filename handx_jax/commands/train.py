@@ -66,7 +66,23 @@ def _run_trainable(args: argparse.Namespace) -> int:
     if args.help:
         p.print_help()
         return 0
-    return mod.train_from_args(p.parse_args(args.extra))
+    targs = p.parse_args(args.extra)
+    refused = _out_inside_data(targs, f"handx train {args.family}")
+    return refused if refused is not None else mod.train_from_args(targs)
+
+
+def _out_inside_data(fargs: argparse.Namespace, cmd: str) -> int | None:
+    """A run folder on or inside the dataset it trains on is refused before anything is written (issue 54):
+    the run's files would join the dataset's, which `handx data verify` then calls damaged."""
+    from handx_jax.infra.errors import DataError
+    from handx_jax.infra.outputs import check_out_apart
+
+    if getattr(fargs, "out", None) and getattr(fargs, "data", None):
+        try:
+            check_out_apart(fargs.out, fargs.data, replaces=False)
+        except DataError as e:
+            return fail(cmd, e)
+    return None
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -91,6 +107,9 @@ def _run(args: argparse.Namespace) -> int:
     if fargs.print_config:
         print_config(cfg)
         return 0
+    refused = _out_inside_data(fargs, cmd)
+    if refused is not None:
+        return refused
     import contextlib
 
     import jax
