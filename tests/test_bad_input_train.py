@@ -107,7 +107,7 @@ def test_a_run_that_diverges_is_one_line(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(pose, "train", diverging)
     out = tmp_path / "P"
-    assert main(["train", "ghtt-pose", "--data", str(tmp_path), "--set", "train.optim.lr=1e30", "--out", str(out)]) == 2
+    assert main(["train", "ghtt-pose", "--data", str(tmp_path / "D"), "--set", "train.optim.lr=1e30", "--out", str(out)]) == 2
     assert capsys.readouterr().err.strip() == (
         f"handx train ghtt-pose: error: loss is nan at step 5 (run {out}): the run diverged (try a lower "
         "train.optim.lr in a new --out; the folder keeps its checkpoints from before)")
