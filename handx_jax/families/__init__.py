@@ -128,6 +128,11 @@ FAMILIES: dict[str, Family] = {
                         results=False, tasks=()),
     "ghtt": Family("handx_jax.families.ghtt", "G-HTT: the action block A over a trained P (prediction, recognition)",
                    encoder=True, needs=("ghtt-pose",), tasks=("prediction", "recognition"), sweep_task="prediction"),
+    "bimart-contact": Family("handx_jax.families.bimart.contact",
+                             "BimArt's contact-map generator (§3.2), the step a BimArt run is trained from",
+                             results=False, tasks=()),
+    "bimart": Family("handx_jax.families.bimart", "BimArt: two hands for an articulated object's trajectory (§3.3-3.4)",
+                     needs=("bimart-contact",), tasks=("object2motion",), sweep_task="object2motion"),
 }
 # A sweep's prediction scoring (``Family.sweep_task == "prediction"``): G-HTT's observation of 16 frames and
 # its K = 20 samples (§4.2).
