@@ -157,5 +157,6 @@ def refine(joints0_Tx2x21x3, H_hat, D_hat, obj, states_Tx7, cfg: BM.BimArtConfig
     return run(J, rc.iters, {"proj": rc.w_proj, "pen": rc.w_pen, "acc": rc.w_acc})
 
 
+energies_jit = jax.jit(energies, static_argnames=("cfg",))
 refine_jit = jax.jit(refine, static_argnames=("cfg", "rc"))
 refine_batch = jax.jit(jax.vmap(refine, (0, 0, 0, 0, 0, None, None)), static_argnames=("cfg", "rc"))
