@@ -100,8 +100,8 @@ def corpus(tmp_path_factory):
     from handx_jax.synthesis.object_build import ObjectBuildConfig, build_object_corpus
     from handx_jax.synthesis.object_motion import ObjectSynthConfig
 
-    cfg = ObjectBuildConfig(clips=5, seed=5, workers=1, bps_k=16, val_fraction=0.2, test_fraction=0.2,
-                            synth=ObjectSynthConfig(chunk_size=8))
+    cfg = ObjectBuildConfig(clips=1, seed=5, workers=1, bps_k=16, val_fraction=0.2, test_fraction=0.2,
+                            synth=ObjectSynthConfig(chunk_size=2))
     return build_object_corpus(tmp_path_factory.mktemp("bimart") / "obj", cfg, progress=False)
 
 
@@ -112,12 +112,14 @@ def test_refinement_lowers_its_energies(corpus):
     from handx_jax.synthesis.object_build import clip_object
 
     cfg = BM.BimArtConfig(BM.BlockConfig(1, 32, 2, 64), k=16, keypoints=8)
-    data = C.prepare(corpus, [0], cfg, motion=True)
+    ds, ann = C.open_corpus(corpus)
     f = slice(26, 34)
     T = 8
     rng = np.random.default_rng(0)
-    gt = data.joints[0, f]
-    D_hat = data.motion[0, f].reshape(T, 2, BM.hand_points(cfg), 6)[..., 3:]        # the true D, as predicted
+    gt = np.asarray(ds.motion[0, f], np.float32)
+    obj, states = clip_object(ann["objects"][0]), jnp.asarray(ann["object_state"][0, f], jnp.float32)
+    H_gt = C.keypoints(jnp.asarray(gt), cfg)
+    D_hat = np.asarray(C._nearest_vectors(obj, states, H_gt.reshape(T, -1, 3))).reshape(H_gt.shape)  # the true D
     noisy = gt + rng.normal(size=gt.shape).astype(np.float32) * 0.001
     d = np.linalg.norm(D_hat, axis=-1)                                                # (T, 2, P)
     h = int(d.min(-1).min(0).argmin())
@@ -127,7 +129,6 @@ def test_refinement_lowers_its_energies(corpus):
     assert close.sum() >= 4
     noisy[close, h] += (near * (1 + 0.008 / dk)[:, None])[close][:, None]            # 8 mm inside the object
     H_hat = C.keypoints(jnp.asarray(noisy), cfg)
-    obj, states = clip_object(data.records[0]), jnp.asarray(data.states[0, f])
     rc = PH.RefineConfig(fit_iters=2, iters=40, lr=1e-3)
     args = (H_hat, jnp.asarray(D_hat), obj, states, cfg)
     before = {k: float(v) for k, v in PH.energies_jit(jnp.asarray(noisy), *args).items()}
