@@ -87,11 +87,22 @@ def test_flops_match_xla():
     assert 2.5e7 < n < 3.5e7  # 8 layers x 512 wide: ~25M in the encoder, plus the in/out and condition MLPs
 
 
-def test_wrong_task_refused_in_one_line():
+def test_wrong_task_refused_in_one_line(tmp_path, capsys):
+    import json
+
+    from handx_jax.cli import main
+
     for fam, task in (("bimart", "text2motion"), ("diffusion", "object2motion"), ("bimart-contact", "object2motion")):
         with pytest.raises(ValueError) as e:
             check_task(fam, task)
         assert "\n" not in str(e.value) and fam in str(e.value)
+        run = tmp_path / fam
+        run.mkdir()
+        (run / "config.json").write_text(json.dumps({"family": fam}))
+        extra = ["--left", "a", "--right", "b", "--interaction", "c"] if task == "text2motion" else ["--data", "D"]
+        assert main(["generate", "--run", str(run), "--task", task, *extra, "--out", str(tmp_path / "g.npz")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and f"family {fam} does not do --task {task}" in err
     check_task("bimart", "object2motion")
 
 

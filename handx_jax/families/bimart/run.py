@@ -120,6 +120,31 @@ class BimArtRun:
                 "raw_joints": np.concatenate(out_raw).reshape(*shape, 2, 21, 3),
                 "contact": np.concatenate(out_c).reshape(*shape, 2, 2, m.k)}
 
+    def object_clips(self, data_dir, split: str = "test", limit: int | None = None, clip: str | None = None):
+        """The corpus clips ``handx generate --task object2motion`` generates for: ``clip`` (an index or id), or
+        the split's (the first ``limit``)."""
+        from handx_jax.dataset.format import Dataset
+
+        ds = Dataset.open(data_dir)
+        if clip is not None:
+            ids = list(ds.ids)
+            if clip in ids:
+                return np.asarray([ids.index(clip)])
+            if not clip.isdigit() or int(clip) >= len(ids):
+                raise DataError(f"--clip {clip!r}: neither a clip id nor an index below {len(ids)}", path=data_dir)
+            return np.asarray([int(clip)])
+        clips = np.asarray(ds.split(split))
+        if not len(clips):
+            raise DataError(f"the {split} split is empty", path=data_dir)
+        return clips[:limit] if limit else clips
+
+    def generate_objects(self, data_dir, clips, opts: GenerateOptions, *, samples: int = 1) -> dict:
+        """The arrays of an object2motion file (evaluation/object_clips.py) for corpus ``clips``."""
+        data = C.prepare(data_dir, clips, self.cfg.model, motion=False)
+        out = self.generate_clips(data, opts, samples=samples)
+        return {"joints": out["joints"], "object_state": data.states, "contact": out["contact"],
+                "bps_points": data.bps_points, "records": data.records}
+
     def generate(self, prompts, opts, *, samples: int = 1, task: str = "object2motion", sources=None, **kw):
         raise ValueError(f"the bimart family does not generate {task!r} from text: it generates hands for an object "
                          f"and its trajectory (--task object2motion with --data CORPUS --clip N)")
