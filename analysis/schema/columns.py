@@ -54,13 +54,19 @@ METRICS: tuple[str, ...] = (
     # BimArt §4: % of frames with inter-hand penetration > 1 cm, mean depth (mm), contact feasibility.
     "mpjpe_ra_left", "mpjpe_ra_right", "mpjpe_pa_left", "mpjpe_pa_right", "apd_left", "apd_right",
     "pen_1cm", "pen_depth", "contact_feasibility",
+    # BimArt §4 hand -> object (handx eval objects, metrics/objects.py): Pen 1cm / 5mm (% frames), Con, Art (%),
+    # part contact F1 against the ground truth, CM (cm), Mul (cm), Accel (m / frame²).
+    "obj_pen_1cm", "obj_pen_5mm", "obj_con", "obj_art", "obj_part_f1", "obj_cm_cm", "obj_mul_cm",
+    "obj_accel_m_per_frame2",
 )
 LOWER_IS_BETTER: frozenset[str] = frozenset({"fid", "mm_dist", "mpjpe", "mpjpe_ra_left", "mpjpe_ra_right",
-                                             "mpjpe_pa_left", "mpjpe_pa_right", "pen_1cm", "pen_depth"})
+                                             "mpjpe_pa_left", "mpjpe_pa_right", "pen_1cm", "pen_depth",
+                                             "obj_pen_1cm", "obj_pen_5mm", "obj_cm_cm"})
 # No direction: the best value is the one closest to the ground truth's (paper Tables 2/3).
 # Acceleration or jitter below the data's means over-smoothed motion, not better motion, so the best
 # value for them is also the one closest to the ground truth.
-CLOSEST_TO_GT: frozenset[str] = frozenset({"diversity", "multimodality", "acceleration", "jitter"})
+CLOSEST_TO_GT: frozenset[str] = frozenset({"diversity", "multimodality", "acceleration", "jitter",
+                                           "obj_accel_m_per_frame2"})
 GROUND_TRUTH = "ground_truth"
 # Rows that are not a model family's runs; the families themselves are the registry's
 # (handx_jax.families, a light module: no JAX is imported).

@@ -136,7 +136,9 @@ FAMILIES: dict[str, Family] = {
 }
 # A sweep's prediction scoring (``Family.sweep_task == "prediction"``): G-HTT's observation of 16 frames and
 # its K = 20 samples (§4.2).
-SWEEP_TASKS = ("text2motion", "prediction")
+# ``object2motion``: hands for a hand-object corpus split's objects and trajectories, scored by BimArt's metrics
+# (``handx eval objects``, RUN/eval_objects.json; no text evaluator).
+SWEEP_TASKS = ("text2motion", "prediction", "object2motion")
 PREDICTION_OBSERVED = 16
 PREDICTION_SAMPLES = 20
 
@@ -207,7 +209,7 @@ def sweep_task(name: str) -> str:
                          f"to a run as a shared step (sweeps.launcher.family_step), not as a sweep point")
     if fam.sweep_task not in SWEEP_TASKS or fam.sweep_task not in fam.tasks:
         raise ValueError(f"family {name} is scored in sweeps on {fam.sweep_task!r}, which it does not serve (it does "
-                         f"{', '.join(fam.tasks)}); sweeps score {' or '.join(SWEEP_TASKS)}")
+                         f"{', '.join(fam.tasks)}); sweeps score {', '.join(SWEEP_TASKS)}")
     return fam.sweep_task
 
 
