@@ -69,15 +69,15 @@ def prediction_columns(d: Path) -> dict:
 
 
 # BimArt's hand-object scores (``handx eval objects``), taken into the row of a run scored on object2motion.
-OBJECT_COLUMNS = ("obj_pen_1cm", "obj_pen_5mm", "obj_con", "obj_art", "obj_part_f1", "obj_cm_cm", "obj_mul_cm",
-                  "obj_accel_m_per_frame2")
 
 
 def object_columns(d: Path) -> dict:
     """A run folder's hand-object scores (``RUN/eval_objects.json``) as results columns; {} without one (NaN
     scores, e.g. Mul of one sample, are left out)."""
+    from analysis.schema.columns import OBJECT_METRICS
+
     doc = read_json_or_empty(d / "eval_objects.json")
-    return {c: float(doc[c]) for c in OBJECT_COLUMNS
+    return {c: float(doc[c]) for c in OBJECT_METRICS
             if isinstance(doc.get(c), (int, float)) and doc[c] == doc[c]}
 
 

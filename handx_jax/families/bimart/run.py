@@ -19,6 +19,7 @@ from handx_jax.families import generation_config, run_config
 from handx_jax.families.bimart import common as C
 from handx_jax.families.bimart import contact as CM
 from handx_jax.families.bimart import physics as PH
+from handx_jax.families.bimart.config import FAMILY, MotionRunConfig
 from handx_jax.families.diffusion.process import DiffusionConfig, sample
 from handx_jax.infra.errors import DataError
 from handx_jax.models import bimart as BM
@@ -161,7 +162,6 @@ class BimArtRun:
 
 
 def load(run_dir: str | os.PathLike, *, ema: bool = True, encoder=None, overrides: Sequence[str] = ()) -> BimArtRun:
-    from handx_jax.families.bimart import FAMILY, MotionRunConfig
     from handx_jax.train import load_params
 
     run_dir = Path(run_dir)
