@@ -79,6 +79,7 @@ def main(argv=None):
     err = {s: {"top": [], "bottom": [], "whole": [], "cover_top_mm": [], "cover_bottom_mm": [], "top_points": [], "bottom_points": []}
            for s in ("U-BPS", "PA-BPS", "P-BPS")}
     cats = {}
+    by_cat = {}
     for i in range(n):
         rec = ann["objects"][i]
         obj = clip_object(rec)
@@ -98,12 +99,15 @@ def main(argv=None):
                 err[scheme][f"cover_{name}_mm"].append(1000 * float(np.nanmean(cover)) if len(idx[p]) else np.nan)
                 err[scheme][name].append(100 * e[name])
             err[scheme]["whole"].append(100 * (e["top"] + e["bottom"]) / 2)
+            by_cat.setdefault(rec["category"], {}).setdefault(scheme, []).append(100 * e["top"])
             err[scheme]["top_points"].append(len(idx[TOP]))
             err[scheme]["bottom_points"].append(len(idx[BOTTOM]))
         cats[rec["category"]] = cats.get(rec["category"], 0) + 1
     rows = {s: {k: round(float(np.nanmean(v)), 4) for k, v in d.items()} for s, d in err.items()}
     doc = {"data": str(a.data), "clips": n, "k": a.k, "categories": cats, "contact_clip_m": CLIP_M,
-           "dense_samples_per_part": N_DENSE, "contact_map_error_cm_and_coverage": rows}
+           "dense_samples_per_part": N_DENSE, "contact_map_error_cm_and_coverage": rows,
+           "top_part_error_cm_by_category": {c: {s: round(float(np.mean(v)), 4) for s, v in d.items()}
+                                             for c, d in sorted(by_cat.items())}}
     print(json.dumps(doc, indent=1))
     if a.out:
         Path(a.out).write_text(json.dumps(doc, indent=1) + "\n")
