@@ -45,7 +45,11 @@ def main(argv=None):
     ap.add_argument("--split", default="test")
     ap.add_argument("--limit", type=int, default=8)
     ap.add_argument("--samples", type=int, default=2)
+    ap.add_argument("--batch-size", type=int, default=16, help="rows per compiled batch (one batch: fastest)")
     ap.add_argument("--variants", help="comma-separated subset of the variants (default: all)")
+    ap.add_argument("--strengths", help="comma-separated guidance strengths s: also 'contact map + guidance s' "
+                                        "variants (no refinement), the guidance scan")
+    ap.add_argument("--no-baselines", action="store_true", help="skip the untrained-weights row")
     ap.add_argument("--out")
     a = ap.parse_args(argv)
     run = load(a.run)
@@ -62,10 +66,13 @@ def main(argv=None):
                                                         "contact": gt_maps, "bps_points": data.bps_points,
                                                         "records": data.records}, gt)
     names = a.variants.split(",") if a.variants else list(VARIANTS)
+    for x in (a.strengths.split(",") if a.strengths else []):
+        VARIANTS[f"with contact map + guidance s={x}"] = dict(contact="generated", guidance=float(x), refine=False)
+        names.append(f"with contact map + guidance s={x}")
     seconds = {}
     for name in names:
         t0 = time.perf_counter()
-        out = run.generate_clips(data, GenerateOptions(**VARIANTS[name], batch_size=8), samples=a.samples)
+        out = run.generate_clips(data, GenerateOptions(**VARIANTS[name], batch_size=a.batch_size), samples=a.samples)
         seconds[name] = round(time.perf_counter() - t0, 1)
         table[name] = object_clips.score(_gen_doc(data, out, a.samples), gt)
         print(name, json.dumps({k: round(v, 4) for k, v in table[name].items()}), flush=True)
@@ -74,8 +81,9 @@ def main(argv=None):
     untrained = dataclasses.replace(run, params=BM.init(k1, run.cfg.model, "motion"),
                                     contact=dataclasses.replace(run.contact,
                                                                 params=BM.init(k2, run.contact.cfg.model, "contact")))
-    out = untrained.generate_clips(data, GenerateOptions(batch_size=8), samples=a.samples)
-    table["untrained weights, full pipeline"] = object_clips.score(_gen_doc(data, out, a.samples), gt)
+    if not a.no_baselines:
+        out = untrained.generate_clips(data, GenerateOptions(batch_size=a.batch_size), samples=a.samples)
+        table["untrained weights, full pipeline"] = object_clips.score(_gen_doc(data, out, a.samples), gt)
     doc = {"run": str(a.run), "step": run.step, "data": str(a.data), "split": a.split, "clips": [int(c) for c in clips],
            "samples": a.samples, "generation_seconds": seconds, "table": table}
     print(json.dumps(doc, indent=1))
