@@ -106,7 +106,7 @@ def _train_flops(run_dir) -> float | None:
 
 
 def add_train_args(p) -> None:
-    p.add_argument("--data", required=True, help="hand-object corpus (handx data objects)")
+    p.add_argument("--data", required=True, help="dataset: a hand-object corpus (handx data objects)")
     p.add_argument("--bimart-contact", required=True, metavar="CONTACT",
                    help="the trained contact generator (`handx train bimart-contact`)")
 

@@ -165,7 +165,7 @@ def load(run_dir, *, ema: bool = True, encoder=None, overrides: Sequence[str] = 
 
 
 def add_train_args(p) -> None:
-    p.add_argument("--data", required=True, help="hand-object corpus (handx data objects)")
+    p.add_argument("--data", required=True, help="dataset: a hand-object corpus (handx data objects)")
 
 
 def config_from_args(args) -> ContactRunConfig:
