@@ -6,8 +6,8 @@ on it. The registry says BimArt is scored on ``object2motion`` (``Family.sweep_t
 hands for the test split's objects and trajectories (``handx generate --task object2motion``), and ``handx eval
 objects`` puts Pen 1cm / 5mm, Con, Art, part F1, CM, Mul and Accel into the row. No text evaluator is read.
 
-    handx data objects --clips 2000 --out OBJ
-    handx sweep run sweeps/bimart_cpu_study.py --preset cpu --data OBJ --eval-limit 32 --eval-samples 2 --out S
+    handx data objects --clips 2000 --out D
+    handx sweep run sweeps/bimart_cpu_study.py --preset cpu --data D --eval-limit 32 --eval-samples 2 --out S
     handx analyze fit S/results.csv --x flops --y obj_art --plot S/fit.png
 
 ``cpu``: depth {1, 2, 4} × width {32, 64, 128} at four sizes (CPU_SIZES), the same steps for every size. ``tiny``:
