@@ -8,10 +8,12 @@ objects`` puts Pen 1cm / 5mm, Con, Art, part F1, CM, Mul and Accel into the row.
 
     handx data objects --clips 2000 --out D
     handx sweep run sweeps/bimart_cpu_study.py --preset cpu --data D --eval-limit 32 --eval-samples 2 --out S
-    handx analyze fit S/results.csv --x flops --y obj_art --plot S/fit.png
+    handx analyze fit S/results.csv --x compute --y obj_pen_1cm --plot S/fit.png
 
 ``cpu``: depth {1, 2, 4} × width {32, 64, 128} at four sizes (CPU_SIZES), the same steps for every size. ``tiny``:
-one size at a few steps (tests, smoke).
+one size at a few steps (tests, smoke). The committed sweep (docs/results/bimart/size_sweep/) ran the cpu preset
+with ``--arg steps=600 --arg 'sizes=[[1,32],[2,64],[3,96]]' --eval-limit 8 --eval-samples 2 --set
+sample.refine=false``.
 """
 
 from __future__ import annotations
