@@ -42,6 +42,9 @@ class BimArtConfig:
     hand_rep: str = "surface"
     steps: int = 50
     frames: int = FRAMES
+    # Tab. 3's "no object conditioning" control: the motion model's Z_o is zero (the contact model keeps E_o), so
+    # the hands see the object only through the contact embedding, and nothing at all in the null-token half.
+    object_condition: bool = True
 
 
 PRESETS: dict[str, BimArtConfig] = {
@@ -106,6 +109,8 @@ def denoise(p, cfg: BimArtConfig, x_t_BxFxX, t_B, obj_BxFxO, contact_BxFxC=None,
     B, F, _ = x_t_BxFxX.shape
     d = cfg.block.dim
     z = _run_mlp(p["obj"], obj_BxFxO)
+    if "con" in p and not cfg.object_condition:
+        z = jnp.zeros_like(z)
     if "con" in p:
         zc = _run_mlp(p["con"], contact_BxFxC)
         zc = jnp.where(null_B[:, None, None], p["null"], zc)
