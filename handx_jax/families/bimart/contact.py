@@ -130,13 +130,18 @@ class ContactRun:
     step: int
     tasks: tuple = ()  # a step, not a generator
 
+    model_doc: dict | None = None  # config.json's "model" as recorded (what the fingerprint hashes)
+
     @property
     def fingerprint(self) -> str:
-        """Hash of the configuration and parameters (what a motion run trained on it depends on)."""
+        """Hash of the recorded model configuration and the parameters (what a motion run trained on it depends
+        on). The recorded dict, not today's dataclass: a config field added later with its default must not
+        change the fingerprint of a run trained before it."""
         import hashlib
         import json
 
-        h = hashlib.sha256(json.dumps(to_dict(self.cfg.model), sort_keys=True).encode())
+        doc = self.model_doc if self.model_doc is not None else to_dict(self.cfg.model)
+        h = hashlib.sha256(json.dumps(doc, sort_keys=True).encode())
         for leaf in jax.tree_util.tree_leaves(self.params):
             h.update(np.ascontiguousarray(np.asarray(leaf, np.float32)).tobytes())
         return h.hexdigest()[:16]
@@ -155,9 +160,10 @@ class ContactRun:
 def load(run_dir, *, ema: bool = True, encoder=None, overrides: Sequence[str] = ()) -> ContactRun:
     from handx_jax.train import load_params
 
-    cfg = from_dict(ContactRunConfig, run_config(run_dir, FAMILY))
+    doc = run_config(run_dir, FAMILY)
+    cfg = from_dict(ContactRunConfig, doc)
     params, step = load_params(run_dir, ema=ema)
-    return ContactRun(Path(run_dir), cfg, params, step)
+    return ContactRun(Path(run_dir), cfg, params, step, model_doc=doc.get("model"))
 
 
 # ------------------------------------------------------------------------------------------------
