@@ -5,7 +5,7 @@ Objects"): two hands generated for a given articulated object and its trajectory
     handx train bimart-contact --data OBJ --preset tiny --out CONTACT           # §3.2, the contact generator
     handx train bimart --data OBJ --bimart-contact CONTACT --preset tiny --out RUN
     handx generate --run RUN --task object2motion --data OBJ --clip 3 --out gen.npz
-    handx eval objects --gen gen.npz                                             # Pen, Con, Art, Mul, ...
+    handx eval objects --generated gen.npz                                       # Pen, Con, Art, Mul, ...
 
 Why two runs: the contact model is trained alone (§3.2) and one serves every motion run trained on it, so it is
 a shared step the registry names (``Family.needs``), as G-HTT's pose block is.
