@@ -68,6 +68,19 @@ def prediction_columns(d: Path) -> dict:
     return out
 
 
+# BimArt's hand-object scores (``handx eval objects``), taken into the row of a run scored on object2motion.
+
+
+def object_columns(d: Path) -> dict:
+    """A run folder's hand-object scores (``RUN/eval_objects.json``) as results columns; {} without one (NaN
+    scores, e.g. Mul of one sample, are left out)."""
+    from analysis.schema.columns import OBJECT_METRICS
+
+    doc = read_json_or_empty(d / "eval_objects.json")
+    return {c: float(doc[c]) for c in OBJECT_METRICS
+            if isinstance(doc.get(c), (int, float)) and doc[c] == doc[c]}
+
+
 def result_row(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | None = None) -> dict:
     from analysis.schema import column_by_name, row_from_run_dir, validate_row
 
@@ -85,6 +98,7 @@ def result_row(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | 
     else:
         row = {"run_id": spec.name, "family": spec.family}
     row.update(prediction_columns(d))
+    row.update(object_columns(d))
     row["run_id"] = spec.name
     known = column_by_name()
     for k, v in spec.axes.items():

@@ -46,10 +46,20 @@ def stage_state(cfg: SweepConfig, spec: RunSpec) -> dict[str, bool]:
              "evaluate": (d / "eval.json").exists() and stale is None}
     if _predicts(spec):  # scored by the prediction benchmark as well (Family.sweep_task)
         state["predict"] = (d / PREDICTION_FILE).exists()
+    if _objects(spec):  # scored by BimArt's metrics, not the text evaluator
+        state = {"train": state["train"], "generate": (d / OBJECT_GENERATED).exists(),
+                 "evaluate": (d / OBJECT_SCORES).exists()}
     return state
 
 
 PREDICTION_FILE = "eval_prediction.json"  # evaluation.prediction.RESULT_FILE (not imported: it pulls in JAX)
+
+
+OBJECT_GENERATED, OBJECT_SCORES = "generated_objects.npz", "eval_objects.json"
+
+
+def _objects(spec: RunSpec) -> bool:
+    return bool(spec.family) and _sweep_task(spec.family) == "object2motion"
 
 
 def _predicts(spec: RunSpec) -> bool:
@@ -148,6 +158,8 @@ def stale_scores(cfg: SweepConfig, d: Path) -> str | None:
 
 def is_complete(cfg: SweepConfig, spec: RunSpec) -> bool:
     st = stage_state(cfg, spec)
+    if _objects(spec):
+        return st["train"] and st["evaluate"]
     return st["train"] and (not cfg.evaluator or (st["evaluate"] and st.get("predict", True)))
 
 
@@ -357,7 +369,17 @@ def run_one(spec: RunSpec, cfg: SweepConfig) -> dict[str, bool]:
                                *needs, *_subst(spec.args, mapping), *sets, "--out", str(d), "--quiet"], {})
             stage("train", argv)
             atomic_write_json(d / "train_done.json", {"spec": dataclasses.asdict(spec)})
-        if cfg.evaluator:
+        if _objects(spec):  # the corpus split's objects and trajectories → hands, scored by BimArt's metrics
+            if not state["generate"]:
+                stage("generate", _subst(["handx", "generate", "--run", str(d), "--task", "object2motion", "--data",
+                                          cfg.data, "--split", cfg.eval_split, "--limit", str(cfg.eval_limit),
+                                          "--samples", str(cfg.eval_samples),
+                                          *(a for o in generate_settings(cfg, spec) for a in ("--set", o)),
+                                          "--out", str(d / OBJECT_GENERATED)], {}))
+            if not state["evaluate"]:
+                stage("evaluate", _subst(["handx", "eval", "objects", "--generated", str(d / OBJECT_GENERATED),
+                                          "--json", "--out", str(d / OBJECT_SCORES)], {}))
+        elif cfg.evaluator:
             stale = stale_scores(cfg, d)
             if stale and (d / "eval.json").exists():
                 # Keep the old yardstick's scores beside the new ones (nothing written is lost).

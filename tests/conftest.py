@@ -55,7 +55,7 @@ HEAVY_FIRST = ("test_first_hour.py", "test_slurm.py", "test_ghtt.py", "test_obje
                "test_generate.py", "test_notebooks.py", "test_prediction.py", "test_reverse.py",
                "test_ar_family.py", "test_sweeps.py", "test_diffusion_train.py", "test_dit.py",
                "test_dataset_build.py", "test_text_cache.py", "test_prefix_lm.py", "test_standard.py", "test_fsq.py",
-               "test_diffusion_sampler.py", "test_text_pretrain.py", "test_family_registry.py", "test_interop.py",
+               "test_diffusion_sampler.py", "test_text_pretrain.py", "test_family_registry.py", "test_bimart.py", "test_interop.py",
                "test_train.py", "test_text_t5.py", "test_metrics.py", "test_perf_paths.py", "test_benchmarks.py",
                "test_distributed.py")
 

@@ -55,12 +55,18 @@ METRICS: tuple[str, ...] = (
     "mpjpe_ra_left", "mpjpe_ra_right", "mpjpe_pa_left", "mpjpe_pa_right", "apd_left", "apd_right",
     "pen_1cm", "pen_depth", "contact_feasibility",
 )
+# BimArt §4 hand -> object, scored by ``handx eval objects`` (metrics/objects.py), not by the evaluator: Pen 1cm /
+# 5mm (% frames), Con, Art (%), part contact F1 against the ground truth, CM (cm), Mul (cm), Accel (m / frame²).
+OBJECT_METRICS: tuple[str, ...] = ("obj_pen_1cm", "obj_pen_5mm", "obj_con", "obj_art", "obj_part_f1", "obj_cm_cm",
+                                   "obj_mul_cm", "obj_accel_m_per_frame2")
 LOWER_IS_BETTER: frozenset[str] = frozenset({"fid", "mm_dist", "mpjpe", "mpjpe_ra_left", "mpjpe_ra_right",
-                                             "mpjpe_pa_left", "mpjpe_pa_right", "pen_1cm", "pen_depth"})
+                                             "mpjpe_pa_left", "mpjpe_pa_right", "pen_1cm", "pen_depth",
+                                             "obj_pen_1cm", "obj_pen_5mm", "obj_cm_cm"})
 # No direction: the best value is the one closest to the ground truth's (paper Tables 2/3).
 # Acceleration or jitter below the data's means over-smoothed motion, not better motion, so the best
 # value for them is also the one closest to the ground truth.
-CLOSEST_TO_GT: frozenset[str] = frozenset({"diversity", "multimodality", "acceleration", "jitter"})
+CLOSEST_TO_GT: frozenset[str] = frozenset({"diversity", "multimodality", "acceleration", "jitter",
+                                           "obj_accel_m_per_frame2"})
 GROUND_TRUTH = "ground_truth"
 # Rows that are not a model family's runs; the families themselves are the registry's
 # (handx_jax.families, a light module: no JAX is imported).
@@ -122,6 +128,7 @@ SHARED_COLUMNS: tuple[Column, ...] = (
     Column("evaluator_id", str, "identity of the scoring evaluator's weights and config "
            "(handx_jax.evaluation.evaluator_id); rows with different ids are on different yardsticks"),
     *_metric_columns(),
+    *(Column(m, float, f"hand-object metric {m} (handx eval objects)") for m in OBJECT_METRICS),
     # Provenance of a launcher row (sweeps/launcher.py).
     Column("sweep", str, "sweep name"),
     Column("status", str, "launcher status: done | trained | failed | running | pending"),

@@ -287,6 +287,36 @@ def _prediction_evaluator(name: str, encoder, ds):
     return named.load(encoder=None if named.standard else encoder), named.reference_cache()
 
 
+def _objects(args) -> int:
+    from pathlib import Path
+
+    import numpy as np
+
+    from handx_jax.commands import fail
+    from handx_jax.evaluation import object_clips
+
+    try:
+        gen = object_clips.read(args.generated)
+        gt = None
+        if gen["source"] and Path(gen["source"]).exists():
+            from handx_jax.dataset.format import Dataset
+
+            gt = np.asarray(Dataset.open(gen["source"]).motion[gen["clips"]], np.float32)
+        scores = object_clips.score(gen, gt)
+    except ValueError as e:
+        return fail("handx eval objects", e)
+    if args.out:
+        out = Path(args.out)
+        out = out / "eval_objects.json" if out.is_dir() else out
+        out.write_text(json.dumps(scores, indent=1) + "\n")
+    if args.json:
+        print(json.dumps(scores))
+    else:
+        for k, v in scores.items():
+            print(f"{k:28s} {v:.4g}" if isinstance(v, float) else f"{k:28s} {v}")
+    return 0
+
+
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser("eval", help="Table 2 metrics of generated motion; motion prediction",
                               description="Score generated motion (Table 2) and motion prediction; the evaluator "
@@ -328,6 +358,15 @@ def add_parser(subparsers) -> None:
     r.add_argument("--json", action="store_true", help="print {metric: mean, metric_ci: half-width} as JSON")
     r.add_argument("--out", help="run folder: also write RUN_DIR/eval.json")
     r.set_defaults(func=_run)
+
+    o = sub.add_parser("objects", help="BimArt's hand-object metrics of generated clips (--task object2motion)",
+                       description="Score a hand-object generation (`handx generate --task object2motion`) with "
+                                   "BimArt's metrics (handx_jax/evaluation/object_clips.py): Pen 1cm/5mm, Con, Art, "
+                                   "Accel, CM, Mul, and the part contact F1 against the corpus's ground truth.")
+    o.add_argument("--generated", required=True, help="the .npz handx generate --task object2motion wrote")
+    o.add_argument("--out", help="also write this JSON file (a run folder: RUN/eval_objects.json)")
+    o.add_argument("--json", action="store_true", help="print the scores as JSON")
+    o.set_defaults(func=_objects)
 
     q = sub.add_parser("prediction", help="motion prediction by horizon: MPJPE-RA/-PA and APD (G-HTT)",
                        description="Observe the first N frames of each clip of a split, let the run (any family) "

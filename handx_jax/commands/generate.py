@@ -119,6 +119,21 @@ def _generate(args: argparse.Namespace) -> int:
     keyframes = tuple(int(k) for k in args.keyframes.split(",")) if args.keyframes else (30,)
     t0 = time.perf_counter()
     G = args.samples
+    if args.task == "object2motion":  # an object and its trajectory from a hand-object corpus, not a prompt
+        if prompts or not args.data:
+            return fail(CMD, "--task object2motion takes its objects and trajectories from a hand-object corpus: "
+                             "give --data CORPUS (and --split/--limit, or --clip N), no prompts")
+        from handx_jax.evaluation import object_clips
+
+        try:
+            clips = run.object_clips(args.data, args.split, args.limit, args.clip)
+            out = run.generate_objects(args.data, clips, opts, samples=G)
+        except ValueError as e:
+            return fail(CMD, e)
+        object_clips.write(args.out, **out, clips=clips, source=str(args.data))
+        print(f"wrote {args.out}: {len(clips) * G} motion(s) of {len(clips)} object trajectories, task "
+              f"{args.task}, {run.describe(opts)}, {time.perf_counter() - t0:.1f} s")
+        return 0
     if args.data:
         if prompts:
             return fail(CMD, "--data takes its prompts from the dataset; drop --left/--right/...")

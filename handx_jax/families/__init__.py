@@ -128,10 +128,17 @@ FAMILIES: dict[str, Family] = {
                         results=False, tasks=()),
     "ghtt": Family("handx_jax.families.ghtt", "G-HTT: the action block A over a trained P (prediction, recognition)",
                    encoder=True, needs=("ghtt-pose",), tasks=("prediction", "recognition"), sweep_task="prediction"),
+    "bimart-contact": Family("handx_jax.families.bimart.contact",
+                             "BimArt's contact-map generator (§3.2), the step a BimArt run is trained from",
+                             results=False, tasks=()),
+    "bimart": Family("handx_jax.families.bimart", "BimArt: two hands for an articulated object's trajectory (§3.3-3.4)",
+                     needs=("bimart-contact",), tasks=("object2motion",), sweep_task="object2motion"),
 }
 # A sweep's prediction scoring (``Family.sweep_task == "prediction"``): G-HTT's observation of 16 frames and
 # its K = 20 samples (§4.2).
-SWEEP_TASKS = ("text2motion", "prediction")
+# ``object2motion``: hands for a hand-object corpus split's objects and trajectories, scored by BimArt's metrics
+# (``handx eval objects``, RUN/eval_objects.json; no text evaluator).
+SWEEP_TASKS = ("text2motion", "prediction", "object2motion")
 PREDICTION_OBSERVED = 16
 PREDICTION_SAMPLES = 20
 
@@ -202,7 +209,7 @@ def sweep_task(name: str) -> str:
                          f"to a run as a shared step (sweeps.launcher.family_step), not as a sweep point")
     if fam.sweep_task not in SWEEP_TASKS or fam.sweep_task not in fam.tasks:
         raise ValueError(f"family {name} is scored in sweeps on {fam.sweep_task!r}, which it does not serve (it does "
-                         f"{', '.join(fam.tasks)}); sweeps score {' or '.join(SWEEP_TASKS)}")
+                         f"{', '.join(fam.tasks)}); sweeps score {', '.join(SWEEP_TASKS)}")
     return fam.sweep_task
 
 
