@@ -38,3 +38,14 @@ def test_frames_move_the_hands_over_one_background(tmp_path):
     assert all(changed(bottom[0], b) == 0 for b in bottom[1:])
     top = [f[: int(0.05 * h)] for f in frames]  # the frame counter ("frame t/T") changes with every frame
     assert all(changed(a, b) > 3 for a, b in zip(top, top[1:]))
+
+
+def test_stills_sheet_puts_the_chosen_frames_side_by_side(tmp_path):
+    """Each still is its own frame of the GIF (a known answer: frame f painted grey level 5·f), in order."""
+    from handx_jax.dataset.render import stills_sheet
+
+    frames = [Image.new("RGB", (6, 4), (5 * f, 5 * f, 5 * f)) for f in range(50)]
+    frames[0].save(tmp_path / "c.gif", save_all=True, append_images=frames[1:], duration=40)
+    sheet = stills_sheet(tmp_path / "c.gif", (0, 15, 45))
+    assert sheet.size == (18, 4)
+    assert [sheet.getpixel((6 * k + 3, 2))[0] for k in range(3)] == [0, 75, 225]

@@ -147,3 +147,20 @@ def render_frame_png(joints_Tx2x21x3: np.ndarray, frame: int, out: str | os.Path
     fig.savefig(buf, format="png", dpi=kw.get("dpi", 100), bbox_inches="tight")
     plt.close(fig)
     return atomic_write_bytes(out, buf.getvalue())
+
+
+def stills_sheet(gif: str | os.PathLike, frames: tuple[int, ...] = (0, 15, 30, 45)):
+    """The GIF's ``frames`` side by side on one white sheet (a PIL image): a rendered clip read at a glance, as
+    the results folders show theirs (docs/results/objects/, docs/results/bimart/)."""
+    from PIL import Image
+
+    im = Image.open(gif)
+    stills = []
+    for f in frames:
+        im.seek(f)
+        stills.append(im.convert("RGB").copy())
+    w, h = stills[0].size
+    sheet = Image.new("RGB", (w * len(stills), h), "white")
+    for k, still in enumerate(stills):
+        sheet.paste(still, (k * w, 0))
+    return sheet

@@ -10,9 +10,8 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
-from handx_jax.dataset.render import render_gif
+from handx_jax.dataset.render import render_gif, stills_sheet
 from handx_jax.families.bimart import GenerateOptions, load
 from handx_jax.families.bimart import common as C
 from handx_jax.synthesis.object_build import clip_object
@@ -21,17 +20,8 @@ from handx_jax.synthesis.object_render import object_scene
 STILLS = (0, 15, 30, 45)
 
 
-def _stills(gif: Path) -> Image.Image:
-    im = Image.open(gif)
-    frames = []
-    for f in STILLS:
-        im.seek(f)
-        frames.append(im.convert("RGB").copy())
-    w, h = frames[0].size
-    sheet = Image.new("RGB", (w * len(frames), h), "white")
-    for k, fr in enumerate(frames):
-        sheet.paste(fr, (k * w, 0))
-    return sheet
+def _stills(gif: Path):
+    return stills_sheet(gif, STILLS)
 
 
 def main(argv=None):

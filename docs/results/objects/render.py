@@ -8,9 +8,8 @@ Each GIF is what ``handx data show --data DATASET --clip ID --out X.gif`` writes
 import sys
 from pathlib import Path
 
-from PIL import Image
-
 from handx_jax.dataset.format import Dataset
+from handx_jax.dataset.render import stills_sheet
 from handx_jax.synthesis.object_build import open_object_annotations
 from handx_jax.synthesis.object_render import render_object_clip
 
@@ -32,15 +31,7 @@ def main(data, out_dir):
         gif = out / f"{r['category']}_{r['program']}.gif"
         render_object_clip(data, i, gif, texts=(t["left"][0], t["right"][0], t["interaction"][0]), title=t["id"],
                            dpi=60)
-        im = Image.open(gif)
-        frames = []
-        for f in STILLS:
-            im.seek(f)
-            frames.append(im.convert("RGB").copy())
-        w, h = frames[0].size
-        sheet = Image.new("RGB", (w * len(frames), h), "white")
-        for k, fr in enumerate(frames):
-            sheet.paste(fr, (k * w, 0))
+        sheet = stills_sheet(gif, STILLS)
         sheet.save(out / f"{r['category']}_{r['program']}_frames.png")
         print(gif, r["id"], r.get("use"), [h["template"] for h in r["hands"]])
 
