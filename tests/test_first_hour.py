@@ -114,7 +114,9 @@ def run_block(workdir: Path, log: Path) -> None:
             return
 
 
-def _level0(flags: str) -> str:
+def level0(flags: str) -> str:
+    """``XLA_FLAGS`` with LLVM -O0 in place of the session's level, for processes that only compile and run a
+    few steps (this block's child; test_ghtt's sweep stages)."""
     flags = re.sub(r"--xla_backend_optimization_level=\d+", "", flags)
     return (flags + " --xla_backend_optimization_level=0").strip()
 
@@ -130,7 +132,7 @@ def test_the_first_hour_runs_as_written(tmp_path):
     log = tmp_path / "commands.jsonl"
     # As a user pastes it: no compilation cache named (the sweep's stages then share OUT/jax_cache).
     env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
-    env.update(HANDX_CACHE_DIR=str(tmp_path / "cache"), XLA_FLAGS=_level0(os.environ.get("XLA_FLAGS", "")))
+    env.update(HANDX_CACHE_DIR=str(tmp_path / "cache"), XLA_FLAGS=level0(os.environ.get("XLA_FLAGS", "")))
     p = subprocess.run([sys.executable, __file__, str(tmp_path), str(log)], env=env, capture_output=True, text=True)
     done = [json.loads(x) for x in log.read_text().splitlines()] if log.exists() else []
     failed = [d for d in done if d["rc"] != 0]

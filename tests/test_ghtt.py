@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 from pathlib import Path
 
 import jax
@@ -146,8 +145,9 @@ def test_registry_declares_tasks_and_the_launcher_refuses_a_step_as_a_point(tmp_
 def test_real_tiny_ghtt_sweep_scored_on_prediction(tmp_path, capsys, monkeypatch):
     # The stages (subprocesses) compile at LLVM -O0: each trains or samples a few steps, so compiling is
     # their cost, and -O0 compiles faster (the maths is the same; tests/test_first_hour.py says more).
-    flags = re.sub(r"--xla_backend_optimization_level=\d+", "", os.environ.get("XLA_FLAGS", ""))
-    monkeypatch.setenv("XLA_FLAGS", (flags + " --xla_backend_optimization_level=0").strip())
+    from test_first_hour import level0
+
+    monkeypatch.setenv("XLA_FLAGS", level0(os.environ.get("XLA_FLAGS", "")))
     from analysis.tables import render_table
     from sweeps.launcher import SweepConfig, launch, load_sweep
 
