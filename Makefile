@@ -110,7 +110,8 @@ test: $(STAMP)
 standard-assets: $(STAMP)
 	PY=$(BIN)/python scripts/build_standard.sh $(STANDARD_WORK)
 
-# Standard evaluator v8 (issue 55): v7's recipe on corpus v5 with hard negatives (scripts/build_standard_v8.sh).
+# Standard evaluator v8 (issue 55), the packaged one: v7's recipe on corpus v5 with hard negatives, and v7's text
+# encoder (scripts/build_standard_v8.sh; standard-assets with ENCODER unset trains a new tokenizer and T5).
 standard-assets-v8: $(STAMP)
 	PY=$(BIN)/python scripts/build_standard_v8.sh $(STANDARD_WORK)-v8
 

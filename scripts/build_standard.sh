@@ -12,7 +12,7 @@
 # ENCODER (a T5 encoder folder to reuse instead of training a tokenizer and a tiny T5; v4 reuses v3's, the
 # packaged one: ENCODER=handx_jax/assets/standard/encoder), T5_STEPS (0 = the tiny preset's 2000), NICE (0),
 # PY (python3), HARD_NEGATIVES (validity.perturb edits taken as negatives of a clip's own caption, comma-separated;
-# v8 swap_hands,swap_fingers, empty before), CORPUS and STANDARD_VERSION (a named corpus version, standard.CORPUS_VERSIONS,
+# default v8's swap_hands,swap_fingers; set it empty for v7 and before), CORPUS and STANDARD_VERSION (a named corpus version, standard.CORPUS_VERSIONS,
 # and the version the card says, for the next evaluator before the code names it the standard one; default the
 # code's recipe and standard.VERSION). scripts/build_standard_v8.sh is this with v8's knobs. The recipe itself
 # (clip count, seed, generator version) is handx_jax.standard.Recipe: change it there and bump standard.VERSION,
@@ -34,7 +34,7 @@ WARMUP=${WARMUP:-300}
 DROPOUT=${DROPOUT:-0.0}
 PRESET=${PRESET:-small}
 T5_STEPS=${T5_STEPS:-0}
-HARD_NEGATIVES=${HARD_NEGATIVES:-}
+HARD_NEGATIVES=${HARD_NEGATIVES-swap_hands,swap_fingers}  # unset: v8's; HARD_NEGATIVES= (empty): none, as v7
 CORPUS=${CORPUS:-}
 H=(nice -n "${NICE:-0}" "$PY" -m handx_jax)
 mkdir -p "$WORK"

@@ -252,3 +252,23 @@ def test_decoder_uses_its_codes(fitted_8):
     assert shuffled > 3 * own, (own, shuffled)
     const = jnp.full_like(idx, int(idx[0, 0]))
     assert mpjpe(const) > 3 * own
+
+
+def test_dead_decoder_is_said_at_evaluation(fitted_8, capsys):
+    """The collapse v8's `small` tokenizer hit at warm-up 100 (tokenizer.SMALL_TRAIN): the decoder's last ReLU
+    negative on every channel, so the decoder puts out its output bias whatever the codes. The evaluation hook
+    says so on stderr once past COLLAPSE_AFTER steps, and says nothing for the fitted tokenizer."""
+    from handx_jax.families import tokenizer as T
+
+    norm, x, _, _, params = fitted_8
+    evaluate = T.make_evaluate(MODEL, CFG, np.asarray(x), norm)
+    live = evaluate(params, None, T.COLLAPSE_AFTER)
+    assert "warning" not in capsys.readouterr().err
+    dead = jax.tree_util.tree_map(lambda a: a, params)
+    dead["params"]["decoder"]["conv_mid"]["bias"] = jnp.full_like(dead["params"]["decoder"]["conv_mid"]["bias"], -1e4)
+    row = evaluate(dead, None, T.COLLAPSE_AFTER)
+    err = capsys.readouterr().err
+    assert row["eval/mpjpe_vs_mean_pose"] > T.COLLAPSE_RATIO > live["eval/mpjpe_vs_mean_pose"], (row, live)
+    assert f"tokenizer at step {T.COLLAPSE_AFTER} reconstructs no better than the mean pose" in err
+    evaluate(dead, None, T.COLLAPSE_AFTER - 1)  # before the mark: early weights may still sit at the mean
+    assert "warning" not in capsys.readouterr().err

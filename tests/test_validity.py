@@ -297,49 +297,54 @@ def test_training_augmentation_is_finger_only_bounded_and_resumable():
 
 
 def test_standard_evaluators_by_id_and_the_recipe_each_accepts(tmp_path):
-    """v7 is the packaged standard evaluator; v4, v5 and v6 stay loadable as `standard-v4` … `standard-v6` (old
+    """v8 is the packaged standard evaluator; v4 ... v7 stay loadable as `standard-v4` ... `standard-v7` (old
     numbers re-scored), and each accepts only prefixes of its own recipe: v4 the reference reading, v5 the
-    stable one, v6 the gist reading on transition motion (corpus v3), v7 on chain motion (corpus v4). v6's
-    acceptance of a corpus-v3 prefix built by this code also says corpus v3 is unchanged (its test captions and
-    motion moments against v6's manifest)."""
+    stable one, v6 the gist reading on transition motion (corpus v3), v7 on chain motion (corpus v4), v8 the
+    surface reading on surface motion (corpus v5). v6's and v7's acceptance of corpus-v3 and corpus-v4 prefixes
+    built by this code also says those corpora are unchanged (their test captions and motion moments against
+    each version's manifest)."""
     from handx_jax.infra.errors import DataError
 
-    assert standard.VERSION == 7
-    assert (standard.code_recipe().annotation, standard.code_recipe().motion) == ("gist", "chain")
+    assert standard.VERSION == 8
+    assert (standard.code_recipe().annotation, standard.code_recipe().motion) == ("surface", "surface")
     named = standard.resolve_evaluator
-    v4, v5, v6 = (named(f"standard-v{v}").assets for v in (4, 5, 6))
-    assert (v4, v5, v6) == (standard.archived(4), standard.archived(5), standard.archived(6))
+    v4, v5, v6, v7 = (named(f"standard-v{v}").assets for v in (4, 5, 6, 7))
+    assert (v4, v5, v6, v7) == tuple(standard.archived(v) for v in (4, 5, 6, 7))
     assert v4.parent == standard.ARCHIVE and standard.ARCHIVE.parent == standard.ASSETS.parents[2]  # out of the package
-    assert [standard.verify_assets(v)["version"] for v in (v4, v5, v6)] == [4, 5, 6]
-    assert named(None).assets == named("standard").assets == named("standard-v7").assets == standard.ASSETS
+    assert [standard.verify_assets(v)["version"] for v in (v4, v5, v6, v7)] == [4, 5, 6, 7]
+    assert named(None).assets == named("standard").assets == named("standard-v8").assets == standard.ASSETS
     assert named(standard.evaluator_dir(v4)).assets == v4 and named(v5).standard and named("standard-v5").name == "standard-v5"
-    with pytest.raises(DataError, match="no such standard evaluator; at hand: standard-v4, standard-v5, standard-v6, standard-v7"):
+    with pytest.raises(DataError, match="no such standard evaluator; at hand: standard-v4, standard-v5, standard-v6, "
+                                        "standard-v7, standard-v8"):
         named("standard-v9")
     assert standard.reference_cache_dir(v4).parent.name == "standard-v4"
-    assert standard.reference_cache_dir().parent.name == "standard-v7"
+    assert standard.reference_cache_dir().parent.name == "standard-v8"
     old = standard.Recipe.from_card(standard.read_card(v4)["recipe"])
     assert (old.annotation, old.motion) == ("reference", "oscillate")  # v4's card predates both fields
     mid = standard.Recipe.from_card(standard.read_card(v5)["recipe"])
     assert (mid.annotation, mid.motion) == ("stable", "oscillate")  # v5's predates the motion
     v3 = standard.Recipe.from_card(standard.read_card(v6)["recipe"])
     assert (v3.annotation, v3.motion) == ("gist", "transition")
-    p1 = standard.build_standard_corpus(tmp_path / "v1", 120, recipe=dataclasses.replace(old, clips=120000),
-                                        assets=tmp_path / "none", workers=1, progress=False)
-    p3 = standard.build_standard_corpus(tmp_path / "v3", 120, recipe=v3, assets=tmp_path / "none", workers=1,
-                                        progress=False)
-    p4 = standard.build_standard_corpus(tmp_path / "v4", 120, workers=1, progress=False)
-    d1, d3, d4 = Dataset.open(p1), Dataset.open(p3), Dataset.open(p4)
-    assert standard.recipe_of(d4)[0] == dataclasses.replace(standard.code_recipe(), clips=120)
-    assert standard.check_reference(d1, assets=v4)["prefix"] and standard.check_reference(d4)["prefix"]
-    assert standard.check_reference(d3, assets=v6)["prefix"]
+    c4 = standard.Recipe.from_card(standard.read_card(v7)["recipe"])
+    assert c4 == standard.corpus_recipe("v4") and (c4.annotation, c4.motion) == ("gist", "chain")
+    build = lambda name, recipe: standard.build_standard_corpus(  # noqa: E731
+        tmp_path / name, 120, recipe=recipe, assets=tmp_path / "none", workers=1, progress=False)
+    p1, p3, p4 = build("v1", dataclasses.replace(old, clips=120000)), build("v3", v3), build("v4", c4)
+    p5 = standard.build_standard_corpus(tmp_path / "v5", 120, workers=1, progress=False)
+    d1, d3, d4, d5 = (Dataset.open(p) for p in (p1, p3, p4, p5))
+    assert standard.recipe_of(d5)[0] == dataclasses.replace(standard.code_recipe(), clips=120)
+    assert standard.check_reference(d1, assets=v4)["prefix"] and standard.check_reference(d5)["prefix"]
+    assert standard.check_reference(d3, assets=v6)["prefix"] and standard.check_reference(d4, assets=v7)["prefix"]
     # A prefix of another packaged version's recipe is refused, naming the evaluator that scores it.
     with pytest.raises(DataError, match="build option.*recipe of standard evaluator v4: score it with --evaluator standard-v4"):
-        standard.check_reference(d1)  # a corpus-v1 prefix is not v7's recipe
+        standard.check_reference(d1)  # a corpus-v1 prefix is not v8's recipe
     with pytest.raises(DataError, match="build option.*recipe of standard evaluator v6: score it with --evaluator standard-v6"):
         standard.check_reference(d3)
-    for assets in (v4, v5, v6):
-        with pytest.raises(DataError, match="build option.*score it with --evaluator standard-v7"):
-            standard.check_reference(d4, assets=assets)
+    with pytest.raises(DataError, match="build option.*recipe of standard evaluator v7: score it with --evaluator standard-v7"):
+        standard.check_reference(d4)
+    for assets in (v4, v5, v6, v7):
+        with pytest.raises(DataError, match="build option.*score it with --evaluator standard-v8"):
+            standard.check_reference(d5, assets=assets)
 
 
 def test_order_test_scores_a_reader_of_order_one_and_a_blind_one_zero():

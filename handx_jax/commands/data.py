@@ -49,10 +49,10 @@ def add_parser(subparsers) -> None:
                                    "(paper A.3-A.4), annotate them (App. B) and write a dataset.",
                        epilog="Cut report: " + defect_reasons_help())
     _build_args(s)
-    # The defaults build the standard corpus's recipe (corpus v4, standard.Recipe; issue 51 item 3): with the
-    # default seed and fractions, the first --clips clips of the standard corpus, a prefix `handx standard
-    # check` accepts. The older readings and motions stay by name for the committed results that used them;
-    # 'surface' is corpus v5 (issue 55), which no packaged evaluator scores yet.
+    # The defaults build the standard corpus's recipe (corpus v5, standard.Recipe; issues 51 item 3, 55): with
+    # the default seed and fractions, the first --clips clips of the standard corpus, a prefix `handx standard
+    # check` accepts. The older readings and motions stay by name for the committed results that used them
+    # (corpus v4, 'gist' on 'chain', is the archived evaluator v7's: --evaluator standard-v7).
     s.add_argument("--annotation", default=STANDARD_ANNOTATION, choices=("reference", "stable", "gist", "surface"),
                    help=f"annotation reading (default {STANDARD_ANNOTATION!r}, the standard corpus's): 'gist' (stable, "
                         "plus each finger's curl swings, which level 0 says; corpora v3-v4), 'surface' (gist, with the "

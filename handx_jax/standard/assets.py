@@ -11,13 +11,13 @@ from handx_jax.infra.checksums import sha256_file, verify_checksum
 from handx_jax.infra.errors import DataError
 from handx_jax.infra.readers import read_json
 
-VERSION = 7  # of the packaged assets; bumped whenever the recipe or any weight changes
+VERSION = 8  # of the packaged assets; bumped whenever the recipe or any weight changes
 ASSETS = Path(__file__).resolve().parent.parent / "assets" / "standard"  # handx_jax/assets/standard
 CARD_JSON, CARD_MD, MANIFEST = "card.json", "CARD.md", "test_manifest.npz"
 CARD_SHA = CARD_JSON + ".sha256"  # infra.checksums.write_checksum's sidecar: the card's own checksum
 ENCODER_DIR, EVALUATOR_DIR = "encoder", "evaluator"
 NAME = "standard"  # `handx eval run --evaluator standard` (the default)
-# The earlier standard evaluators (v4-v6), out of the package (issue 51 item 4): a clone's evaluators/ folder,
+# The earlier standard evaluators (v4-v7), out of the package (issue 51 item 4): a clone's evaluators/ folder,
 # beside handx_jax/. From an installed wheel it does not exist, and their names say where to find them.
 ARCHIVE = Path(__file__).resolve().parents[2] / "evaluators"
 

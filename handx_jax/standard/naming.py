@@ -3,7 +3,7 @@ with :func:`resolve_evaluator`, before any training, generation or scoring start
 
 A value is one of
 
-    (omitted), standard, standard-v7   the packaged standard evaluator (handx_jax/assets/standard/)
+    (omitted), standard, standard-v8   the packaged standard evaluator (handx_jax/assets/standard/)
     standard-vN                         an earlier standard evaluator, in a clone's evaluators/standard-vN/
     a path                              an evaluator folder (``handx train evaluator`` or ``handx import
                                         handx-evaluator``), or a standard evaluator's assets folder or its
@@ -11,7 +11,7 @@ A value is one of
 
 A path that is not an evaluator is refused in one line that says what it is (a dataset, a training run of a
 model family, an evaluator whose training has not finished). :meth:`Evaluator.check_data` is the one place
-where a dataset–evaluator pair is refused (a corpus-v3 prefix under v7, a v4 prefix under standard-v6, a
+where a dataset–evaluator pair is refused (a corpus-v4 prefix under v8, a v5 prefix under standard-v7, a
 dataset other than the one an evaluator was trained on), so every command refuses the same pairs.
 """
 

@@ -12,8 +12,8 @@ from pathlib import Path
 from handx_jax.infra.errors import DataError
 from handx_jax.standard.assets import CARD_JSON, CARD_MD, assets_folder, read_card
 
-STANDARD_ANNOTATION = "gist"  # the standard corpus's annotation reading (Recipe.annotation; v1-v4 "reference", v5 "stable")
-STANDARD_MOTION = "chain"  # its generator motion (Recipe.motion; v1-v5 "oscillate", v6 "transition")
+STANDARD_ANNOTATION = "surface"  # the standard corpus's annotation reading (Recipe.annotation; corpus v4 "gist", v3 "gist", v2 "stable", v1 "reference")
+STANDARD_MOTION = "surface"  # its generator motion (Recipe.motion; corpus v4 "chain", v3 "transition", v1-v2 "oscillate")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -30,10 +30,11 @@ class Recipe:
     seed: int = 0
     generator: str = ""  # filled by :func:`code_recipe` from the data package
     # The annotation reading (data.events.ANNOTATIONS, with its captioner wording, data.build.WORDING) and the
-    # generator's motion (data.build.with_motion). The defaults are the standard corpus's (corpus v4, v7:
-    # "gist" on "chain" motion; issue 51 item 3). Earlier: v1-v4 "reference" on "oscillate", v5 (corpus v2)
-    # "stable" on "oscillate", v6 (corpus v3) "gist" on "transition" (docs/results/validity/corpus-v3/,
-    # corpus-v4/). A card written before a field existed is read with :meth:`from_card`, not these defaults.
+    # generator's motion (data.build.with_motion). The defaults are the standard corpus's (corpus v5, v8:
+    # "surface" on "surface" motion, the hands resolved against the hand surface; issue 55). Earlier: v1-v4
+    # "reference" on "oscillate", v5 (corpus v2) "stable" on "oscillate", v6 (corpus v3) "gist" on
+    # "transition", v7 (corpus v4) "gist" on "chain" (docs/results/validity/corpus-v3/ ... corpus-v5/). A card
+    # written before a field existed is read with :meth:`from_card`, not these defaults.
     annotation: str = STANDARD_ANNOTATION
     motion: str = STANDARD_MOTION
 
@@ -65,16 +66,16 @@ def generator_version() -> str:
 
 
 def code_recipe() -> Recipe:
-    """The recipe this code builds as the standard corpus: corpus v4 since evaluator v7 (chain motion, gist
-    reading; issue 40). v6 was corpus v3 (transition motion), v5 corpus v2 (stable reading), v1-v4 corpus v1
-    (reference reading)."""
+    """The recipe this code builds as the standard corpus: corpus v5 since evaluator v8 (surface motion and
+    reading; issue 55). v7 was corpus v4 (chain motion, gist reading), v6 corpus v3 (transition motion), v5
+    corpus v2 (stable reading), v1-v4 corpus v1 (reference reading)."""
     return Recipe(generator=generator_version())
 
 
 # Corpus versions a user can build by name (``handx standard corpus --corpus NAME``). The standard one is the
-# packaged evaluator's (``code_recipe``: corpus v4); v5 (issue 55) is corpus v4's recipe with its two hands
-# resolved against the hand surface and their contacts read from it (motion and annotation "surface",
-# docs/results/validity/corpus-v5/). No evaluator is trained on v5 yet, so it is not the standard recipe.
+# packaged evaluator's (``code_recipe``: corpus v5, evaluator v8): corpus v4's recipe with its two hands resolved
+# against the hand surface and their contacts read from it (motion and annotation "surface", issue 55,
+# docs/results/validity/corpus-v5/). v4 stays buildable for the archived evaluator v7 (``--evaluator standard-v7``).
 CORPUS_VERSIONS = ("v4", "v5")
 
 
