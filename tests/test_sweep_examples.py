@@ -26,7 +26,7 @@ import pytest
 REPO = Path(__file__).resolve().parent.parent
 SWEEPS = sorted(p for p in (REPO / "sweeps").glob("*.py") if p.name != "__init__.py")
 # Where a docstring's command writes or reads, and what it reads from the committed results.
-COMMITTED = {"sweeps/diffusion_cpu_study.py": "docs/results/cpu_study/v7/results.csv",
+COMMITTED = {"sweeps/diffusion_cpu_study.py": "docs/results/cpu_study/v8/results.csv",
              "sweeps/ghtt_cpu_study.py": "docs/results/ghtt/sweep_results.csv",
              "sweeps/bimart_cpu_study.py": "docs/results/bimart/size_sweep/results.csv"}
 
