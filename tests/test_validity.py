@@ -205,7 +205,7 @@ def test_perturbations_move_what_they_say():
 
 
 def test_validity_command_on_a_standard_prefix(tmp_path, capsys):
-    data = standard.build_standard_corpus(tmp_path / "prefix", 300, workers=1, progress=False)
+    data = standard.build_standard_corpus(tmp_path / "prefix", 250, workers=1, progress=False)
     n_test = len(Dataset.open(data).split("test"))
     assert n_test >= 16
     # A tokenizer, as tests/test_ar_family.py trains its own (4 steps): the suite's reconstruction row.
