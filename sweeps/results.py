@@ -77,8 +77,8 @@ def object_columns(d: Path) -> dict:
     from analysis.schema.columns import OBJECT_METRICS
 
     doc = read_json_or_empty(d / "eval_objects.json")
-    return {c: float(doc[c]) for c in OBJECT_METRICS
-            if isinstance(doc.get(c), (int, float)) and doc[c] == doc[c]}
+    cols = [x for c in OBJECT_METRICS for x in (c, f"{c}_ci")]
+    return {c: float(doc[c]) for c in cols if isinstance(doc.get(c), (int, float)) and doc[c] == doc[c]}
 
 
 def result_row(out: Path, cfg: SweepConfig, spec: RunSpec, slurm_active: dict | None = None) -> dict:

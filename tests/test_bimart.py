@@ -148,3 +148,33 @@ def test_refinement_lowers_its_energies(corpus):
     assert before["pen"] > 1e-6, before
     for term, factor in (("proj", 0.9), ("pen", 0.95), ("acc", 0.5)):
         assert after[term] < factor * before[term], (term, before, after)
+
+
+def test_object_scores_carry_a_bootstrap_over_clips(corpus):
+    """`handx eval objects`' ± (evaluation/object_clips.score): the ground-truth clip twice, then beside a copy whose
+    hands are lifted 0.5 m off the object. Two equal clips give every interval 0; the pair [GT, lifted] gives Con's
+    per-clip values [100, 0], whose 95% half-width is 1.96 x the spread of their mean over the bootstrap's resamples
+    (metrics.bootstrap_indices), computed here with numpy; its point value stays the mean over clips."""
+    from handx_jax.evaluation import object_clips
+    from handx_jax.metrics import MetricConfig, bootstrap_indices
+
+    ds, ann = C.open_corpus(corpus)
+    gt = np.asarray(ds.motion[0], np.float32)
+    lifted = gt + np.float32([0.0, 0.0, 0.5])
+
+    def gen(*joints):
+        n = len(joints)
+        return {"joints": np.stack(joints)[:, None], "object_state": np.repeat(ann["object_state"][:1], n, 0),
+                "contact": np.repeat(np.asarray(ann["contact_map"][:1], np.float32)[:, None], n, 0),
+                "bps_points": np.repeat(ann["bps_points"][:1], n, 0), "records": [ann["objects"][0]] * n}
+
+    same = object_clips.score(gen(gt, gt))
+    assert same["obj_con"] == same["obj_art"] == 100.0 and same["obj_pen_1cm"] == 0.0  # the corpus's physics
+    assert all(same[f"{k}_ci"] == 0.0 for k in ("obj_con", "obj_art", "obj_pen_1cm", "obj_cm_cm")), same
+    pair = object_clips.score(gen(gt, lifted))
+    assert pair["obj_con"] == 50.0 and pair["clips"] == 2 and pair["samples"] == 1
+    idx = bootstrap_indices(2, MetricConfig())
+    means = np.array([100.0, 0.0])[idx].mean(1)
+    assert pair["obj_con_ci"] == pytest.approx(1.96 * means.std(ddof=1), rel=1e-9)
+    assert pair["obj_cm_cm_ci"] > 0 and np.isnan(pair["obj_mul_cm"])  # one sample: no Mul, and no interval for it
+    assert "obj_mul_cm_ci" not in pair

@@ -128,7 +128,9 @@ SHARED_COLUMNS: tuple[Column, ...] = (
     Column("evaluator_id", str, "identity of the scoring evaluator's weights and config "
            "(handx_jax.evaluation.evaluator_id); rows with different ids are on different yardsticks"),
     *_metric_columns(),
-    *(Column(m, float, f"hand-object metric {m} (handx eval objects)") for m in OBJECT_METRICS),
+    *(c for m in OBJECT_METRICS for c in (
+        Column(m, float, f"hand-object metric {m} (handx eval objects)"),
+        Column(f"{m}_ci", float, f"half-width of the 95% interval of {m} (a bootstrap over clips)", nonnegative=True))),
     # Provenance of a launcher row (sweeps/launcher.py).
     Column("sweep", str, "sweep name"),
     Column("status", str, "launcher status: done | trained | failed | running | pending"),

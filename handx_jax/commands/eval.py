@@ -313,7 +313,11 @@ def _objects(args) -> int:
         print(json.dumps(scores))
     else:
         for k, v in scores.items():
-            print(f"{k:28s} {v:.4g}" if isinstance(v, float) else f"{k:28s} {v}")
+            if k.endswith("_ci") and k[:-3] in scores:
+                continue
+            ci = scores.get(f"{k}_ci")
+            print(f"{k:28s} {v:.4g}" + (f" ± {ci:.2g}" if isinstance(ci, float) and ci == ci else "")
+                  if isinstance(v, float) else f"{k:28s} {v}")
     return 0
 
 

@@ -64,32 +64,50 @@ def _contact_of_hands(bps_2xKx3, states_Tx7, joints_Tx2x21x3):
     return jnp.clip(d.reshape(T, 2, 2, -1), 0.0, CONTACT_MAX_M)                     # (T, hand, part, K)
 
 
+def _clip_mean(values) -> float:
+    v = np.asarray(values, np.float64)
+    return float(v[np.isfinite(v)].mean()) if np.isfinite(v).any() else float("nan")
+
+
 def score(gen: dict, gt_joints=None) -> dict:
-    """BimArt's metrics of a generation (``read``); ``gt_joints`` (N, F, 2, 21, 3) for the part contact F1."""
+    """BimArt's metrics of a generation (``read``); ``gt_joints`` (N, F, 2, 21, 3) for the part contact F1.
+
+    Each metric's point value is its mean over clips and samples; ``<metric>_ci`` is the 95% half-width of a
+    bootstrap over clips (``metrics.prompt_mean_ci``) of each clip's mean over its samples, the interval the
+    prediction benchmark uses (a clip's samples share its object and trajectory, so they are not independent)."""
+    from handx_jax.metrics import prompt_mean_ci
     from handx_jax.synthesis.object_build import clip_object
 
     J, states = gen["joints"], gen["object_state"]
     N, S = J.shape[:2]
-    rows, muls, cms = [], [], []
+    rows, muls, cms, per_clip = [], [], [], []
     for i in range(N):
         obj = clip_object(gen["records"][i])
         samples = np.stack([np.asarray(surface_samples(obj, p, 512, 0)[0]) for p in (0, 1)])
         true = None
         if gt_joints is not None:
             true = M.part_contacts(M.hand_part_distances(obj, states[i], M.hand_points_from_joints(gt_joints[i])))
-        pts_s = []
+        pts_s, rows_i, cms_i = [], [], []
         for s in range(S):
             pts = M.hand_points_from_joints(J[i, s])
             pts_s.append(pts)
-            rows.append(M.object_metrics(obj, states[i], pts, samples, true))
+            rows_i.append(M.object_metrics(obj, states[i], pts, samples, true))
             got = np.asarray(_contact_of_hands(jnp.asarray(gen["bps_points"][i]), jnp.asarray(states[i]),
                                                jnp.asarray(J[i, s])))
             want = np.clip(np.asarray(gen["contact"][i, s], np.float32), 0.0, CONTACT_MAX_M)
-            cms.append(100 * float(np.abs(got - want).mean()))
+            cms_i.append(100 * float(np.abs(got - want).mean()))
+        rows += rows_i
+        cms += cms_i
+        clip = {k: _clip_mean([r[k] for r in rows_i]) for k in rows_i[0]}
+        clip["obj_cm_cm"] = _clip_mean(cms_i)
         if S > 1:
             muls.append(M.obj_multimodality(np.stack(pts_s)))
+            clip["obj_mul_cm"] = 100 * muls[-1]
+        per_clip.append(clip)
     out = {k: float(np.nanmean([r[k] for r in rows])) for k in rows[0]}
     out["obj_cm_cm"] = float(np.mean(cms))
     out["obj_mul_cm"] = 100 * float(np.mean(muls)) if muls else float("nan")
+    for k in [k for k in out if k in per_clip[0]]:
+        out[f"{k}_ci"] = prompt_mean_ci([c[k] for c in per_clip])[1] if N > 1 else float("nan")
     out["clips"], out["samples"] = int(N), int(S)
     return out
