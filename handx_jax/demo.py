@@ -1,5 +1,5 @@
-"""``make demo``: the main job, end to end, on the built-in data (CPU-sized: 409 s on 2 quiet cores from a fresh
-clone, install included; README).
+"""``make demo``: the main job, end to end, on the built-in data (CPU-sized: 598 s on 2 quiet cores from a fresh
+clone, install included, under evaluator v8 on corpus v5; README).
 
 1. Build the first ``--clips`` clips of the standard corpus (``handx standard corpus --clips N``: synthesis
    → clips + intensity filter → annotation → captions), print its statistics and render one clip with
@@ -10,12 +10,12 @@ clone, install included; README).
 4. A mini scaling sweep (``handx sweep run``, the ``demo`` preset of ``sweeps/diffusion_cpu_study.py``,
    the short version of ``make sweep-cpu``): the study's three sizes (L1 d32, L2 d64, L2 d128) trained for
    150 / 300 / 600 steps (data seen growing with size, as the study's ``matched`` design) at lr 1e-3, two at
-   a time, each sampled 4 times for all the prefix's 196 standard test prompts (DDIM, 25 steps) and scored
+   a time, each sampled 4 times for all the prefix's 205 standard test prompts (DDIM, 25 steps) and scored
    by the standard evaluator; then the log-linear fit of top-3 R-Precision against training compute and
    its plot, with the chance level drawn, and a verdict: does the curve rise, beside the committed
-   ``make sweep-cpu`` curve. Measured (seed 42, evaluator v7 on corpus v4): top-3 0.110 / 0.145 / 0.161,
-   slope +0.028 per decade (95% CI [0.020, 0.035]), r 0.991; the largest run's interval [0.147, 0.175] is
-   above chance (0.094).
+   ``make sweep-cpu`` curve. Measured (seed 42, evaluator v8 on corpus v5): top-3 0.116 / 0.147 / 0.161,
+   slope +0.024 per decade (95% CI [0.018, 0.031]), r 0.990; the largest run's interval [0.124, 0.198] is
+   above chance (0.094). The ground truth's own row has inter-hand Pen 1cm 0.000 % (corpus v4 under v7: 9.5 %).
 
 Each stage is the same ``handx`` command a user would run (printed before it runs). The models are
 small and trained for a few minutes, so the sweep shows the pipeline and how to read a fit, not the
@@ -168,7 +168,7 @@ def verdict(sweep: Path, out: Path) -> bool:
         # clone, install included), but its slope's interval still holds 0. Say so, and show the study.
         print(("" if ok else "This sweep's curve does not show the scaling on this yardstick; ")
               + "a mini sweep short enough for 10 minutes on 2 cores is too noisy to pin the slope down (this "
-              "demo takes 7–8½ min with its install on 2 quiet cores, measured; 6 min 54 s under v7); the committed `make sweep-cpu` study "
+              "demo takes 10 min with its install on 2 quiet cores under v8, measured; 5 min 44 s under v7); the committed `make sweep-cpu` study "
               f"(6 configurations x {'3 seeds' if STUDY.name == 'replicates' else 'one seed'}, ~20 min per seed, "
               f"{yardstick}; {STUDY.relative_to(STUDIES.parents[2])}) gives, beside the demo's:\n"
               + "".join("    " + ln + "\n" for ln in (STUDY / "fit.txt").read_text().splitlines()[:5])
