@@ -30,7 +30,7 @@ def test_verdict_fits_the_sweep_and_shows_the_committed_study(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "the demo's curve does NOT rise: slope -0.0200 per decade" in out and "r -1.000" in out
     assert "does not show the scaling" in out and "too noisy to pin the slope down" in out
-    assert "demo takes 7–8½ min with its install on 2 quiet cores, measured; 6 min 54 s under v7" in out  # the measured time, said in the output
+    assert "demo takes 10 min with its install on 2 quiet cores under v8, measured; 5 min 44 s under v7" in out  # the measured time, said in the output
     STUDY, version = committed_study()
     assert (STUDY / "fit.txt").read_text().splitlines()[1] in out  # the committed fit, line for line
     assert (tmp_path / "sweep-cpu-fit.png").read_bytes() == (STUDY / "fit.png").read_bytes()
