@@ -22,7 +22,7 @@ import hashlib
 import json
 import os
 import sys
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -75,7 +75,7 @@ CPU_TRAIN = TrainConfig(steps=3000, batch_size=64, log_every=100, ckpt_every=100
 # early gradients are large (norm 34 at step 5), and Adam moves every kernel weight by ~lr whatever their size,
 # so 384 non-negative inputs per channel shift its pre-activation by up to ~0.8 per step. With 500 steps the
 # same seed and data train (35.7 mm at step 500, at the peak lr). ``tiny`` keeps 100 (its tests' short runs).
-SMALL_TRAIN = replace(CPU_TRAIN, optim=replace(CPU_TRAIN.optim, warmup_steps=500))
+SMALL_TRAIN = dataclasses.replace(CPU_TRAIN, optim=dataclasses.replace(CPU_TRAIN.optim, warmup_steps=500))
 TRAIN_PRESETS = {"tiny": CPU_TRAIN, "small": SMALL_TRAIN, "paper": REFERENCE_TRAIN}
 # A tokenizer whose validation error stays this close to the mean pose's after COLLAPSE_AFTER steps reconstructs
 # nothing (a dead decoder, above): said on stderr at each evaluation rather than found by a downstream study.
