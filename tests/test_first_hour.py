@@ -95,6 +95,15 @@ def test_the_first_hour_parses_and_its_first_line_holds_every_size():
     assert tiny[0][tiny[0].index("--clips") + 1] == "130" and all("1500" not in c for c in tiny)
 
 
+def test_the_readme_reads_as_a_guide():
+    """Issue 51 item 1: about 150-200 lines, none over 120 characters, history in docs/HISTORY.md."""
+    lines = (REPO / "README.md").read_text().splitlines()
+    long = [f"line {i}: {len(x)} characters" for i, x in enumerate(lines, 1) if len(x) > 120]
+    assert not long, long
+    assert 100 <= len(lines) <= 220, len(lines)
+    assert (REPO / "docs/HISTORY.md").exists() and "docs/HISTORY.md" in "\n".join(lines)
+
+
 def run_block(workdir: Path, log: Path) -> None:
     """The child's side: every command of the block, in order, in ``workdir``; one JSON line per command
     (argv, exit code, what it printed on stdout) appended to ``log``, stopping at the first that fails."""

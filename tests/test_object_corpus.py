@@ -220,3 +220,33 @@ def test_basis_maps_each_point_to_its_nearest_part_sample_in_the_scaled_frame():
     far = exact[rng.integers(0, 16, 200)] + rng.choice([-1, 1], (200, 3)) * rng.uniform(0.02, 0.05, (200, 3))
     samples = np.stack([rng.permutation(np.concatenate([exact, far])) for _ in range(2)])
     np.testing.assert_allclose(map_basis(samples, basis, s_o), np.stack([exact, exact]))
+
+
+def test_a_killed_build_resumes_and_writes_the_same_corpus(corpus, tmp_path, monkeypatch):
+    """dataset/chunk_spool.py under the object build: killed after its first chunk, the same call picks the chunk
+    up from ``.<out>.chunks/`` and writes the module's corpus, array for array."""
+    import os
+
+    import handx_jax.synthesis.object_build as ob
+
+    class Killed(BaseException):
+        pass
+
+    real, computed = ob.process_chunk, []
+
+    def killed_after_one(cfg, k):
+        if k >= 1:
+            raise Killed
+        return real(cfg, k)
+    monkeypatch.setattr(ob, "process_chunk", killed_after_one)
+    with pytest.raises(Killed):
+        build_object_corpus(tmp_path / "ds", CFG, progress=False)
+    assert sorted(os.listdir(tmp_path / ".ds.chunks")) == ["chunk-0000000.npz", "recipe.json"]
+    monkeypatch.setattr(ob, "process_chunk", lambda cfg, k: computed.append(k) or real(cfg, k))
+    out = build_object_corpus(tmp_path / "ds", CFG, progress=False)
+    assert computed[0] == 1 and not (tmp_path / ".ds.chunks").exists()
+    ds, ann = Dataset.open(out), open_object_annotations(out)
+    assert ds.fingerprint == corpus[0].fingerprint and ds.report["chunks_resumed"] == 1
+    for name in ("object_state", "held", "contact_map", "bps_points"):
+        np.testing.assert_array_equal(np.asarray(ann[name]), np.asarray(corpus[1][name]))
+    assert ann["objects"] == corpus[1]["objects"]

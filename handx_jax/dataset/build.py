@@ -11,12 +11,11 @@ from __future__ import annotations
 import dataclasses
 import functools
 import hashlib
-import itertools
 import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterator, Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -24,7 +23,7 @@ from handx_jax import skeleton as sk
 from handx_jax.dataset.clips import ClipConfig, ClipReport, extract_clips
 from handx_jax.dataset.format import DEFAULT_FRACTIONS, write_dataset
 from handx_jax.annotation.events import AnnotationConfig, annotate
-from handx_jax.dataset.parallel import map_ordered
+from handx_jax.dataset.chunk_spool import ChunkSpool
 from handx_jax.infra.diskspace import check_free_space
 from handx_jax.infra.values import check, check_split_fractions
 from handx_jax.annotation.caption import TemplateCaptioner
@@ -206,11 +205,6 @@ def caption_seed(seed: int, clip_id: str) -> int:
     return int.from_bytes(hashlib.blake2b(f"{seed}/{clip_id}".encode(), digest_size=4).digest(), "little")
 
 
-def _chunks(cfg: BuildConfig, workers: int) -> Iterator[ChunkResult]:
-    """Chunk results in chunk order, computed ``workers`` at a time."""
-    return map_ordered(functools.partial(process_chunk, cfg), itertools.count(), workers)
-
-
 def build_corpus(out: str | os.PathLike, cfg: BuildConfig = BuildConfig(), *, overwrite: bool = False,
                  progress: bool = True, stats: bool | Sequence[NormPreset] = True) -> Path:
     """Synthesise and annotate ``cfg.clips`` clips and write them as a dataset at ``out``; ``stats``: the
@@ -219,10 +213,11 @@ def build_corpus(out: str | os.PathLike, cfg: BuildConfig = BuildConfig(), *, ov
     out = Path(out)
     if out.exists() and not overwrite:  # refuse before spending minutes of work
         raise FileExistsError(f"{out} already exists; pass --force to replace it")
-    # The motion alone takes clips × 30 KB (texts, events and stats add ~20 %): refuse a disk that cannot
-    # hold it now rather than after the synthesis.
-    check_free_space(out, cfg.clips * sk.CLIP_LEN * 2 * sk.NUM_JOINTS * 3 * 4)
+    # The motion alone takes clips × 30 KB (texts, events and stats add ~20 %), and the chunk spool holds it once
+    # more until the dataset is written: refuse a disk that cannot hold both now rather than after the synthesis.
+    check_free_space(out, 2 * cfg.clips * sk.CLIP_LEN * 2 * sk.NUM_JOINTS * 3 * 4)
     workers = cfg.workers or os.cpu_count() or 1
+    spool = chunk_spool(out, cfg, discard_other=overwrite)
     t0 = time.perf_counter()
     results: list[ChunkResult] = []
     n = 0
@@ -231,7 +226,7 @@ def build_corpus(out: str | os.PathLike, cfg: BuildConfig = BuildConfig(), *, ov
         from tqdm import tqdm
         bar = tqdm(total=cfg.clips, unit="clip", desc="synth+annotate", dynamic_ncols=True)
     surplus = 0  # clips built by the last chunk beyond the target, dropped to hit it exactly
-    for r in _chunks(cfg, workers):
+    for r in spool.chunks(functools.partial(process_chunk, cfg), workers):
         take = min(len(r.ids), cfg.clips - n)
         surplus += len(r.ids) - take
         results.append(_truncate(r, take))
@@ -263,6 +258,7 @@ def build_corpus(out: str | os.PathLike, cfg: BuildConfig = BuildConfig(), *, ov
         "dataset_clips": n,
         "surplus_clips_dropped": surplus,
         "chunks": len(results),
+        "chunks_resumed": spool.resumed,  # read back from a killed build's spool, not computed by this run
         "seconds": round(elapsed, 2),
         "clips_per_second": round(n / max(elapsed, 1e-9), 1),
         "intensity_mean": intensity.mean(0).round(2).tolist() if len(intensity) else None,
@@ -271,9 +267,18 @@ def build_corpus(out: str | os.PathLike, cfg: BuildConfig = BuildConfig(), *, ov
                 "from the annotation pipeline.",
     }
     source = {"kind": "synth", "seed": cfg.seed, "config": _jsonable(dataclasses.asdict(cfg))}
-    return write_dataset(out, motion, texts, splits=splits, events=events, source=source,
-                         report=build_report, fractions=cfg.fractions, seed=cfg.seed, overwrite=overwrite,
-                         workers=workers, recipe=recipe(cfg), stats=stats)
+    written = write_dataset(out, motion, texts, splits=splits, events=events, source=source,
+                            report=build_report, fractions=cfg.fractions, seed=cfg.seed, overwrite=overwrite,
+                            workers=workers, recipe=recipe(cfg), stats=stats)
+    spool.remove()
+    return written
+
+
+def chunk_spool(out: Path, cfg: BuildConfig, *, discard_other: bool = False) -> ChunkSpool:
+    """The build's chunks on disk (dataset.chunk_spool): a killed ``build_corpus`` of the same recipe resumes."""
+    identity = recipe(cfg)
+    identity.pop("clips")
+    return ChunkSpool(out, identity, (ChunkResult, ClipReport), discard_other=discard_other)
 
 
 def recipe(cfg: BuildConfig) -> dict:

@@ -14,6 +14,7 @@ import json
 import os
 import shutil
 import tempfile
+import time
 from pathlib import Path
 from typing import Any, Iterable, Iterator
 
@@ -107,6 +108,19 @@ def atomic_dir(path: str | os.PathLike, *, overwrite: bool = False, exclusive: b
             yield tmp
 
 
+def remove_tree(path: Path, *, settle_s: float = 5.0) -> None:
+    """``shutil.rmtree`` that outlasts a library's writer threads: a storage library that failed (orbax and
+    tensorstore on a full disk) can still create a file in the folder while it is being removed, so the last
+    ``rmdir`` fails and the folder would stay behind (seen once in a loaded suite run: ``.R.xxxx.tmp`` left on a
+    full tmpfs). Retried until the folder is gone, for at most ``settle_s``."""
+    deadline = time.monotonic() + settle_s
+    while True:
+        shutil.rmtree(path, ignore_errors=True)
+        if not os.path.lexists(path) or time.monotonic() > deadline:
+            return
+        time.sleep(0.05)
+
+
 @contextlib.contextmanager
 def _atomic_dir(path: Path) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -115,14 +129,14 @@ def _atomic_dir(path: Path) -> Iterator[Path]:
     try:
         yield tmp
     except DiskFullError as e:  # name the file the user asked for, not the removed temporary folder
-        shutil.rmtree(tmp, ignore_errors=True)
+        remove_tree(tmp)
         try:
             where = path / e.path.relative_to(tmp)
         except ValueError:
             raise e from None
         raise DiskFullError(where, e.needed, e.free) from None
     except BaseException as e:
-        shutil.rmtree(tmp, ignore_errors=True)
+        remove_tree(tmp)
         if isinstance(e, Exception) and disk_full_message(e) is not None:  # a library's own full-disk error
             raise DiskFullError(path, None, free_bytes(path)) from None  # (orbax: a ValueError naming the tmp)
         raise

@@ -21,6 +21,7 @@ from ``--encoder``. The number of heads is in no tensor's shape: it comes from `
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 from pathlib import Path
@@ -382,9 +383,12 @@ def import_checkpoint(model_pt: str | os.PathLike, out: str | os.PathLike, *, en
         with library_output_held():
             mngr = ocp.CheckpointManager((tmp / "checkpoints").absolute(), options=ocp.CheckpointManagerOptions(
                 create=True, enable_async_checkpointing=False))
-            mngr.save(0, args=ocp.args.StandardSave(state))
-            mngr.wait_until_finished()
-            mngr.close()
+            try:
+                mngr.save(0, args=ocp.args.StandardSave(state))
+                mngr.wait_until_finished()
+            finally:  # a failed save (a full disk) too: close() joins orbax's threads, which would otherwise
+                with contextlib.suppress(Exception):  # go on writing into the folder atomic_dir is removing
+                    mngr.close()
         write_tree_checksum(tmp / "checkpoints" / "0")
     return {"run": str(out), "model": dataclasses.asdict(cfg_m), "params": numbers["params"],
             "sha256": record["source"]["sha256"], "pe_max_abs_diff": pe_gap}
@@ -440,8 +444,6 @@ def export_run(run_dir: str | os.PathLike, out: str | os.PathLike, *, config: st
     All or nothing: every output is checked first (``_export_targets``) and held (``infra.outputs.exclusive_output``:
     a second export to the same file is refused), each is written atomically, and if one fails the ones
     already written are removed again."""
-    import contextlib
-
     from handx_jax.families import get_family, run_config
     from handx_jax.interop import checks
     from handx_jax.infra.atomic import atomic_save_npy

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import itertools
 import os
 import time
 from dataclasses import dataclass, field
@@ -34,7 +33,7 @@ import numpy as np
 from handx_jax import skeleton as sk
 from handx_jax.dataset.build import CorpusSize, _jsonable, caption_seed, sequence_split
 from handx_jax.dataset.format import write_dataset
-from handx_jax.dataset.parallel import map_ordered
+from handx_jax.dataset.chunk_spool import ChunkSpool
 from handx_jax.infra.diskspace import check_free_space
 from handx_jax.infra.errors import DataError
 from handx_jax.infra.readers import read_jsonl
@@ -138,10 +137,6 @@ def process_chunk(cfg: ObjectBuildConfig, chunk_index: int) -> ObjectChunkResult
                              time.process_time() - cpu0)
 
 
-def _chunks(cfg: ObjectBuildConfig, workers: int):
-    return map_ordered(functools.partial(process_chunk, cfg), itertools.count(), workers)
-
-
 def build_object_corpus(out: str | os.PathLike, cfg: ObjectBuildConfig = ObjectBuildConfig(), *,
                         overwrite: bool = False, progress: bool = True) -> Path:
     """Synthesise ``cfg.clips`` hand–object clips and write them as a dataset at ``out``."""
@@ -150,15 +145,18 @@ def build_object_corpus(out: str | os.PathLike, cfg: ObjectBuildConfig = ObjectB
     if out.exists() and not overwrite:
         raise FileExistsError(f"{out} already exists; pass --force to replace it")
     per_clip = sk.CLIP_LEN * (2 * sk.NUM_JOINTS * 3 * 4 + 7 * 4 + 2 + 2 * 2 * cfg.bps_k * 2) + 2 * cfg.bps_k * 12
-    check_free_space(out, cfg.clips * per_clip)
+    check_free_space(out, 2 * cfg.clips * per_clip)  # the dataset, and the chunk spool until it is written
     workers = cfg.workers or os.cpu_count() or 1
+    identity = recipe(cfg)
+    identity.pop("clips")
+    spool = ChunkSpool(out, identity, (ObjectChunkResult,), discard_other=overwrite)  # a killed build resumes
     t0 = time.perf_counter()
     results, n = [], 0
     bar = None
     if progress:
         from tqdm import tqdm
         bar = tqdm(total=cfg.clips, unit="clip", desc="objects", dynamic_ncols=True)
-    for r in _chunks(cfg, workers):
+    for r in spool.chunks(functools.partial(process_chunk, cfg), workers):
         take = min(len(r.ids), cfg.clips - n)
         results.append(_truncate(r, take))
         n += take
@@ -183,7 +181,7 @@ def build_object_corpus(out: str | os.PathLike, cfg: ObjectBuildConfig = ObjectB
         for k, v in r.rejected.items():
             rejected[k] = rejected.get(k, 0) + v
     report = {
-        "dataset_clips": n, "chunks": len(results), "seconds": round(elapsed, 2),
+        "dataset_clips": n, "chunks": len(results), "chunks_resumed": spool.resumed, "seconds": round(elapsed, 2),
         "clips_per_second": round(n / max(elapsed, 1e-9), 1),
         "synthesised_clips": len(results) * cfg.synth.chunk_size,
         # CPU time of the chunks (their processes' own, compiles included): on a busy machine wall time says little.
@@ -196,9 +194,11 @@ def build_object_corpus(out: str | os.PathLike, cfg: ObjectBuildConfig = ObjectB
         "statistics": corpus_statistics(records, arrays["held"], physics["contact_frames"]),
     }
     source = {"kind": "objects", "seed": cfg.seed, "config": _jsonable(dataclasses.asdict(cfg))}
-    return write_dataset(out, motion, texts, splits=splits, source=source, report=report, fractions=cfg.fractions,
-                         seed=cfg.seed, overwrite=overwrite, workers=workers, recipe=recipe(cfg), arrays=arrays,
-                         records={"objects": records})
+    written = write_dataset(out, motion, texts, splits=splits, source=source, report=report, fractions=cfg.fractions,
+                            seed=cfg.seed, overwrite=overwrite, workers=workers, recipe=recipe(cfg), arrays=arrays,
+                            records={"objects": records})
+    spool.remove()
+    return written
 
 
 def corpus_statistics(records: list[dict], held_NxTx2: np.ndarray, contact_frames_N: np.ndarray) -> dict:
