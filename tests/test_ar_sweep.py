@@ -11,7 +11,7 @@ LOOP = ("train.batch_size=8", "train.log_every=2", "train.wandb=disabled", "trai
         "train.optim.lr=2e-3")
 
 
-@pytest.mark.slow
+@pytest.mark.e2e
 def test_real_ar_sweep_every_row_done_and_scored(tmp_path):
     from sweeps.launcher import SweepConfig, evaluator_identity, launch, load_sweep, stage_state
 

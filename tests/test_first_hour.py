@@ -130,7 +130,7 @@ def level0(flags: str) -> str:
     return (flags + " --xla_backend_optimization_level=0").strip()
 
 
-@pytest.mark.slow
+@pytest.mark.e2e
 def test_the_first_hour_runs_as_written(tmp_path):
     from handx_jax import standard
     from handx_jax.evaluation import evaluator_id

@@ -141,7 +141,7 @@ def test_registry_declares_tasks_and_the_launcher_refuses_a_step_as_a_point(tmp_
     assert "\n" not in str(e.value) and not (tmp_path / "s").exists()
 
 
-@pytest.mark.slow
+@pytest.mark.e2e
 def test_real_tiny_ghtt_sweep_scored_on_prediction(tmp_path, capsys, monkeypatch):
     # The stages (subprocesses) compile at LLVM -O0: each trains or samples a few steps, so compiling is
     # their cost, and -O0 compiles faster (the maths is the same; tests/test_first_hour.py says more).

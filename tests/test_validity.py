@@ -204,6 +204,7 @@ def test_perturbations_move_what_they_say():
     assert np.array_equal(P.apply("white", x, 0.001, 5), P.apply("white", x, 0.001, 5))
 
 
+@pytest.mark.e2e
 def test_validity_command_on_a_standard_prefix(tmp_path, capsys):
     data = standard.build_standard_corpus(tmp_path / "prefix", 250, workers=1, progress=False)
     n_test = len(Dataset.open(data).split("test"))
