@@ -217,7 +217,7 @@ def build_corpus(out: str | os.PathLike, cfg: BuildConfig = BuildConfig(), *, ov
     # more until the dataset is written: refuse a disk that cannot hold both now rather than after the synthesis.
     check_free_space(out, 2 * cfg.clips * sk.CLIP_LEN * 2 * sk.NUM_JOINTS * 3 * 4)
     workers = cfg.workers or os.cpu_count() or 1
-    spool = chunk_spool(out, cfg, discard_other=overwrite)
+    spool = ChunkSpool(out, recipe(cfg), (ChunkResult, ClipReport), discard_other=overwrite)  # a killed build resumes
     t0 = time.perf_counter()
     results: list[ChunkResult] = []
     n = 0
@@ -272,13 +272,6 @@ def build_corpus(out: str | os.PathLike, cfg: BuildConfig = BuildConfig(), *, ov
                             workers=workers, recipe=recipe(cfg), stats=stats)
     spool.remove()
     return written
-
-
-def chunk_spool(out: Path, cfg: BuildConfig, *, discard_other: bool = False) -> ChunkSpool:
-    """The build's chunks on disk (dataset.chunk_spool): a killed ``build_corpus`` of the same recipe resumes."""
-    identity = recipe(cfg)
-    identity.pop("clips")
-    return ChunkSpool(out, identity, (ChunkResult, ClipReport), discard_other=discard_other)
 
 
 def recipe(cfg: BuildConfig) -> dict:

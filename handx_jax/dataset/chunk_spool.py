@@ -37,13 +37,13 @@ _JSON = "__json__"
 
 
 class ChunkSpool:
-    """The chunks of one build of ``out`` (see the module docstring). ``identity``: the recipe without the clip
-    count; ``types``: the dataclasses a chunk result is made of (the result's own first)."""
+    """The chunks of one build of ``out`` (see the module docstring). ``recipe``: the build's recipe (its clip count
+    is left out of the spool's identity); ``types``: the dataclasses a chunk result is made of."""
 
-    def __init__(self, out: str | os.PathLike, identity: dict, types: tuple[type, ...], *, discard_other: bool = False):
+    def __init__(self, out: str | os.PathLike, recipe: dict, types: tuple[type, ...], *, discard_other: bool = False):
         out = Path(out)
         self.dir = out.with_name(f".{out.name}.chunks")
-        self.identity = json.loads(json.dumps(identity))  # as it reads back
+        self.identity = json.loads(json.dumps({k: v for k, v in recipe.items() if k != "clips"}))  # as it reads back
         self._types = {t.__qualname__: t for t in types}
         self.resumed = 0
         held = self._held_identity()
@@ -59,10 +59,10 @@ class ChunkSpool:
             atomic_write_json(self.dir / "recipe.json", self.identity)
 
     def _held_identity(self) -> dict | None:
-        try:
+        try:  # recipe.json is written before any chunk: without it the spool holds nothing
             return json.loads((self.dir / "recipe.json").read_text())
         except FileNotFoundError:
-            return None if not self.dir.exists() or not any(self.dir.iterdir()) else {}
+            return None
         except (OSError, ValueError):
             return {}  # unreadable: not this recipe's
 

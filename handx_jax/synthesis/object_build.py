@@ -147,9 +147,7 @@ def build_object_corpus(out: str | os.PathLike, cfg: ObjectBuildConfig = ObjectB
     per_clip = sk.CLIP_LEN * (2 * sk.NUM_JOINTS * 3 * 4 + 7 * 4 + 2 + 2 * 2 * cfg.bps_k * 2) + 2 * cfg.bps_k * 12
     check_free_space(out, 2 * cfg.clips * per_clip)  # the dataset, and the chunk spool until it is written
     workers = cfg.workers or os.cpu_count() or 1
-    identity = recipe(cfg)
-    identity.pop("clips")
-    spool = ChunkSpool(out, identity, (ObjectChunkResult,), discard_other=overwrite)  # a killed build resumes
+    spool = ChunkSpool(out, recipe(cfg), (ObjectChunkResult,), discard_other=overwrite)  # a killed build resumes
     t0 = time.perf_counter()
     results, n = [], 0
     bar = None
