@@ -61,7 +61,8 @@ class MotionRunConfig:
         if not 0 <= self.p_drop <= 1:
             raise ConfigError(f"p_drop must be in [0, 1], got {self.p_drop}")
         for name, val, allowed in (("contact", s.contact, CONTACTS), ("schedule", s.schedule, SCHEDULES),
-                                   ("guide_at", s.guide_at, PH.GUIDE_AT)):
+                                   ("guide_at", s.guide_at, PH.GUIDE_AT), ("refine_cfg.param", s.refine_cfg.param,
+                                                                           PH.PARAMS)):
             if val not in allowed:
                 raise ConfigError(f"sample.{name} must be one of {', '.join(allowed)}, got {val!r}")
         if not (s.cfg_scale >= 0 and s.guidance >= 0):

@@ -10,9 +10,10 @@ per hand is the mean squared discrepancy to the generated map Ĉ^ρ. The step is
 ``SCHEDULES``), per hand as Eq. 6 writes it (each hand's rows of X̂ stepped by its own unit gradient); the direction
 of ∇‖Ĉ-C̃‖ and of ∇‖Ĉ-C̃‖² is the same, and the squared form makes the step's cap the Gauss-Newton step.
 
-Refinement. The paper fits MANO to Ĥ (Eq. 8), then refines it against three energies (Eq. 9-12). Here the hand is
-its 21 joints (hand_surface.py puts the surface on them), so the fit is over the joints of every frame, starting
-from the joints X̂ predicts (they are among its keypoints, common.py), and the refinement continues from the fit:
+Refinement. The paper fits MANO to Ĥ (Eq. 8), then refines it against three energies (Eq. 9-12). Here the hand
+is this project's parametric hand (hand_fit.py: per clip a bone geometry β, per frame the wrist's pose and 16
+joint angles within their limits, θ), started in closed form from the joints X̂ predicts (they are among its
+keypoints, common.py), fitted to Ĥ (Eq. 8: geometry and pose), then refined with the geometry frozen:
 
 - l_proj (Eq. 10): the keypoints moved by their predicted D̂ should lie on the object: mean |d(h + D̂)|;
 - l_pen (Eq. 11): hand-surface points (all of hand_surface.surface_points, the dense Ξ̂) inside the object: mean
@@ -20,8 +21,9 @@ from the joints X̂ predicts (they are among its keypoints, common.py), and the 
 - l_acc (Eq. 12): mean ‖h_i - 2h_{i-1} + h_{i-2}‖ over those surface points;
 
 weighted w_proj : w_pen : w_acc = 100 : 10 : 1000 (§3.5, ARCTIC), each a mean over its points rather than the
-paper's sum over MANO's vertices, so the ratios are the paper's whatever the point counts. Adam on the joints, all
-iterations in one ``lax.scan`` (one jitted program per clip shape).
+paper's sum over MANO's vertices, so the ratios are the paper's whatever the point counts. Adam on Θ, all
+iterations in one ``lax.scan`` (one jitted program per clip shape). ``RefineConfig.param="joints"`` optimises the
+21 free joints instead (the first version of this module: bone lengths then drift and fingers crumple).
 """
 
 from __future__ import annotations
@@ -30,10 +32,9 @@ from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
-import optax
-
 from handx_jax import hand_surface as hs
 from handx_jax.families.bimart import common as C
+from handx_jax.families.bimart import hand_fit as HF
 from handx_jax.families.diffusion.guidance import guide_step, schedule_weight
 from handx_jax.models import bimart as BM
 from handx_jax.objects import object_sdf
@@ -105,14 +106,18 @@ def guide_length(strength, schedule: str, alphas_cumprod_T, t):
 # Refinement (§3.4)
 
 
+PARAMS = ("skeleton", "joints")
+
+
 @dataclass(frozen=True)
 class RefineConfig:
     fit_iters: int = 100  # Eq. 8
     iters: int = 100      # Eq. 9, §3.5: "performed for 100 iterations"
-    lr: float = 1e-3      # Adam, metres per step at most (about)
+    lr: float = 1e-3      # Adam: metres per step (about) of the wrist, or of a joint (param="joints")
     w_proj: float = 100.0
     w_pen: float = 10.0
     w_acc: float = 1000.0
+    param: str = "skeleton"  # what is optimised: hand_fit's Θ, or the 21 free joints
 
 
 def _sdf(obj, states_Tx7, pts_TxNx3):
@@ -137,24 +142,30 @@ def energies(joints_Tx2x21x3, H_hat_Tx2xPx3, D_hat_Tx2xPx3, obj, states_Tx7, cfg
 
 def refine(joints0_Tx2x21x3, H_hat, D_hat, obj, states_Tx7, cfg: BM.BimArtConfig, rc: RefineConfig):
     """Fit (Eq. 8) then refine (Eq. 9); returns the joints. Traceable: jit it (``refine_jit``) or vmap it."""
-    opt = optax.adam(rc.lr)
+    if rc.param == "joints":
+        to_joints, theta = (lambda J: J), joints0_Tx2x21x3
+        step_scale = rc.lr
+    else:
+        to_joints, theta = HF.joints, HF.init(joints0_Tx2x21x3)
+        step_scale = {k: v * rc.lr / HF.STEP_SCALE["trans"] for k, v in HF.STEP_SCALE.items()}
 
-    def run(J, iters, weights):
-        def loss(J):
-            e = energies(J, H_hat, D_hat, obj, states_Tx7, cfg)
+    def run(theta, iters, weights, frozen):
+        def loss(theta):
+            e = energies(to_joints(theta), H_hat, D_hat, obj, states_Tx7, cfg)
             return sum(w * e[k] for k, w in weights.items())
 
         def step(carry, _):
-            J, s = carry
-            g = jax.grad(loss)(J)
-            u, s = opt.update(g, s, J)
-            return (optax.apply_updates(J, u), s), None
+            theta, s = carry
+            g = jax.grad(loss)(theta)
+            return HF.scaled_adam_step(s, theta, g, step_scale, frozen), None
 
-        (J, _), _ = jax.lax.scan(step, (J, opt.init(J)), None, length=iters)
-        return J
+        (theta, _), _ = jax.lax.scan(step, (theta, HF.adam_init(theta)), None, length=iters)
+        return theta
 
-    J = run(joints0_Tx2x21x3, rc.fit_iters, {"fit": 1.0})
-    return run(J, rc.iters, {"proj": rc.w_proj, "pen": rc.w_pen, "acc": rc.w_acc})
+    theta = run(theta, rc.fit_iters, {"fit": 1.0}, ())
+    # β is the clip's: fitted to Ĥ, then held while the pose moves against the object (MANO's β likewise).
+    theta = run(theta, rc.iters, {"proj": rc.w_proj, "pen": rc.w_pen, "acc": rc.w_acc}, ("scale", "jitter"))
+    return to_joints(theta)
 
 
 energies_jit = jax.jit(energies, static_argnames=("cfg",))
