@@ -287,37 +287,61 @@ def _prediction_evaluator(name: str, encoder, ds):
     return named.load(encoder=None if named.standard else encoder), named.reference_cache()
 
 
+OUT_OF_DOMAIN = ("text metrics under {name}, which was trained on the two-hand corpus: a hand-object corpus is out of "
+                 "its training domain, so read the generated row only beside the ground truth's on the same clips")
+
+
 def _objects(args) -> int:
     from pathlib import Path
-
-    import numpy as np
 
     from handx_jax.commands import fail
     from handx_jax.evaluation import object_clips
 
     try:
         gen = object_clips.read(args.generated)
-        gt = None
-        if gen["source"] and Path(gen["source"]).exists():
-            from handx_jax.dataset.format import Dataset
+        named = text = None
+        if args.evaluator:  # resolved before any scoring: a wrong evaluator fails in a second
+            from handx_jax.standard.naming import resolve_evaluator
 
-            gt = np.asarray(Dataset.open(gen["source"]).motion[gen["clips"]], np.float32)
-        scores = object_clips.score(gen, gt)
-    except ValueError as e:
+            named = resolve_evaluator(args.evaluator)
+            text = object_clips.caption_source(gen)
+        scores = object_clips.score(gen, object_clips.ground_truth(gen))
+        rows = None
+        if named is not None and not isinstance(text, str):
+            from handx_jax.metrics import MetricConfig
+
+            ev = named.load()
+            cfg = MetricConfig(rprec_block=args.block, replications=args.replications, seed=args.seed)
+            rows = object_clips.text_scores(ev, gen, *text, cfg)
+    except ValueError as e:  # DataError too: a bad file, record, mesh or evaluator is one line
         return fail("handx eval objects", e)
+    if rows is not None:
+        generated, truth = rows
+        scores.update(generated.flat())
+        scores["text"] = {"evaluator": named.name, "evaluator_id": generated.meta.get("evaluator_id"),
+                          "rprec_block": generated.meta["rprec_block"], "prompts": generated.meta["prompts"],
+                          "out_of_domain": True, "ground_truth": truth.flat()}
     if args.out:
         out = Path(args.out)
         out = out / "eval_objects.json" if out.is_dir() else out
         out.write_text(json.dumps(scores, indent=1) + "\n")
     if args.json:
         print(json.dumps(scores))
-    else:
-        for k, v in scores.items():
-            if k.endswith("_ci") and k[:-3] in scores:
-                continue
-            ci = scores.get(f"{k}_ci")
-            print(f"{k:28s} {v:.4g}" + (f" ± {ci:.2g}" if isinstance(ci, float) and ci == ci else "")
-                  if isinstance(v, float) else f"{k:28s} {v}")
+        return 0
+    for k, v in scores.items():
+        if k.endswith("_ci") and k[:-3] in scores or k == "text" or rows is not None and k in generated.metrics:
+            continue
+        ci = scores.get(f"{k}_ci")
+        print(f"{k:28s} {v:.4g}" + (f" ± {ci:.2g}" if isinstance(ci, float) and ci == ci else "")
+              if isinstance(v, float) else f"{k:28s} {v}")
+    if isinstance(text, str):
+        print(f"text metrics: none ({text})")
+    elif rows is not None:
+        from handx_jax.evaluation import format_table
+
+        print(OUT_OF_DOMAIN.format(name=named.name))
+        print(format_table([("Ground Truth", truth), (Path(args.generated).stem, generated)],
+                           block=generated.meta["rprec_block"]))
     return 0
 
 
@@ -370,6 +394,15 @@ def add_parser(subparsers) -> None:
     o.add_argument("--generated", required=True, help="the .npz handx generate --task object2motion wrote")
     o.add_argument("--out", help="also write this JSON file (a run folder: RUN/eval_objects.json)")
     o.add_argument("--json", action="store_true", help="print the scores as JSON")
+    o.add_argument("--evaluator", help="also the text metrics (R-Precision, FID, MM-Dist, diversity, ...) of the "
+                                       "hands against their clips' captions, under this evaluator ('standard', a "
+                                       "version or a folder), beside the ground truth's own row: out of the "
+                                       "evaluator's training domain (it read two-hand clips), so the ground truth's "
+                                       "row is the reference. Files without captions (ARCTIC) say so in one line")
+    o.add_argument("--block", type=int, default=32, help="R-Precision block size of the text metrics (default 32; "
+                                                         "fewer clips: one block of all of them)")
+    o.add_argument("--replications", type=int, default=20, help="replications of the text metrics (default 20)")
+    o.add_argument("--seed", type=int, default=0)
     o.set_defaults(func=_objects)
 
     q = sub.add_parser("prediction", help="motion prediction by horizon: MPJPE-RA/-PA and APD (G-HTT)",

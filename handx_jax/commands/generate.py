@@ -21,6 +21,12 @@ Batch mode (for evaluation): one prompt per clip of a dataset split, G samples e
 order with fields ``source_clip`` (clip id) and ``group`` (0..G−1):
 
     handx generate --run RUN --data DIR --split test [--limit N] --samples G --out gen.npz
+
+Object to motion (a family whose task it is, BimArt): hands for an object and its trajectory, from a hand-object
+corpus or an ARCTIC sequence, written with the object's state beside them (``handx eval objects`` scores them):
+
+    handx generate --run RUN --task object2motion --data OBJ [--split test --limit N | --clip N] --out gen.npz
+    handx generate --run RUN --task object2motion --arctic ROOT --seq s01/box_use_01 [--start F] --out gen.npz
 """
 
 from __future__ import annotations
@@ -106,7 +112,11 @@ def _generate(args: argparse.Namespace) -> int:
     if args.task != "prediction" and any(a.split("=", 1)[0] == "--observed-frames" for a in args.extra):
         return fail(CMD, f"--observed-frames is read by --task prediction only (the observed start of each clip); "
                          f"--task {args.task} would ignore it")
-    if args.task not in ("text2motion", "long") and not (args.source or args.data):
+    if args.task == "object2motion":  # its inputs checked before the run is read
+        problem = _object_args_problem(args)
+        if problem:
+            return fail(CMD, problem)
+    elif args.task not in ("text2motion", "long") and not (args.source or args.data):
         return fail(CMD, f"--task {args.task} needs a constraint clip: --source (or --data)")
     try:
         prompts = _prompts(args)
@@ -119,21 +129,8 @@ def _generate(args: argparse.Namespace) -> int:
     keyframes = tuple(int(k) for k in args.keyframes.split(",")) if args.keyframes else (30,)
     t0 = time.perf_counter()
     G = args.samples
-    if args.task == "object2motion":  # an object and its trajectory from a hand-object corpus, not a prompt
-        if prompts or not args.data:
-            return fail(CMD, "--task object2motion takes its objects and trajectories from a hand-object corpus: "
-                             "give --data CORPUS (and --split/--limit, or --clip N), no prompts")
-        from handx_jax.evaluation import object_clips
-
-        try:
-            clips = run.object_clips(args.data, args.split, args.limit, args.clip)
-            out = run.generate_objects(args.data, clips, opts, samples=G)
-        except ValueError as e:
-            return fail(CMD, e)
-        object_clips.write(args.out, **out, clips=clips, source=str(args.data))
-        print(f"wrote {args.out}: {len(clips) * G} motion(s) of {len(clips)} object trajectories, task "
-              f"{args.task}, {run.describe(opts)}, {time.perf_counter() - t0:.1f} s")
-        return 0
+    if args.task == "object2motion":  # an object and its trajectory (a corpus clip, an ARCTIC sequence), no prompt
+        return _object2motion(args, run, opts, t0)
     if args.data:
         if prompts:
             return fail(CMD, "--data takes its prompts from the dataset; drop --left/--right/...")
@@ -187,6 +184,50 @@ def _generate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _object_args_problem(args) -> str | None:
+    if args.left or args.right or args.interaction or bool(args.data) == bool(args.arctic):
+        return ("--task object2motion takes its objects and trajectories from a hand-object corpus (--data CORPUS "
+                "with --split/--limit or --clip N) or an ARCTIC sequence (--arctic ROOT --seq sNN/NAME), one of the "
+                "two, and no prompts")
+    if args.arctic and not args.seq:
+        return "--arctic needs --seq sNN/<object>_<grab|use>_NN (a sequence of ROOT/raw_seqs)"
+    if (args.seq or args.start is not None) and not args.arctic:
+        return "--seq and --start read an ARCTIC sequence: give --arctic ROOT"
+    if args.arctic and args.clip is not None:
+        return "--clip picks a corpus clip; an ARCTIC sequence's window is picked with --start"
+    if args.start is not None and args.start < 0:
+        return f"--start must be >= 0, got {args.start}"
+    return None
+
+
+def _object2motion(args, run, opts, t0) -> int:
+    """``--task object2motion``: from a hand-object corpus (``--data``, its ``--split``/``--limit`` or ``--clip``) or
+    an ARCTIC sequence (``--arctic ROOT --seq sNN/NAME``: consecutive windows of the model's frames, ``--start`` for
+    one, ``--limit`` at most that many)."""
+    import numpy as np
+
+    from handx_jax.evaluation import object_clips
+
+    G = args.samples
+    try:
+        if args.arctic:
+            out = run.generate_arctic(args.arctic, args.seq, opts, samples=G, start=args.start, limit=args.limit)
+            clips, source = np.asarray([r["start"] for r in out["records"]]), str(args.arctic)
+            F = out["object_state"].shape[1]
+            what = (f"{len(clips)} window(s) of {F} frames of ARCTIC {args.seq} starting at frame(s) "
+                    f"{', '.join(str(int(c)) for c in clips)}")
+        else:
+            clips = run.object_clips(args.data, args.split, args.limit, args.clip)
+            out = run.generate_objects(args.data, clips, opts, samples=G)
+            source, what = str(args.data), f"{len(clips)} object trajectories"
+    except ValueError as e:
+        return fail(CMD, e)
+    object_clips.write(args.out, **out, clips=clips, source=source)
+    print(f"wrote {args.out}: {len(clips) * G} motion(s) of {what}, task {args.task}, {run.describe(opts)}, "
+          f"{time.perf_counter() - t0:.1f} s")
+    return 0
+
+
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("generate", help="sample motion from a trained run", add_help=False, allow_abbrev=False,
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -206,6 +247,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--fixed-hand", default="left", choices=["left", "right"], help="constrained hand for reaction")
     deprecated_flag(p, "--reference", p.add_argument(
         "--data", metavar="DIR", help="batch mode: dataset directory; one prompt per clip of --split"))
+    p.add_argument("--arctic", metavar="ROOT", help="--task object2motion: an ARCTIC release's data folder "
+                   "(raw_seqs/, meta/object_vtemplates/); with --seq")
+    p.add_argument("--seq", metavar="sNN/NAME", help="--task object2motion: the ARCTIC sequence, e.g. s01/box_use_01; "
+                   "generated over its consecutive windows of the model's frames from frame 0 (the frames after the "
+                   "last whole window are left out), at most --limit of them")
+    p.add_argument("--start", type=int,
+                   help="--task object2motion with --arctic: the one window starting at this frame")
     p.add_argument("--split", default="test", choices=["train", "val", "test"])
     p.add_argument("--limit", type=int, help="batch mode: at most N clips (shuffled with seed 42, then sorted)")
     p.add_argument("--samples", type=int, default=1, help="samples per prompt (G)")

@@ -202,6 +202,33 @@ def mesh_object(tri_top_Fx3x3, tri_bottom_Fx3x3, category: str, angle_range=(0.0
                              tri_part_F=part)
 
 
+# App. B of BimArt: the open angle of Eq. 1's scale per ARCTIC object (pi/2 for the mixer and the capsule machine,
+# 0 for the scissors and the espresso machine, pi for the others).
+SCALE_ANGLES = {"mixer": np.pi / 2, "capsulemachine": np.pi / 2, "scissors": 0.0, "espressomachine": 0.0}
+DEFAULT_SCALE_ANGLE = np.pi
+
+
+def mesh_arrays(obj: ArticulatedObject) -> dict:
+    """What rebuilds a mesh object (``object_from_mesh_arrays``): its padded triangles (F, 3, 3) metres, their parts
+    (F,) and its articulation range (2,); plain arrays, for a file that must score the object without ARCTIC."""
+    if obj.tri_Fx3x3 is None:
+        raise ValueError("not a mesh object")
+    return {"tri": np.asarray(obj.tri_Fx3x3, np.float32), "part": np.asarray(obj.tri_part_F, np.int32),
+            "angle_range": np.asarray(obj.angle_range_2, np.float32)}
+
+
+def object_from_mesh_arrays(tri_Fx3x3, part_F, category: str, angle_range_2, path=None) -> ArticulatedObject:
+    """``mesh_arrays``' inverse (padding rows, part -1, dropped and re-added by ``mesh_object``)."""
+    tri, part = np.asarray(tri_Fx3x3, np.float32), np.asarray(part_F)
+    if tri.ndim != 3 or tri.shape[1:] != (3, 3) or part.shape != tri.shape[:1] or not np.isfinite(tri).all():
+        raise DataError(f"mesh triangles (F, 3, 3) with one part each expected, got {tri.shape} and {part.shape}",
+                        path=path, field="mesh_tri")
+    top, bottom = tri[part == TOP], tri[part == BOTTOM]
+    if not len(top) or not len(bottom):
+        raise DataError("a mesh object needs triangles on both parts", path=path, field="mesh_part")
+    return mesh_object(top, bottom, category, tuple(np.asarray(angle_range_2, np.float64)))
+
+
 def _template_dir(root, name) -> Path:
     return Path(root) / "meta" / "object_vtemplates" / name
 
@@ -322,13 +349,8 @@ def read_sequence(root, seq: str, mano_dir=None) -> ArcticSequence:
     Joints: from MANO when ``mano_dir`` (the user's folder with MANO_RIGHT.pkl and MANO_LEFT.pkl) is given;
     otherwise from ``processed_seqs/{seq}.npy`` where present; otherwise None with one line on what is missing."""
     folder, subject, name = _seq_paths(root, seq)
-    obj_path, mano_path = folder / f"{name}.object.npy", folder / f"{name}.mano.npy"
-    states = load_npy(obj_path)
-    if not isinstance(states, np.ndarray) or states.ndim != 2 or states.shape[1] != 7:
-        raise DataError(f"expected a (T, 7) array, got {getattr(states, 'shape', type(states).__name__)}",
-                        path=obj_path)
-    states = states.astype(np.float64)
-    states[:, 4:7] /= MM
+    mano_path = folder / f"{name}.mano.npy"
+    states = read_object_states(root, seq)
     mano = _check_mano(load_npy(mano_path), len(states), mano_path)
     if mano_dir is not None:
         joints = np.stack([mano_joints(load_mano_model(mano_dir, hand), **mano[hand]) for hand in HANDS], 1)
@@ -344,6 +366,25 @@ def read_sequence(root, seq: str, mano_dir=None) -> ArcticSequence:
                       f"processing for {processed}")
     return ArcticSequence(name=seq, object_name=SEQ_RE.match(name)["object"], states_Tx7=states, mano=mano,
                           joints_Tx2x21x3=joints, joints_source=source)
+
+
+def read_object_states(root, seq: str) -> np.ndarray:
+    """The object trajectory of a sequence alone, ``raw_seqs/{seq}.object.npy``: (T, 7) float64, [angle, axis-angle,
+    translation in metres] (what an object-to-motion model reads; no hand file is needed)."""
+    folder, _, name = _seq_paths(root, seq)
+    obj_path = folder / f"{name}.object.npy"
+    if not obj_path.exists():
+        raise DataError(f"no object trajectory for sequence {seq!r} (raw_seqs/{seq}.object.npy)", path=obj_path)
+    states = load_npy(obj_path)
+    if not isinstance(states, np.ndarray) or states.ndim != 2 or states.shape[1] != 7 or \
+            not np.issubdtype(states.dtype, np.number):
+        raise DataError(f"expected a (T, 7) numeric array, got {getattr(states, 'shape', type(states).__name__)}",
+                        path=obj_path)
+    states = states.astype(np.float64)
+    if not np.isfinite(states).all():
+        raise DataError("the object trajectory holds non-finite values", path=obj_path)
+    states[:, 4:7] /= MM
+    return states
 
 
 def _check_mano(data, T, path) -> dict:

@@ -2,8 +2,10 @@
 normalised for diffusion, the motion X = [H | D], per-channel statistics, the diffusion schedule, and the configs
 both runs share.
 
-- Object condition per frame: objects/features.py's [O | G | s_o] (§3.1), s_o from the clip's object rebuilt from
-  its record (category and instance seed) and sampled on its surface (Eq. 1 at App. B's open angle).
+- Object condition per frame: objects/features.py's [O | G | s_o] (§3.1), s_o from the clip's object (a corpus clip's
+  rebuilt from its record's category and instance seed; an ARCTIC sequence's mesh template) sampled on its surface
+  (Eq. 1 at App. B's open angle). ``object_inputs`` builds them from (objects, states, mapped basis points) alone,
+  so a corpus clip (``prepare``) and an ARCTIC sequence (``arctic_windows``) take the same path.
 - Contact maps (§3.2): the corpus's distances (N, F, hand, part, K) clipped to [0, 0.2] m (the range App. D's
   Fig. III normalises to: beyond 20 cm a hand is simply "far") and mapped linearly to [-1, 1].
 - Motion (§3.3): per hand the 21 joints, then (``hand_rep="surface"``) J fixed points of the hand surface
@@ -105,7 +107,8 @@ def _nearest_vectors(obj, states_Tx7, pts_TxPx3):
 
 @dataclass
 class Clips:
-    """The prepared arrays of some clips of a corpus (rows = ``clips``)."""
+    """The prepared arrays of some object trajectories (rows = ``clips``): corpus clips, or windows of an ARCTIC
+    sequence (``arctic_windows``)."""
 
     clips: np.ndarray
     obj: np.ndarray        # (N, F, 6K + 7) object features
@@ -113,8 +116,9 @@ class Clips:
     states: np.ndarray     # (N, F, 7)
     bps_points: np.ndarray  # (N, 2, K, 3)
     records: list
-    joints: np.ndarray     # (N, F, 2, 21, 3) world, metres
+    joints: np.ndarray | None  # (N, F, 2, 21, 3) world, metres; None where the source has no hands
     motion: np.ndarray | None = None  # (N, F, X) raw, object-relative
+    objects: list | None = None  # (N,) the ArticulatedObject of each row (refinement's signed distance)
 
 
 def open_corpus(path):
@@ -125,47 +129,61 @@ def open_corpus(path):
     return ds, open_object_annotations(path)
 
 
+def object_scales(objects, scale_angles) -> np.ndarray:
+    """s_o (Eq. 1) of each object, from 1024 surface samples per part with the top part opened to its scale angle
+    (App. B's heuristic per category)."""
+    out = []
+    for obj, angle in zip(objects, scale_angles):
+        pts = jnp.stack([surface_samples(obj, p, 1024, 0 if p == 0 else 1)[0] for p in (0, 1)])
+        out.append(float(object_scale(obj, pts, angle)))
+    return np.asarray(out, np.float32)
+
+
 def clip_scales(records) -> np.ndarray:
-    """s_o (Eq. 1) of each clip's object, from 1024 surface samples per part at App. B's open angle."""
+    """s_o of each corpus clip's object, rebuilt from its record."""
     from handx_jax.synthesis.object_build import clip_object
 
-    out = []
-    for r in records:
-        obj = clip_object(r)
-        pts = jnp.stack([surface_samples(obj, p, 1024, 0 if p == 0 else 1)[0] for p in (0, 1)])
-        out.append(float(object_scale(obj, pts, SCALE_ANGLE.get(r["category"], DEFAULT_SCALE_ANGLE))))
-    return np.asarray(out, np.float32)
+    return object_scales([clip_object(r) for r in records],
+                         [SCALE_ANGLE.get(r["category"], DEFAULT_SCALE_ANGLE) for r in records])
 
 
 _features = jax.jit(jax.vmap(object_features, (0, None, 0, 0)))
 
 
-def prepare(path, clips, cfg: BM.BimArtConfig, *, motion: bool) -> Clips:
-    """The model inputs of ``clips`` (indices into the corpus at ``path``)."""
-    from handx_jax.synthesis.object_build import clip_object
-
-    ds, ann = open_corpus(path)
-    clips = np.asarray(clips, np.int64)
-    K = ann["bps_points"].shape[2]
+def check_shapes(K: int, F: int, cfg: BM.BimArtConfig, path, what: str = "clips") -> None:
     if K != cfg.k:
         raise DataError(f"the corpus maps K = {K} basis points per part, the model is configured with model.k = "
                         f"{cfg.k} (build with --bps-k {cfg.k} or set model.k={K})", path=path)
-    F = ds.motion.shape[1]
     if F != cfg.frames:
-        raise DataError(f"clips have {F} frames, the model is configured with model.frames = {cfg.frames}", path=path)
-    records = [ann["objects"][int(i)] for i in clips]
-    states = np.asarray(ann["object_state"][clips], np.float32)
-    bps = np.asarray(ann["bps_points"][clips], np.float32)
-    s_o = clip_scales(records)
+        raise DataError(f"{what} have {F} frames, the model is configured with model.frames = {cfg.frames}",
+                        path=path)
+
+
+def object_inputs(clips, objects, states_NxFx7, bps_points_Nx2xKx3, records, scale_angles, cfg: BM.BimArtConfig, *,
+                  contact_NxFx2x2xK=None, joints_NxFx2x21x3=None, motion: bool = False) -> Clips:
+    """The model inputs of object trajectories, wherever they come from (a corpus clip, an ARCTIC sequence): the
+    object condition [O | G | s_o] (§3.1), the contact maps in [-1, 1] where known (else the "far" value, read only
+    by ``--contact ground_truth``, which refuses a source without hands) and, with ``motion``, X = [H | D] of the
+    given hands, positions relative to the first frame's object translation t0."""
+    states = np.asarray(states_NxFx7, np.float32)
+    bps = np.asarray(bps_points_Nx2xKx3, np.float32)
+    N, F = states.shape[:2]
+    K = bps.shape[2]
+    s_o = object_scales(objects, scale_angles)
     basis = np.asarray(basis_points(K, seed=0))
     obj = np.asarray(_features(jnp.asarray(bps), basis, jnp.asarray(s_o), jnp.asarray(states)))
-    cm = np.asarray(ann["contact_map"][clips], np.float32).reshape(len(clips), F, -1)
-    joints = np.asarray(ds.motion[clips], np.float32)
-    out = Clips(clips, obj, np.asarray(contact_to_unit(cm)), states, bps, records, joints)
+    if contact_NxFx2x2xK is None:
+        cm = np.full((N, F, 4 * K), CONTACT_MAX_M, np.float32)
+    else:
+        cm = np.asarray(contact_NxFx2x2xK, np.float32).reshape(N, F, -1)
+    joints = None if joints_NxFx2x21x3 is None else np.asarray(joints_NxFx2x21x3, np.float32)
+    out = Clips(np.asarray(clips, np.int64), obj, np.asarray(contact_to_unit(cm)), states, bps, list(records),
+                joints, objects=list(objects))
     if motion:
+        if joints is None:
+            raise ValueError("X = [H | D] needs the hands: the source has no joints")
         rows = []
-        for i, r in enumerate(records):
-            o = clip_object(r)
+        for i, o in enumerate(objects):
             H = np.asarray(keypoints(jnp.asarray(joints[i]), cfg))                       # (F, 2, P, 3)
             t0 = states[i, 0, 4:7]
             if cfg.hand_rep == "surface":
@@ -176,6 +194,71 @@ def prepare(path, clips, cfg: BM.BimArtConfig, *, motion: bool) -> Clips:
             rows.append(x.reshape(F, -1))
         out.motion = np.stack(rows).astype(np.float32)
     return out
+
+
+def prepare(path, clips, cfg: BM.BimArtConfig, *, motion: bool) -> Clips:
+    """The model inputs of ``clips`` (indices into the corpus at ``path``)."""
+    from handx_jax.synthesis.object_build import clip_object
+
+    ds, ann = open_corpus(path)
+    clips = np.asarray(clips, np.int64)
+    check_shapes(ann["bps_points"].shape[2], ds.motion.shape[1], cfg, path)
+    records = [ann["objects"][int(i)] for i in clips]
+    return object_inputs(clips, [clip_object(r) for r in records], ann["object_state"][clips],
+                         ann["bps_points"][clips], records,
+                         [SCALE_ANGLE.get(r["category"], DEFAULT_SCALE_ANGLE) for r in records], cfg,
+                         contact_NxFx2x2xK=ann["contact_map"][clips], joints_NxFx2x21x3=ds.motion[clips],
+                         motion=motion)
+
+
+def arctic_windows(root, seq: str, cfg: BM.BimArtConfig, *, start: int | None = None,
+                   limit: int | None = None) -> Clips:
+    """The model inputs of an ARCTIC sequence (``interop/arctic.py``'s layout): its object template as a mesh
+    object, its trajectory cut into consecutive windows of ``cfg.frames`` frames from frame 0 (the frames after the
+    last whole window are left out), or the one window from ``start``; at most ``limit`` windows. The basis is
+    mapped onto the mesh's parts as the corpus build maps it onto a procedural object's (``objects/bps.py``), with
+    App. B's scale angle for ARCTIC's objects. Frames are taken as stored: ARCTIC's ``raw_seqs`` run at its
+    images' rate, 30 fps, this project's rate. Where the sequence has hands (ARCTIC's processed joints), they and
+    their contact maps ride along (the part contact F1 and ``--contact ground_truth`` read them).
+
+    Each row's record: ``{"source": "arctic", "category", "seq", "start", "frames"}``; ``clips`` are the windows'
+    first frames."""
+    from handx_jax.interop import arctic as A
+    from handx_jax.objects.bps import part_bps_points
+
+    states = A.read_object_states(root, seq)
+    name = A.SEQ_RE.match(seq.partition("/")[2])["object"]
+    obj = A.read_object(root, name)
+    T, F = len(states), cfg.frames
+    seq_file = Path(root) / "raw_seqs" / f"{seq}.object.npy"
+    if start is not None:
+        if not 0 <= start <= T - F:
+            raise DataError(f"--start {start}: the sequence has {T} frames, a window of {F} starts in [0, {T - F}]",
+                            path=seq_file)
+        starts = [start]
+    else:
+        if T < F:
+            raise DataError(f"the sequence has {T} frames, fewer than the model's window of {F}", path=seq_file)
+        starts = list(range(0, T - F + 1, F))
+    starts = starts[:limit] if limit else starts
+    joints = None
+    if (seq_file.parent / f"{seq.partition('/')[2]}.mano.npy").exists():
+        joints = A.read_sequence(root, seq).joints_Tx2x21x3    # ARCTIC's processed joints, or None
+    angle = A.SCALE_ANGLES.get(name, A.DEFAULT_SCALE_ANGLE)
+    bps, _ = part_bps_points(obj, basis_points(cfg.k, seed=0), scale_angle=angle)
+    idx = np.asarray(starts)[:, None] + np.arange(F)
+    n = len(starts)
+    win_joints = contact = None
+    if joints is not None:
+        from handx_jax.synthesis.object_motion import stack_objects
+        from handx_jax.synthesis.object_physics import contact_maps
+
+        win_joints = joints[idx]
+        contact = contact_maps(stack_objects([obj] * n), np.repeat(np.asarray(bps)[None], n, 0), states[idx],
+                               win_joints)
+    records = [{"source": "arctic", "category": name, "seq": seq, "start": int(s), "frames": F} for s in starts]
+    return object_inputs(np.asarray(starts), [obj] * n, states[idx], np.repeat(np.asarray(bps)[None], n, 0),
+                         records, [angle] * n, cfg, contact_NxFx2x2xK=contact, joints_NxFx2x21x3=win_joints)
 
 
 @dataclass

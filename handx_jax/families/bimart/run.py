@@ -108,10 +108,9 @@ class BimArtRun:
             joints = H[..., :BM.JOINTS, :]
             raw = joints
             if opts.refine:
-                from handx_jax.synthesis.object_build import clip_object
                 from handx_jax.synthesis.object_motion import stack_objects
 
-                objs = stack_objects([clip_object(data.records[i]) for i in rr])
+                objs = stack_objects([data.objects[i] for i in rr])
                 joints = PH.refine_batch(joints, H, D, objs, jnp.asarray(data.states[rr]), m, s.refine_cfg)
             out_j.append(np.asarray(joints)[:len(r)])
             out_raw.append(np.asarray(raw)[:len(r)])
@@ -141,14 +140,44 @@ class BimArtRun:
 
     def generate_objects(self, data_dir, clips, opts: GenerateOptions, *, samples: int = 1) -> dict:
         """The arrays of an object2motion file (evaluation/object_clips.py) for corpus ``clips``."""
-        data = C.prepare(data_dir, clips, self.cfg.model, motion=False)
+        return self._object_file(C.prepare(data_dir, clips, self.cfg.model, motion=False), opts, samples)
+
+    def generate_arctic(self, root, seq: str, opts: GenerateOptions, *, samples: int = 1, start: int | None = None,
+                        limit: int | None = None) -> dict:
+        """The arrays of an object2motion file for an ARCTIC sequence (``common.arctic_windows``: consecutive windows
+        of the model's frames, or the one from ``start``), with the mesh the file needs to be scored without ARCTIC
+        and, where the sequence has hands, its ground truth."""
+        from handx_jax.interop.arctic import mesh_arrays
+
+        if opts.refine:
+            # Measured (2026-12-06, CPU): refinement against a 256-triangle mesh took 9.7 GB and 88 CPU-s for one
+            # 60-frame window (physics.refine differentiates the mesh distance of every frame's dense hand points at
+            # once); ARCTIC's meshes have thousands of triangles. Refused until it maps over frames.
+            raise DataError("refinement against a mesh object (an ARCTIC template) needs about 10 GB per 60-frame "
+                            "window even at 256 triangles (physics.refine differentiates every frame's mesh distance "
+                            "at once): pass --no-refine (contact guidance reads only the mapped points and works)",
+                            path=root)
+        data = C.arctic_windows(root, seq, self.cfg.model, start=start, limit=limit)
+        if opts.contact == "ground_truth" and data.joints is None:
+            raise DataError(f"--contact ground_truth needs the sequence's hands: {seq} has no processed joints "
+                            f"(processed_seqs/{seq}.npy)", path=root)
+        out = self._object_file(data, opts, samples)
+        mesh = mesh_arrays(data.objects[0])      # every window is of the one sequence's object
+        out.update(mesh_tri=mesh["tri"][None], mesh_part=mesh["part"][None], mesh_angle_range=mesh["angle_range"][None],
+                   gt_joints=data.joints)
+        for r in out["records"]:
+            r["mesh"] = 0
+        return out
+
+    def _object_file(self, data: C.Clips, opts: GenerateOptions, samples: int) -> dict:
         out = self.generate_clips(data, opts, samples=samples)
         return {"joints": out["joints"], "object_state": data.states, "contact": out["contact"],
                 "bps_points": data.bps_points, "records": data.records}
 
     def generate(self, prompts, opts, *, samples: int = 1, task: str = "object2motion", sources=None, **kw):
         raise ValueError(f"the bimart family does not generate {task!r} from text: it generates hands for an object "
-                         f"and its trajectory (--task object2motion with --data CORPUS --clip N)")
+                         f"and its trajectory (--task object2motion with --data CORPUS --clip N, or --arctic ROOT "
+                         f"--seq sNN/NAME)")
 
     def generate_long(self, segments, opts, **kw):
         raise ValueError("the bimart family does not do --task long")
