@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 from analysis.schema import CLOSEST_TO_GT, GROUND_TRUTH, LOWER_IS_BETTER, METRICS, config_label
+from analysis.schema.columns import OBJECT_METRICS
 
 # metric -> (markdown header, LaTeX header, digits)
 METRIC_INFO: dict[str, tuple[str, str, int]] = {
@@ -50,8 +51,19 @@ METRIC_INFO: dict[str, tuple[str, str, int]] = {
     "pen_1cm": ("Pen 1cm (%) ↓", r"Pen 1cm (\%) $\downarrow$", 2),
     "pen_depth": ("Pen depth (mm) ↓", r"Pen depth (mm) $\downarrow$", 2),
     "contact_feasibility": ("C_feas ↑", r"$C_\mathrm{feas}$ $\uparrow$", 3),
+    # BimArt's hand-object metrics (handx eval objects), as its Tab. 1 and 3 print them.
+    "obj_pen_1cm": ("Pen 1cm (%) ↓", r"Pen 1cm (\%) $\downarrow$", 1),
+    "obj_pen_5mm": ("Pen 5mm (%) ↓", r"Pen 5mm (\%) $\downarrow$", 1),
+    "obj_con": ("Con (%) ↑", r"Con (\%) $\uparrow$", 1),
+    "obj_art": ("Art (%) ↑", r"Art (\%) $\uparrow$", 1),
+    "obj_part_f1": ("Part F1 ↑", r"Part F1 $\uparrow$", 3),
+    "obj_cm_cm": ("CM (cm) ↓", r"CM (cm) $\downarrow$", 2),
+    "obj_mul_cm": ("Mul (cm) ↑", r"Mul (cm) $\uparrow$", 2),
+    "obj_accel_m_per_frame2": ("Accel (m/f²) →", r"Accel (m/f$^2$) $\rightarrow$", 4),
 }
-assert set(METRIC_INFO) == set(METRICS)
+assert set(METRIC_INFO) == set(METRICS) | set(OBJECT_METRICS)
+# What a hand-object sweep's table shows by default: BimArt's Tab. 3 columns (Pen 5mm and Accel stay in the CSV).
+OBJECT_TABLE = ("obj_pen_1cm", "obj_con", "obj_art", "obj_part_f1", "obj_cm_cm", "obj_mul_cm")
 
 # key column -> (header, formatter)
 _KEYS: dict[str, tuple[str, Any]] = {
@@ -101,7 +113,8 @@ def auto_layout(rows: Sequence[Mapping[str, Any]]) -> Layout:
     from handx_jax.families import family_axes, names
 
     runs = [r for r in rows if r.get("family") != GROUND_TRUTH]
-    metrics = tuple(m for m in METRICS if any(r.get(m) is not None for r in rows))
+    # Rows scored by handx eval objects (a BimArt sweep's) carry obj_* columns; text rows carry the evaluator's.
+    metrics = tuple(m for m in (*METRICS, *OBJECT_TABLE) if any(r.get(m) is not None for r in rows))
     fams = {r.get("family") for r in runs}
     if len(fams) == 1 and next(iter(fams)) in names():
         from handx_jax.families import entry
