@@ -44,7 +44,7 @@ from handx_jax.synthesis.object_captions import caption_clip
 from handx_jax.synthesis.object_motion import ObjectSynthConfig, pad_object, stack_objects, synth_object_chunk
 
 # Bumped whenever the same (seed, config) would give a different corpus; part of the recipe.
-OBJECT_GENERATOR_VERSION = 2
+OBJECT_GENERATOR_VERSION = 3
 ARRAYS = ("object_state", "held", "contact_map", "bps_points")
 MIN_PAD_FINGERS = 2   # a holding hand touches its part with at least this many finger pads
 
@@ -98,6 +98,9 @@ def process_chunk(cfg: ObjectBuildConfig, chunk_index: int) -> ObjectChunkResult
     ch = synth_object_chunk(cfg.seed, chunk_index, cfg.synth)
     objs = stack_objects(ch.objects)
     m = phys.measure(objs, ch.states, ch.joints)
+    # A holding hand's pads count on the part it holds, not on the nearer part (issue 52 item 3: "held finger
+    # pads within 3 mm"): a pad resting on the other part holds nothing, and in a use clip the parts move apart.
+    m["pad"] = phys.pad_on_held_part(m, np.array([[h["part"] for h in pr["hands"]] for pr in ch.programs]))
     dr = phys.drift(phys.joints_in_part(ch.states, ch.joints, ch.held), ch.held)
     held = ch.held >= 0
     first = np.argmax(held, axis=1)                                                   # (N, 2)

@@ -81,10 +81,11 @@ def caption_clip(pr: dict, angle_T: np.ndarray, seed: int) -> dict:
     else:
         th = parts.index(TOP)
         bh = 1 - th
-        verb = {"open": "opens", "close": "closes", "snip": "snips open and shut"}[pr["use"]]
-        what = f"the {top} of the {obj}" if pr["use"] != "snip" else f"the {obj}"
-        i0 = f"The {_side(th)} hand {verb} {what} while the {_side(bh)} hand holds its {bottom}."
-        i1 = (f"The {_side(bh)} hand steadies the {bottom} of the {obj} while the {_side(th)} hand {verb} {what}"
+        # "snips the scissors open and shut", not "snips open and shut the scissors": the particle after the object.
+        act = {"open": f"opens the {top} of the {obj}", "close": f"closes the {top} of the {obj}",
+               "snip": f"snips the {obj} open and shut"}[pr["use"]]
+        i0 = f"The {_side(th)} hand {act} while the {_side(bh)} hand holds its {bottom}."
+        i1 = (f"The {_side(bh)} hand steadies the {bottom} of the {obj} while the {_side(th)} hand {act}"
               f" between about {deg[0]:.0f} and {deg[1]:.0f} degrees; then both hands let go.")
     texts["interaction"] = [i0, i1]
     return texts

@@ -98,8 +98,16 @@ def measure(objs, states_NxTx7, joints_NxTx2x21x3) -> dict[str, np.ndarray]:
     d = d.astype(np.float64)
     dmin = d.min(3)                                                                  # (N, T, hand, P)
     pad = np.stack([dmin[..., p].min(-1) for p in PAD_POINTS], -1)                   # (N, T, hand, 5)
-    return {"depth": np.maximum(-dmin.min(-1), 0.0), "near_part": d.min(-1), "pad": pad,
+    pad_part = np.stack([d[..., p].min(-1) for p in PAD_POINTS], -1)                 # (N, T, hand, part, 5)
+    return {"depth": np.maximum(-dmin.min(-1), 0.0), "near_part": d.min(-1), "pad": pad, "pad_part": pad_part,
             "interhand": np.asarray(inter, np.float64)}
+
+
+def pad_on_held_part(m: dict, parts_Nx2: np.ndarray) -> np.ndarray:
+    """Each pad's distance (N, T, 2, 5) to the part its hand holds (``parts_Nx2``: objects.TOP / BOTTOM), not to
+    the nearer part: a pad resting on the other part does not hold this one (in a use clip the two part ways)."""
+    p = np.asarray(parts_Nx2)[:, None, :, None, None]
+    return np.take_along_axis(m["pad_part"], np.broadcast_to(p, m["pad_part"].shape[:3] + (1, 5)), 3)[:, :, :, 0]
 
 
 def _capsule_min(d_xP: np.ndarray) -> np.ndarray:

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from handx_jax import skeleton as sk
 from handx_jax.objects import BOTTOM, TOP
 
 
@@ -36,9 +37,25 @@ class Template:
     keep_out: tuple = ()            # ((axis, metres), ...): |coordinate| at least this (a knob's height)
     around: int = 1                 # the cylinder axis for finger="around"
     sided: bool = False             # anchors only on the hand's own half (world x) of the part
+    inset: float = 0.0              # a pinch: how far below the anchor point (along -normal) the tips meet
+    hand: int | None = None         # the hand that takes this part in a split layout (None: either)
 
 
 X, Y, Z = 0, 1, 2
+# Small top parts: a thumb-index pinch (object_grasp.SHAPES["pinch"]), the two pads on the held part itself, where
+# they meet ``inset`` below its top face. Generator version 2 took them with wraps (over the cap; across the
+# blade's tip, fingers round it): their pads rested on the part beside (the bottle's neck, the lower blade), so in
+# a use clip, where the held part turns away from that one, no pad stayed on it and every bottle and scissors
+# use clip failed the filter. Flip cap: the hand comes from above with its fingers toward the hinge (canonical
+# +x), so as the cap opens the hand swings up and back over the hinge, away from the body. Scissors: the upper
+# blade opens toward canonical -y (the person's right); the left hand, palm down with its fingers toward the tip,
+# has its thumb on that leading edge and its index on the blade's top face, so nothing of it trails over the
+# lower blade as the blades part (a right hand there would put its thumb on the trailing edge, through the lower
+# blade); the right hand takes the lower handle, whose ring is on its side.
+_CAP_PINCH = Template("flip cap between thumb and index finger", TOP, "pinch", "pinch", ((0, 1, 0),), (1, 0, 0),
+                      band=(X, -1, 0.008, 0.022), margin=((Z, 0.006),), inset=0.0025)
+_SCISSORS_PINCH = Template("tip of the upper blade between thumb and index finger", TOP, "pinch", "pinch",
+                           ((0, 0, 1),), (1, 0, 0), band=(X, 1, 0.006, 0.02), hand=sk.LEFT)
 _LID_EDGE = dict(shape="wrap", anchor="knuckles", normals=((0, 1, 0),), finger=(-1, 0, 0), band=(X, -1, 0.012, 0.03))
 TEMPLATES = {
     "box": {
@@ -52,11 +69,9 @@ TEMPLATES = {
                            (-1, 0, 0), band=(X, -1, 0.015, 0.08)),
     },
     "scissors": {
-        # Two hands cannot share the rings (2-3 cm apart): one takes the lower ring, the other the upper blade near
-        # its tip, each from above with its fingers across the scissors (its palm then spans ~8 cm along them, so
-        # the two hands keep to their own ends).
-        "top": Template("tip of the upper blade", TOP, "wrap", "knuckles", ((0, 0, 1),), (0, 1, 0),
-                        band=(X, 1, 0.01, 0.025)),
+        # Two hands cannot share the rings (2-3 cm apart): one takes the lower ring from above with its fingers
+        # across the scissors, the other pinches the upper blade near its tip, so the two hands keep to their ends.
+        "top": _SCISSORS_PINCH,
         "bottom": Template("lower handle", BOTTOM, "wrap", "knuckles", ((0, 0, 1),), (0, -1, 0),
                            band=(X, -1, 0.0, 0.015)),
     },
@@ -67,7 +82,7 @@ TEMPLATES = {
                            band=(Y, 1, 0.05, 0.08), margin=((Z, 0.05),)),
     },
     "bottle": {
-        "top": Template("flip cap", TOP, "wrap", "knuckles", ((0, 1, 0),), (-1, 0, 0), band=(X, -1, 0.0, 0.012)),
+        "top": _CAP_PINCH,
         "bottom": Template("body of the bottle", BOTTOM, "wrap", "palm", ("radial",), "around",
                            band=(Y, -1, 0.03, 0.08), around=Y),
     },
