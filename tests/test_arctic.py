@@ -11,6 +11,7 @@ import sys
 import types
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy import sparse
@@ -229,3 +230,94 @@ def test_mano_joints_from_a_model_folder(release, tmp_path):
     again = A.read_sequence(root, seq)
     np.testing.assert_allclose(again.joints_Tx2x21x3, got.joints_Tx2x21x3, atol=1e-6)
     assert "processed" in again.joints_source
+
+
+# ---- object to motion from ARCTIC's layout (issue 53 item 4) -------------------------------------------------
+
+def test_object_trajectory_alone_and_bad_files_refused(release, tmp_path):
+    """The trajectory reads without the hand file, as the object-to-motion task needs; a missing sequence, a wrong
+    shape, NaN or a crafted pickle is one DataError naming the file."""
+    root, _, seqs = release
+    seq, (states, _) = next(iter(seqs.items()))
+    np.testing.assert_allclose(A.read_object_states(root, seq), states, atol=1e-6)
+    folder = tmp_path / "data" / "raw_seqs" / "s03"
+    folder.mkdir(parents=True)
+    cases = {"box_use_01": (np.zeros((T, 6), np.float32), r"expected a \(T, 7\) numeric array, got \(8, 6\)"),
+             "box_use_02": (np.full((T, 7), np.nan, np.float32), "non-finite"),
+             "box_use_03": (np.array({"angle": 1.0}, dtype=object), r"expected a \(T, 7\) numeric array, got dict")}
+    for name, (arr, msg) in cases.items():
+        np.save(folder / f"{name}.object.npy", arr, allow_pickle=True)
+        with pytest.raises(DataError, match=msg) as e:
+            A.read_object_states(tmp_path / "data", f"s03/{name}")
+        assert f"{name}.object.npy" in str(e.value) and "\n" not in str(e.value)
+    marker = tmp_path / "ran"
+    boom = _Boom()
+    boom.marker = marker
+    np.save(folder / "box_use_04.object.npy", np.array([boom], dtype=object), allow_pickle=True)
+    with pytest.raises(DataError, match="refusing to unpickle global"):
+        A.read_object_states(tmp_path / "data", "s03/box_use_04")
+    assert not marker.exists()
+    with pytest.raises(DataError, match="no object trajectory for sequence 's03/box_use_09'"):
+        A.read_object_states(tmp_path / "data", "s03/box_use_09")
+
+
+def test_mesh_arrays_rebuild_the_object(release):
+    """What an object2motion file carries of a mesh object rebuilds it exactly (triangles, parts, range)."""
+    root, _, _ = release
+    obj = A.read_object(root, "laptop")
+    a = A.mesh_arrays(obj)
+    back = A.object_from_mesh_arrays(a["tri"], a["part"], "laptop", a["angle_range"])
+    for f in ("tri_Fx3x3", "tri_part_F", "angle_range_2"):
+        assert np.array_equal(np.asarray(getattr(back, f)), np.asarray(getattr(obj, f))), f
+    with pytest.raises(DataError, match="triangles on both parts"):
+        A.object_from_mesh_arrays(a["tri"], np.full_like(a["part"], O.TOP), "laptop", a["angle_range"])
+
+
+def test_arctic_windows_are_the_model_inputs_of_the_trajectory(release):
+    """families/bimart/common.arctic_windows: consecutive windows of the model's frames (the rest left out) or the one
+    from --start; G of the features is the window's own trajectory (relative to its first frame), s_o that of the
+    primitive object the mesh tessellates exactly, the contact condition "far" where the sequence has no hands."""
+    from handx_jax.families.bimart import common as C
+    from handx_jax.models import bimart as BM
+    from handx_jax.objects.bps import DEFAULT_SCALE_ANGLE
+    from handx_jax.objects.features import global_states
+
+    root, objs, seqs = release
+    cfg = BM.BimArtConfig(BM.BlockConfig(1, 32, 2, 64), k=8, keypoints=4, frames=3)
+    seq = "s01/laptop_use_01"  # no hands (test_mano_joints_from_a_model_folder gives the box's sequence some)
+    states = seqs[seq][0]
+    d = C.arctic_windows(root, seq, cfg)
+    assert d.clips.tolist() == [0, 3] and [r["start"] for r in d.records] == [0, 3]  # frames 6-7 left out
+    np.testing.assert_allclose(d.states, np.stack([states[0:3], states[3:6]]), atol=1e-6)
+    G = np.asarray(global_states(jnp.asarray(d.states)))
+    np.testing.assert_allclose(d.obj[..., -7:-1], G, atol=1e-6)
+    s_true = C.object_scales([objs["laptop"]], [DEFAULT_SCALE_ANGLE])[0]
+    assert d.obj[0, 0, -1] == pytest.approx(s_true, rel=0.02) and d.obj.shape[-1] == 6 * cfg.k + 7
+    assert d.joints is None and np.all(d.contact == 1.0) and d.objects[0].tri_Fx3x3 is not None
+    one = C.arctic_windows(root, seq, cfg, start=5)
+    np.testing.assert_allclose(one.states[0], states[5:8], atol=1e-6)
+    with pytest.raises(DataError, match=r"--start 6: the sequence has 8 frames, a window of 3 starts in \[0, 5\]"):
+        C.arctic_windows(root, seq, cfg, start=6)
+    with pytest.raises(DataError, match="fewer than the model's window of 60"):
+        C.arctic_windows(root, seq, BM.BimArtConfig(k=8))
+
+
+def test_refinement_energies_on_a_mesh_are_the_primitives(release):
+    """Refinement's penetration and projection terms read the object's signed distance: on the box's exact
+    tessellation they equal the primitive box's (physics.energies, a few frames of hands near the lid)."""
+    from handx_jax.families.bimart import common as C
+    from handx_jax.families.bimart import physics as PH
+    from handx_jax.models import bimart as BM
+
+    root, objs, seqs = release
+    cfg = BM.BimArtConfig(BM.BlockConfig(1, 32, 2, 64), k=8, keypoints=4)
+    states = jnp.asarray(seqs["s01/box_use_01"][0][:3], jnp.float32)
+    rng = np.random.default_rng(3)
+    joints = jnp.asarray(states[:, None, None, 4:7] + rng.normal(size=(3, 2, 21, 3)) * 0.05, jnp.float32)
+    H = C.keypoints(joints, cfg)
+    D = jnp.asarray(rng.normal(size=H.shape) * 0.01, jnp.float32)
+    mesh = PH.energies_jit(joints, H, D, A.read_object(root, "box"), states, cfg)
+    prim = PH.energies_jit(joints, H, D, O.anonymous(objs["box"]), states, cfg)
+    assert float(prim["pen"]) > 0
+    for k in ("proj", "pen"):
+        assert float(mesh[k]) == pytest.approx(float(prim[k]), rel=1e-4, abs=1e-9), k

@@ -315,6 +315,8 @@ def _objects(args) -> int:
             rows = object_clips.text_scores(ev, gen, *text, cfg)
     except ValueError as e:  # DataError too: a bad file, record, mesh or evaluator is one line
         return fail("handx eval objects", e)
+    if isinstance(text, str):
+        scores["text"] = f"none: {text}"
     if rows is not None:
         generated, truth = rows
         scores.update(generated.flat())
@@ -335,7 +337,7 @@ def _objects(args) -> int:
         print(f"{k:28s} {v:.4g}" + (f" ± {ci:.2g}" if isinstance(ci, float) and ci == ci else "")
               if isinstance(v, float) else f"{k:28s} {v}")
     if isinstance(text, str):
-        print(f"text metrics: none ({text})")
+        print(f"text metrics: {scores['text']}")
     elif rows is not None:
         from handx_jax.evaluation import format_table
 

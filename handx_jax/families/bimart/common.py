@@ -34,7 +34,7 @@ from handx_jax.families.diffusion.process import cosine_schedule
 from handx_jax.infra.errors import DataError
 from handx_jax.models import bimart as BM
 from handx_jax.objects import object_sdf, surface_samples
-from handx_jax.objects.bps import DEFAULT_SCALE_ANGLE, SCALE_ANGLE, basis_points, object_scale
+from handx_jax.objects.bps import DEFAULT_SCALE_ANGLE, SCALE_ANGLE, basis_points, object_scale, part_bps_points
 from handx_jax.objects.features import object_features
 from handx_jax.optim import OptimConfig
 from handx_jax.train import TrainConfig
@@ -148,6 +148,8 @@ def clip_scales(records) -> np.ndarray:
 
 
 _features = jax.jit(jax.vmap(object_features, (0, None, 0, 0)))
+# One program for the mapping onto a mesh object's parts (op by op it took 4-5 s of dispatch and compiles).
+_part_bps = jax.jit(part_bps_points, static_argnames=("n_samples", "seed", "scale_angle"))
 
 
 def check_shapes(K: int, F: int, cfg: BM.BimArtConfig, path, what: str = "clips") -> None:
@@ -224,7 +226,6 @@ def arctic_windows(root, seq: str, cfg: BM.BimArtConfig, *, start: int | None = 
     Each row's record: ``{"source": "arctic", "category", "seq", "start", "frames"}``; ``clips`` are the windows'
     first frames."""
     from handx_jax.interop import arctic as A
-    from handx_jax.objects.bps import part_bps_points
 
     states = A.read_object_states(root, seq)
     name = A.SEQ_RE.match(seq.partition("/")[2])["object"]
@@ -245,7 +246,7 @@ def arctic_windows(root, seq: str, cfg: BM.BimArtConfig, *, start: int | None = 
     if (seq_file.parent / f"{seq.partition('/')[2]}.mano.npy").exists():
         joints = A.read_sequence(root, seq).joints_Tx2x21x3    # ARCTIC's processed joints, or None
     angle = A.SCALE_ANGLES.get(name, A.DEFAULT_SCALE_ANGLE)
-    bps, _ = part_bps_points(obj, basis_points(cfg.k, seed=0), scale_angle=angle)
+    bps, _ = _part_bps(obj, basis_points(cfg.k, seed=0), scale_angle=float(angle))
     idx = np.asarray(starts)[:, None] + np.arange(F)
     n = len(starts)
     win_joints = contact = None
