@@ -58,8 +58,9 @@ def _pinch_shapes():
     wrap's palm and four fingers cannot all reach the part and their pads end on the part beside it. The thumb
     and index close from a wide aperture (~10 cm tip to tip) toward hand.pinch_pose(0), where their tips meet; the
     middle, ring and little fingers are curled into the palm in both poses (they do not move, and stay ~2 cm
-    above the pinch point, clear of the part). BimArt §3.2's contact maps of ARCTIC's small parts (the ketchup's
-    cap, the scissors' blades) are two-finger contacts of this kind."""
+    above the pinch point, clear of the part). Why it matters for BimArt: its part-based BPS (§3.1) maps as many
+    points onto "a small articulating part (e.g., the lid of a bottle)" as onto the base, so the contact map
+    (§3.2, Eq. 4) of a hand turning the lid says where on the lid it holds only if its pads are on the lid."""
     pinch = np.asarray(H.pinch_pose(0), np.float64)
     closed = H.base_pose(75, 105, 0.0, tuple(pinch[H.T_CMC_FLEX:]))
     opened = H.base_pose(75, 105, 0.0, (-10, 45, 0, 0))
