@@ -50,9 +50,11 @@ def main(argv=None):
     ap.add_argument("--strengths", help="comma-separated guidance strengths s: also 'contact map + guidance s' "
                                         "variants (no refinement), the guidance scan")
     ap.add_argument("--no-baselines", action="store_true", help="skip the untrained-weights row")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override the run's sample config, e.g. sample.refine_cfg.param=joints (repeatable)")
     ap.add_argument("--out")
     a = ap.parse_args(argv)
-    run = load(a.run)
+    run = load(a.run, overrides=a.set)
     clips = run.object_clips(a.data, a.split, a.limit)
     data = C.prepare(a.data, clips, run.cfg.model, motion=False)
     gt = data.joints
@@ -84,7 +86,7 @@ def main(argv=None):
     if not a.no_baselines:
         out = untrained.generate_clips(data, GenerateOptions(batch_size=a.batch_size), samples=a.samples)
         table["untrained weights, full pipeline"] = object_clips.score(_gen_doc(data, out, a.samples), gt)
-    doc = {"run": str(a.run), "step": run.step, "data": str(a.data), "split": a.split, "clips": [int(c) for c in clips],
+    doc = {"run": str(a.run), "step": run.step, "overrides": a.set, "sample": dataclasses.asdict(run.cfg.sample), "data": str(a.data), "split": a.split, "clips": [int(c) for c in clips],
            "samples": a.samples, "generation_seconds": seconds, "table": table}
     print(json.dumps(doc, indent=1))
     if a.out:

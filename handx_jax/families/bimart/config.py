@@ -33,7 +33,8 @@ class DataConfig:
 
 @dataclass(frozen=True)
 class SampleConfig:
-    """§3.5: λ_f = 0.5; contact guidance at unit strength; 100 refinement iterations at 100 : 10 : 1000."""
+    """§3.5: λ_f = 0.5; contact guidance at unit strength; 100 refinement iterations (physics.RefineConfig's
+    weights: this corpus's, BimArt's ARCTIC ones an option)."""
 
     cfg_scale: float = 0.5
     contact: str = "generated"
@@ -62,7 +63,8 @@ class MotionRunConfig:
             raise ConfigError(f"p_drop must be in [0, 1], got {self.p_drop}")
         for name, val, allowed in (("contact", s.contact, CONTACTS), ("schedule", s.schedule, SCHEDULES),
                                    ("guide_at", s.guide_at, PH.GUIDE_AT), ("refine_cfg.param", s.refine_cfg.param,
-                                                                           PH.PARAMS)):
+                                                                           PH.PARAMS),
+                                   ("refine_cfg.reduce", s.refine_cfg.reduce, PH.REDUCE)):
             if val not in allowed:
                 raise ConfigError(f"sample.{name} must be one of {', '.join(allowed)}, got {val!r}")
         if not (s.cfg_scale >= 0 and s.guidance >= 0):
