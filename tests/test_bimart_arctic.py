@@ -59,8 +59,7 @@ def test_generate_from_arctic_and_score_without_it(arctic_run, tmp_path, capsys)
     base = ["generate", "--run", str(run), "--task", "object2motion", "--arctic", str(root)]
     g = tmp_path / "g.npz"
     # Bad input: one line each, exit 2, nothing written.
-    for extra, msg in ((["--seq", seq], "pass --no-refine"),
-                       (["--seq", seq, "--no-refine", "--start", "71"], "--start 71: the sequence has 130 frames"),
+    for extra, msg in ((["--seq", seq, "--no-refine", "--start", "71"], "--start 71: the sequence has 130 frames"),
                        (["--seq", seq.replace("01", "07"), "--no-refine"], "no object trajectory for sequence"),
                        ([], "--arctic needs --seq")):
         assert main([*base, *extra, "--out", str(g)]) == 2
