@@ -30,10 +30,12 @@ def main(argv=None):
     ap.add_argument("--data", required=True)
     ap.add_argument("--clips", required=True, help="comma-separated clip indices")
     ap.add_argument("--out", required=True)
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override the run's sample config (repeatable)")
     a = ap.parse_args(argv)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    run = load(a.run)
+    run = load(a.run, overrides=a.set)
     clips = np.asarray([int(c) for c in a.clips.split(",")])
     data = C.prepare(a.data, clips, run.cfg.model, motion=False)
     gen = run.generate_clips(data, GenerateOptions(batch_size=len(clips)), samples=1)["joints"][:, 0]
