@@ -11,9 +11,9 @@ objects`` puts Pen 1cm / 5mm, Con, Art, part F1, CM, Mul and Accel into the row.
     handx analyze fit S/results.csv --x compute --y obj_pen_1cm --plot S/fit.png
 
 ``cpu``: depth {1, 2, 4} × width {32, 64, 128} at four sizes (CPU_SIZES), the same steps for every size. ``tiny``:
-one size at a few steps (tests, smoke). The committed sweep (docs/results/bimart/size_sweep/) ran the cpu preset
-with ``--arg steps=600 --arg 'sizes=[[1,32],[2,64],[3,96]]' --eval-limit 8 --eval-samples 2 --set
-sample.refine=false``.
+one size at a few steps (tests, smoke). The committed sweep (docs/results/bimart/size_sweep/v3/) ran the cpu preset
+with ``--arg steps=2000 --arg 'sizes=[[1,32],[2,64],[3,96]]' --eval-limit 16 --eval-samples 2`` on a 2,000-clip
+corpus (its first version, size_sweep/: 600 steps, ``--set sample.refine=false``, 200 clips).
 """
 
 from __future__ import annotations
