@@ -202,12 +202,6 @@ def mesh_object(tri_top_Fx3x3, tri_bottom_Fx3x3, category: str, angle_range=(0.0
                              tri_part_F=part)
 
 
-# App. B of BimArt: the open angle of Eq. 1's scale per ARCTIC object (pi/2 for the mixer and the capsule machine,
-# 0 for the scissors and the espresso machine, pi for the others).
-SCALE_ANGLES = {"mixer": np.pi / 2, "capsulemachine": np.pi / 2, "scissors": 0.0, "espressomachine": 0.0}
-DEFAULT_SCALE_ANGLE = np.pi
-
-
 def mesh_arrays(obj: ArticulatedObject) -> dict:
     """What rebuilds a mesh object (``object_from_mesh_arrays``): its padded triangles (F, 3, 3) metres, their parts
     (F,) and its articulation range (2,); plain arrays, for a file that must score the object without ARCTIC."""

@@ -20,9 +20,15 @@ import jax.numpy as jnp
 from handx_jax.objects.articulated import BOTTOM, TOP, part_pose, surface_samples
 
 D_MARGIN = 0.15
-# App. B: the articulation angle at which the object is farthest from the origin (scissors closed, lids open).
-SCALE_ANGLE = {"scissors": 0.0}
+# App. B: the articulation angle at which the object is farthest from the origin (scissors closed, lids open), per
+# category, procedural or ARCTIC's (pi/2 for the mixer and the capsule machine, 0 for the espresso machine).
+SCALE_ANGLE = {"scissors": 0.0, "mixer": jnp.pi / 2, "capsulemachine": jnp.pi / 2, "espressomachine": 0.0}
 DEFAULT_SCALE_ANGLE = jnp.pi
+
+
+def category_scale_angle(category: str) -> float:
+    """The open angle of Eq. 1's scale for a category (App. B)."""
+    return float(SCALE_ANGLE.get(category, DEFAULT_SCALE_ANGLE))
 
 
 def basis_points(k, seed=0):
@@ -46,7 +52,7 @@ def part_bps_points(obj, basis_Kx3, n_samples=2048, seed=0, scale_angle=None):
     """The points (2, K, 3) each basis point maps to on the TOP and BOTTOM parts (canonical part frames, metres),
     and s_o. ``scale_angle`` (Eq. 1's open angle) defaults to App. B's heuristic for the object's category."""
     pts = jnp.stack([surface_samples(obj, p, n_samples, seed + p)[0] for p in (TOP, BOTTOM)])   # (2, N, 3)
-    a = SCALE_ANGLE.get(obj.category, DEFAULT_SCALE_ANGLE) if scale_angle is None else scale_angle
+    a = category_scale_angle(obj.category) if scale_angle is None else scale_angle
     s_o = object_scale(obj, pts, a)
     return map_basis(pts, basis_Kx3, s_o), s_o
 

@@ -38,7 +38,7 @@ from handx_jax.infra.diskspace import check_free_space
 from handx_jax.infra.errors import DataError
 from handx_jax.infra.readers import read_jsonl
 from handx_jax.objects import BOTTOM, CATEGORIES, TOP, sample_instance
-from handx_jax.objects.bps import D_MARGIN, basis_points, map_basis
+from handx_jax.objects.bps import D_MARGIN, basis_points, category_scale_angle, map_basis
 from handx_jax.synthesis import object_physics as phys
 from handx_jax.synthesis.object_captions import caption_clip
 from handx_jax.synthesis.object_motion import ObjectSynthConfig, pad_object, stack_objects, synth_object_chunk
@@ -58,12 +58,6 @@ class ObjectBuildConfig(CorpusSize):
 @functools.lru_cache(maxsize=2)
 def _basis(k: int) -> np.ndarray:
     return np.asarray(basis_points(k, seed=0))
-
-
-# The scale angle of Eq. 1 per category (objects/bps.py's heuristic; the padded objects are category "mixed").
-def _scale_angle(category: str) -> float:
-    from handx_jax.objects.bps import DEFAULT_SCALE_ANGLE, SCALE_ANGLE
-    return float(SCALE_ANGLE.get(category, DEFAULT_SCALE_ANGLE))
 
 
 def bps_points(samples_Nx2xSx3: np.ndarray, basis_Kx3: np.ndarray, scale_angles_N: np.ndarray) -> np.ndarray:
@@ -113,7 +107,7 @@ def process_chunk(cfg: ObjectBuildConfig, chunk_index: int) -> ObjectChunkResult
     rejected["any"] = int((~keep).sum())
 
     basis = _basis(cfg.bps_k)
-    angles = np.array([_scale_angle(p["category"]) for p in ch.programs], np.float32)
+    angles = np.array([category_scale_angle(p["category"]) for p in ch.programs], np.float32)
     bps = bps_points(ch.samples, basis, angles)                                     # (N, 2, K, 3)
     cmap = phys.contact_maps(objs, bps, ch.states, ch.joints)
 

@@ -34,7 +34,7 @@ from handx_jax.families.diffusion.process import cosine_schedule
 from handx_jax.infra.errors import DataError
 from handx_jax.models import bimart as BM
 from handx_jax.objects import object_sdf, surface_samples
-from handx_jax.objects.bps import DEFAULT_SCALE_ANGLE, SCALE_ANGLE, basis_points, object_scale, part_bps_points
+from handx_jax.objects.bps import basis_points, category_scale_angle, object_scale, part_bps_points
 from handx_jax.objects.features import object_features
 from handx_jax.optim import OptimConfig
 from handx_jax.train import TrainConfig
@@ -131,20 +131,13 @@ def open_corpus(path):
 
 def object_scales(objects, scale_angles) -> np.ndarray:
     """s_o (Eq. 1) of each object, from 1024 surface samples per part with the top part opened to its scale angle
-    (App. B's heuristic per category)."""
-    out = []
+    (App. B's heuristic per category). An object given several times (an ARCTIC sequence's windows) is sampled once."""
+    done: dict = {}
     for obj, angle in zip(objects, scale_angles):
-        pts = jnp.stack([surface_samples(obj, p, 1024, 0 if p == 0 else 1)[0] for p in (0, 1)])
-        out.append(float(object_scale(obj, pts, angle)))
-    return np.asarray(out, np.float32)
-
-
-def clip_scales(records) -> np.ndarray:
-    """s_o of each corpus clip's object, rebuilt from its record."""
-    from handx_jax.synthesis.object_build import clip_object
-
-    return object_scales([clip_object(r) for r in records],
-                         [SCALE_ANGLE.get(r["category"], DEFAULT_SCALE_ANGLE) for r in records])
+        if (id(obj), angle) not in done:
+            pts = jnp.stack([surface_samples(obj, p, 1024, 0 if p == 0 else 1)[0] for p in (0, 1)])
+            done[id(obj), angle] = float(object_scale(obj, pts, angle))
+    return np.asarray([done[id(obj), angle] for obj, angle in zip(objects, scale_angles)], np.float32)
 
 
 _features = jax.jit(jax.vmap(object_features, (0, None, 0, 0)))
@@ -208,7 +201,7 @@ def prepare(path, clips, cfg: BM.BimArtConfig, *, motion: bool) -> Clips:
     records = [ann["objects"][int(i)] for i in clips]
     return object_inputs(clips, [clip_object(r) for r in records], ann["object_state"][clips],
                          ann["bps_points"][clips], records,
-                         [SCALE_ANGLE.get(r["category"], DEFAULT_SCALE_ANGLE) for r in records], cfg,
+                         [category_scale_angle(r["category"]) for r in records], cfg,
                          contact_NxFx2x2xK=ann["contact_map"][clips], joints_NxFx2x21x3=ds.motion[clips],
                          motion=motion)
 
@@ -245,7 +238,7 @@ def arctic_windows(root, seq: str, cfg: BM.BimArtConfig, *, start: int | None = 
     joints = None
     if (seq_file.parent / f"{seq.partition('/')[2]}.mano.npy").exists():
         joints = A.read_sequence(root, seq).joints_Tx2x21x3    # ARCTIC's processed joints, or None
-    angle = A.SCALE_ANGLES.get(name, A.DEFAULT_SCALE_ANGLE)
+    angle = category_scale_angle(name)
     bps, _ = _part_bps(obj, basis_points(cfg.k, seed=0), scale_angle=float(angle))
     idx = np.asarray(starts)[:, None] + np.arange(F)
     n = len(starts)
